@@ -1,0 +1,1 @@
+//! Evaluation metrics (PSNR, SSIM, LPIPS, depth MAE, ATE, completeness, coverage) and reports.

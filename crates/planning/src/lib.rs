@@ -1,0 +1,1 @@
+//! Occupancy grid, frontiers, A*, path shortcutting, the greedy follower and forward dynamics.

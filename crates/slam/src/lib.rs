@@ -1,0 +1,1 @@
+//! RGB-D Gaussian-splatting SLAM: tracking and mapping without ground-truth poses.

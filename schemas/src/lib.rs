@@ -1,0 +1,1 @@
+//! Every message type of the dataflow and its topic, with schema versions.
