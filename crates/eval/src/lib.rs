@@ -1,1 +1,43 @@
-//! Evaluation metrics (PSNR, SSIM, LPIPS, depth MAE, ATE, completeness, coverage) and reports.
+//! Evaluation metrics of SPEC §8, each checked against an independent reference in its tests:
+//!
+//! - [`psnr`](mod@psnr): PSNR (+∞ for identical images);
+//! - [`ssim`](mod@ssim): SSIM as Wang et al. 2004 / scikit-image (Gaussian window 11, σ 1.5);
+//! - [`lpips`]: LPIPS with AlexNet (weights fetched by `tools/lpips/fetch_weights.py`);
+//! - [`depth`]: depth mean absolute error over valid ground-truth pixels;
+//! - [`ate`](mod@ate): ATE RMSE after Umeyama SE(3) alignment, associated as `evo` does;
+//! - [`completeness`](mod@completeness): fraction of ground-truth mesh samples with an observed point within 5 cm;
+//! - [`coverage`]: seen / navigable floor area;
+//! - [`test_poses`]: the seeded test poses on the navigable plane;
+//! - [`views`]: all image metrics of one test view and their means over the views;
+//! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
+//! - [`bench`](mod@bench): timings of every metric (`bench::run`).
+//!
+//! Images are [`ImageView`]s: borrowed row-major `f32` buffers, RGB in [0, 1], depth in metres.
+//! No transport and no I/O beyond reading the LPIPS weights.
+
+pub mod ate;
+pub mod bench;
+pub mod completeness;
+pub mod coverage;
+pub mod depth;
+pub mod error;
+pub mod image;
+pub mod lpips;
+pub mod psnr;
+pub mod report;
+pub mod ssim;
+pub mod test_poses;
+pub mod views;
+
+pub use ate::{AteOptions, AteResult, associate, ate, umeyama_se3};
+pub use completeness::{COMPLETENESS_THRESHOLD_M, PointGrid, completeness, sample_mesh_surface};
+pub use coverage::coverage_2d;
+pub use depth::depth_mae;
+pub use error::EvalError;
+pub use image::ImageView;
+pub use lpips::LpipsAlex;
+pub use psnr::{mean_squared_error, psnr};
+pub use report::MetricsReport;
+pub use ssim::ssim;
+pub use test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
+pub use views::{ViewMeans, ViewMetrics, evaluate_view};
