@@ -1,0 +1,82 @@
+//! Ground truth for evaluation only (SPEC §8): surface samples of the mesh for completeness,
+//! navigable test poses with random yaw for rendering metrics, and the navigable top-down map
+//! for 2D coverage. Nothing here may feed the mapping or planning nodes.
+
+use crate::navigation::{NavigableMap, Navigation};
+use crate::scene::Scene;
+use activemap_geometry::{Isometry3, PlanarPose, Point3, camera_pose_from_planar};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// `n` points sampled uniformly over the mesh surface (area-weighted), seeded. Default use:
+/// ≈ 200 000 points, as Active-Neural-Mapping's completeness metric.
+pub fn surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<Point3<f64>> {
+    let mut cumulative = Vec::with_capacity(scene.triangles.len());
+    let mut total = 0.0;
+    for t in &scene.triangles {
+        total += 0.5 * scene.scaled_normal(t).norm();
+        cumulative.push(total);
+    }
+    if total <= 0.0 {
+        return Vec::new();
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let r = rng.random::<f64>() * total;
+            let i = cumulative
+                .partition_point(|&c| c <= r)
+                .min(cumulative.len() - 1);
+            let [a, b, c] = scene.corners(&scene.triangles[i]);
+            let s = rng.random::<f64>().sqrt();
+            let r2 = rng.random::<f64>();
+            Point3::from((1.0 - s) * a.coords + s * (1.0 - r2) * b.coords + s * r2 * c.coords)
+        })
+        .collect()
+}
+
+/// `n` planar poses drawn uniformly over the navigable area (a random navigable cell, then a
+/// random point in it that is itself navigable, else the cell centre), with yaw uniform in
+/// [−π, π), seeded. Empty if nothing is navigable.
+pub fn test_poses(navigation: &Navigation, n: usize, seed: u64) -> Vec<PlanarPose> {
+    let map = navigation.map();
+    let f = map.frame;
+    let cells: Vec<usize> = (0..map.cells.len()).filter(|&c| map.cells[c]).collect();
+    if cells.is_empty() {
+        return Vec::new();
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let c = cells[rng.random_range(0..cells.len())];
+            let (cx, cy) = f.centre(c % f.width, c / f.width);
+            let x = cx + (rng.random::<f64>() - 0.5) * f.cell_size;
+            let y = cy + (rng.random::<f64>() - 0.5) * f.cell_size;
+            let yaw = (rng.random::<f64>() * 2.0 - 1.0) * std::f64::consts::PI;
+            if navigation.is_navigable(x, y) {
+                PlanarPose::new(x, y, yaw)
+            } else {
+                PlanarPose::new(cx, cy, yaw)
+            }
+        })
+        .collect()
+}
+
+/// The camera poses `T_world_camera` of [`test_poses`] for a camera `camera_height` above the
+/// floor.
+pub fn test_camera_poses(
+    navigation: &Navigation,
+    camera_height: f64,
+    n: usize,
+    seed: u64,
+) -> Vec<Isometry3<f64>> {
+    test_poses(navigation, n, seed)
+        .iter()
+        .map(|p| camera_pose_from_planar(p, navigation.floor_z(), camera_height))
+        .collect()
+}
+
+/// The navigable top-down map (for 2D coverage: seen floor area / navigable area).
+pub fn navigable_map(navigation: &Navigation) -> NavigableMap {
+    navigation.map().clone()
+}

@@ -1,0 +1,289 @@
+//! The simulator: a scene, an agent moving Habitat-style on its floor, and an RGB-D camera.
+
+use crate::error::{Result, SimError};
+use crate::navigation::{AgentShape, Navigation, estimate_floor_z};
+use crate::noise::SensorNoise;
+use crate::render::{DepthRange, Renderer, RgbdFrame};
+use crate::scene::Scene;
+use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// A discrete action, as in Habitat.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Action {
+    /// Move forward by [`SimConfig::forward_step`].
+    Forward,
+    /// Turn counter-clockwise (seen from above) by [`SimConfig::turn_angle`].
+    TurnLeft,
+    /// Turn clockwise by [`SimConfig::turn_angle`].
+    TurnRight,
+}
+
+impl Action {
+    /// Parses Habitat's action names (`move_forward`, `turn_left`, `turn_right`; `forward` too).
+    pub fn from_name(name: &str) -> Option<Action> {
+        match name {
+            "move_forward" | "forward" => Some(Action::Forward),
+            "turn_left" => Some(Action::TurnLeft),
+            "turn_right" => Some(Action::TurnRight),
+            _ => None,
+        }
+    }
+    /// Habitat's name of the action.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Action::Forward => "move_forward",
+            Action::TurnLeft => "turn_left",
+            Action::TurnRight => "turn_right",
+        }
+    }
+}
+
+/// What happened on a step (no pose: the true pose is ground truth, see [`Simulator::true_pose`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepResult {
+    /// The motion was obstructed (the agent stopped or slid).
+    pub collided: bool,
+}
+
+/// Simulator settings. Defaults follow the paper's Habitat setup (SPEC §1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimConfig {
+    /// Camera image size and pinhole (default 800×800, 90° FOV).
+    pub intrinsics: Intrinsics,
+    /// Near plane and maximum depth reading.
+    pub depth_range: DepthRange,
+    /// Camera height above the floor, metres (0.88).
+    pub camera_height: f64,
+    /// Collision cylinder.
+    pub agent: AgentShape,
+    /// Forward step, metres (0.05).
+    pub forward_step: f64,
+    /// Turn angle, radians (5°).
+    pub turn_angle: f64,
+    /// Slide along walls on an obstructed forward step (Habitat's default) instead of stopping.
+    pub allow_sliding: bool,
+    /// Navigable-map cell size, metres (0.05).
+    pub nav_cell_size: f64,
+    /// Sensor noise (none by default).
+    pub noise: SensorNoise,
+    /// Seed of the sensor noise.
+    pub seed: u64,
+    /// Floor height; `None` = the scene's own, else estimated from the mesh.
+    pub floor_z: Option<f64>,
+    /// Start pose; `None` = the scene's own, else derived from the navigable map.
+    pub start: Option<PlanarPose>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            intrinsics: Intrinsics::from_hfov(800, 800, std::f64::consts::FRAC_PI_2),
+            depth_range: DepthRange::default(),
+            camera_height: 0.88,
+            agent: AgentShape::default(),
+            forward_step: 0.05,
+            turn_angle: 5f64.to_radians(),
+            allow_sliding: true,
+            nav_cell_size: 0.05,
+            noise: SensorNoise::default(),
+            seed: 0,
+            floor_z: None,
+            start: None,
+        }
+    }
+}
+
+impl SimConfig {
+    /// The default configuration with a square image of `size` pixels at 90° FOV.
+    pub fn with_resolution(width: u32, height: u32) -> Self {
+        Self {
+            intrinsics: Intrinsics::from_hfov(width, height, std::f64::consts::FRAC_PI_2),
+            ..Self::default()
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let bad = |field, value: f64, reason| {
+            Err(SimError::InvalidConfig {
+                field,
+                value: value.to_string(),
+                reason,
+            })
+        };
+        let k = &self.intrinsics;
+        if k.width == 0 || k.height == 0 {
+            return bad("intrinsics.width/height", 0.0, "image must be at least 1×1");
+        }
+        if !(k.fx.is_finite() && k.fy.is_finite() && k.fx != 0.0 && k.fy != 0.0) {
+            return bad(
+                "intrinsics.fx/fy",
+                k.fx,
+                "focal lengths must be finite and non-zero",
+            );
+        }
+        if !self.depth_range.near.is_finite() || self.depth_range.near <= 0.0 {
+            return bad("depth_range.near", self.depth_range.near, "must be > 0");
+        }
+        if self.depth_range.max_depth.is_nan()
+            || self.depth_range.max_depth <= self.depth_range.near
+        {
+            return bad(
+                "depth_range.max_depth",
+                self.depth_range.max_depth,
+                "must exceed near",
+            );
+        }
+        if !(self.camera_height.is_finite() && self.camera_height > 0.0) {
+            return bad("camera_height", self.camera_height, "must be > 0");
+        }
+        if !(self.forward_step.is_finite() && self.forward_step >= 0.0) {
+            return bad("forward_step", self.forward_step, "must be >= 0");
+        }
+        if !self.turn_angle.is_finite() {
+            return bad("turn_angle", self.turn_angle, "must be finite");
+        }
+        self.noise.validate()
+    }
+}
+
+/// The simulator: call [`Simulator::step`] with actions and [`Simulator::render`] for frames.
+#[derive(Debug)]
+pub struct Simulator {
+    scene: Scene,
+    config: SimConfig,
+    navigation: Navigation,
+    pose: PlanarPose,
+    renderer: Renderer,
+    noise_rng: ChaCha8Rng,
+    steps: u64,
+}
+
+impl Simulator {
+    /// Builds the navigation for `scene` and places the agent at the start pose.
+    pub fn new(scene: Scene, config: SimConfig) -> Result<Self> {
+        config.validate()?;
+        scene.validate()?;
+        let floor_z = config
+            .floor_z
+            .or(scene.floor_z)
+            .or_else(|| estimate_floor_z(&scene))
+            .ok_or_else(|| SimError::NoNavigableArea(scene.name.clone()))?;
+        let navigation = Navigation::build(&scene, floor_z, config.agent, config.nav_cell_size)?;
+        if navigation.map().count() == 0 {
+            return Err(SimError::NoNavigableArea(scene.name.clone()));
+        }
+        let pose = match config.start.or(scene.start) {
+            Some(p) => p,
+            None => navigation.derived_start(&scene.name)?,
+        };
+        if !navigation.is_navigable(pose.x, pose.y) {
+            return Err(SimError::StartNotNavigable {
+                x: pose.x,
+                y: pose.y,
+            });
+        }
+        Ok(Self {
+            noise_rng: ChaCha8Rng::seed_from_u64(config.seed),
+            scene,
+            config,
+            navigation,
+            pose,
+            renderer: Renderer::new(),
+            steps: 0,
+        })
+    }
+
+    /// Applies one action.
+    pub fn step(&mut self, action: Action) -> StepResult {
+        self.steps += 1;
+        match action {
+            Action::Forward => {
+                let (pose, collided) = self.navigation.try_forward(
+                    &self.pose,
+                    self.config.forward_step,
+                    self.config.allow_sliding,
+                );
+                self.pose = pose;
+                StepResult { collided }
+            }
+            Action::TurnLeft | Action::TurnRight => {
+                let sign = if action == Action::TurnLeft {
+                    1.0
+                } else {
+                    -1.0
+                };
+                let yaw = self.pose.yaw + sign * self.config.turn_angle;
+                // Keep yaw in (−π, π].
+                self.pose.yaw = (yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                    - std::f64::consts::PI;
+                StepResult { collided: false }
+            }
+        }
+    }
+
+    /// Renders RGB-D at the agent's true pose (with sensor noise, if configured).
+    pub fn render(&mut self) -> RgbdFrame {
+        let pose = self.true_pose();
+        let mut frame = self.render_at(&pose);
+        self.config.noise.apply(&mut frame, &mut self.noise_rng);
+        frame
+    }
+
+    /// Renders RGB-D (noise-free) from any camera pose `T_world_camera`, e.g. evaluation poses.
+    pub fn render_at(&mut self, t_world_camera: &Isometry3<f64>) -> RgbdFrame {
+        self.renderer.render(
+            &self.scene,
+            &self.config.intrinsics,
+            t_world_camera,
+            self.config.depth_range,
+        )
+    }
+
+    /// Ground truth, for evaluation only: the camera pose `T_world_camera`.
+    pub fn true_pose(&self) -> Isometry3<f64> {
+        camera_pose_from_planar(
+            &self.pose,
+            self.navigation.floor_z(),
+            self.config.camera_height,
+        )
+    }
+
+    /// Ground truth, for evaluation only: the agent's planar pose.
+    pub fn true_planar_pose(&self) -> PlanarPose {
+        self.pose
+    }
+
+    /// Moves the agent to `pose` (episode reset); refused if it is not navigable.
+    pub fn set_planar_pose(&mut self, pose: PlanarPose) -> Result<()> {
+        if !self.navigation.is_navigable(pose.x, pose.y) {
+            return Err(SimError::StartNotNavigable {
+                x: pose.x,
+                y: pose.y,
+            });
+        }
+        self.pose = pose;
+        Ok(())
+    }
+
+    /// Number of actions applied so far.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// Floor, obstacles and navigable map.
+    pub fn navigation(&self) -> &Navigation {
+        &self.navigation
+    }
+}

@@ -1,0 +1,10 @@
+//! Behavioural tests of the simulator against analytic truth and real data.
+
+mod artefacts;
+mod bridge_tests;
+mod fixtures;
+mod house_tests;
+mod load_tests;
+mod motion_tests;
+mod render_tests;
+mod truth_tests;

@@ -1,0 +1,209 @@
+use super::fixtures::*;
+use crate::navigation::{AgentShape, Navigation, estimate_floor_z};
+use crate::simulator::{Action, SimConfig, Simulator};
+use activemap_geometry::PlanarPose;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn room_sim(start: PlanarPose, sliding: bool) -> Simulator {
+    let scene = box_room([0.0, 0.0, 0.0], [4.0, 3.0, 2.5]);
+    let config = SimConfig {
+        start: Some(start),
+        allow_sliding: sliding,
+        ..SimConfig::with_resolution(16, 16)
+    };
+    Simulator::new(scene, config).unwrap()
+}
+
+#[test]
+fn floor_is_found_at_the_bottom_face() {
+    let scene = box_room([0.0, 0.0, 0.3], [4.0, 3.0, 2.5]);
+    let z = estimate_floor_z(&scene).unwrap();
+    assert!((z - 0.3).abs() < 1e-6, "floor {z}");
+}
+
+#[test]
+fn navigable_area_of_a_known_room_is_exact() {
+    // Interior 4 m × 3 m, agent radius 0.1 m: navigable cell centres are those farther than
+    // 0.1 m from every wall. Centres sit at odd multiples of 0.025 m, so along x the centres in
+    // (0.1, 3.9) are 0.125 … 3.875 (76 of them) and along y in (0.1, 2.9) 0.125 … 2.875 (56).
+    let scene = box_room([0.0, 0.0, 0.0], [4.0, 3.0, 2.5]);
+    let nav = Navigation::build(&scene, 0.0, AgentShape::default(), 0.05).unwrap();
+    assert_eq!(nav.map().count(), 76 * 56);
+    assert!((nav.map().area() - 76.0 * 56.0 * 0.0025).abs() < 1e-9);
+    let (_, sizes) = nav.map().components();
+    assert_eq!(sizes, vec![76 * 56]);
+    // A larger agent loses a ring of cells: radius 0.3 → centres in (0.3, 3.7) × (0.3, 2.7).
+    let big = AgentShape {
+        radius: 0.3,
+        ..AgentShape::default()
+    };
+    let nav = Navigation::build(&scene, 0.0, big, 0.05).unwrap();
+    assert_eq!(nav.map().count(), 68 * 48);
+}
+
+#[test]
+fn forward_motion_stops_at_the_wall() {
+    let mut sim = room_sim(PlanarPose::new(2.0, 1.5, 0.0), true);
+    let mut collided_at = None;
+    for i in 0..100 {
+        let r = sim.step(Action::Forward);
+        let p = sim.true_planar_pose();
+        assert!(
+            p.x <= 4.0 - 0.1 + 1e-9,
+            "agent entered the wall: x = {}",
+            p.x
+        );
+        if r.collided && collided_at.is_none() {
+            collided_at = Some(i);
+        }
+    }
+    let p = sim.true_planar_pose();
+    // Head-on into the wall: sliding has no tangential component, the agent ends touching it.
+    assert!(p.x > 4.0 - 0.1 - 0.05 && (p.y - 1.5).abs() < 1e-9, "{p:?}");
+    // 2.0 → 3.9 is 1.9 m = 38 free steps (the 38th ends exactly at the clearance limit, where
+    // rounding may already count as contact); the 39th is obstructed.
+    assert!(
+        matches!(collided_at, Some(37) | Some(38)),
+        "{collided_at:?}"
+    );
+}
+
+#[test]
+fn agent_slides_along_a_wall_when_allowed_and_stops_when_not() {
+    // Heading 30° off the wall direction, towards the +x wall.
+    let yaw = 60f64.to_radians();
+    let mut sim = room_sim(PlanarPose::new(3.7, 0.5, yaw), true);
+    for _ in 0..30 {
+        sim.step(Action::Forward);
+    }
+    let p = sim.true_planar_pose();
+    assert!((p.x - 3.9).abs() < 1e-3, "should hug the wall: {p:?}");
+    // Free motion would reach y = 0.5 + 30·0.05·sin 60° ≈ 1.80; sliding keeps the tangential part.
+    assert!(
+        p.y > 1.6 && p.y < 1.81,
+        "should have slid along the wall: {p:?}"
+    );
+
+    let mut stuck = room_sim(PlanarPose::new(3.7, 0.5, yaw), false);
+    let mut last = stuck.true_planar_pose();
+    for _ in 0..30 {
+        let r = stuck.step(Action::Forward);
+        let p = stuck.true_planar_pose();
+        if r.collided {
+            assert_eq!(p, last, "without sliding an obstructed step must not move");
+        }
+        last = p;
+    }
+    // Free steps until x reaches 3.9: at most 8, each adding 0.05·sin 60° ≈ 0.0433 to y.
+    assert!(
+        last.y < 0.5 + 8.5 * 0.0433,
+        "no sliding: progress stops at the wall: {last:?}"
+    );
+    assert!(last.x <= 3.9 + 1e-9);
+}
+
+#[test]
+fn random_walk_never_enters_geometry() {
+    // Room with a table-height box (an obstacle) and a low mat (stepped over).
+    let mut scene = box_room([0.0, 0.0, 0.0], [5.0, 4.0, 2.5]);
+    let m = flat(&mut scene, [0.3, 0.3, 0.3]);
+    add_box_faces(&mut scene, [2.0, 1.5, 0.0], [3.0, 2.5, 0.75], &[m; 6]);
+    add_box_faces(&mut scene, [0.5, 0.5, 0.0], [1.5, 1.0, 0.05], &[m; 6]);
+    let config = SimConfig {
+        start: Some(PlanarPose::new(1.0, 3.0, 0.0)),
+        floor_z: Some(0.0),
+        ..SimConfig::with_resolution(8, 8)
+    };
+    let mut sim = Simulator::new(scene, config).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..4000 {
+        let a = match rng.random_range(0..10) {
+            0..=5 => Action::Forward,
+            6 | 7 => Action::TurnLeft,
+            _ => Action::TurnRight,
+        };
+        sim.step(a);
+        let p = sim.true_planar_pose();
+        // Analytic clearance to the walls and to the box.
+        assert!(
+            p.x >= 0.1 - 1e-9 && p.x <= 4.9 + 1e-9 && p.y >= 0.1 - 1e-9 && p.y <= 3.9 + 1e-9,
+            "{p:?}"
+        );
+        let dx = (2.0 - p.x).max(p.x - 3.0).max(0.0);
+        let dy = (1.5 - p.y).max(p.y - 2.5).max(0.0);
+        assert!(
+            (dx * dx + dy * dy).sqrt() >= 0.1 - 1e-9,
+            "inside the box clearance: {p:?}"
+        );
+    }
+    // The 5 cm mat is below max_climb: walking straight across it is never obstructed.
+    sim.set_planar_pose(PlanarPose::new(0.3, 0.75, 0.0))
+        .unwrap();
+    for _ in 0..30 {
+        assert!(
+            !sim.step(Action::Forward).collided,
+            "blocked at {:?}",
+            sim.true_planar_pose()
+        );
+    }
+    assert!((sim.true_planar_pose().x - 1.8).abs() < 1e-9);
+}
+
+#[test]
+fn turns_change_only_heading() {
+    let mut sim = room_sim(PlanarPose::new(2.0, 1.5, 0.0), true);
+    for _ in 0..18 {
+        assert!(!sim.step(Action::TurnLeft).collided);
+    }
+    let p = sim.true_planar_pose();
+    assert!((p.yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-12 && p.x == 2.0 && p.y == 1.5);
+    // 90° − 54·5° = −180°.
+    for _ in 0..54 {
+        sim.step(Action::TurnRight);
+    }
+    let p = sim.true_planar_pose();
+    assert!(
+        (p.yaw - (-std::f64::consts::PI)).abs() < 1e-9
+            || (p.yaw - std::f64::consts::PI).abs() < 1e-9
+    );
+    // The camera looks along the heading, 0.88 m above the floor.
+    let t = sim.true_pose();
+    assert!((t.translation.z - 0.88).abs() < 1e-12);
+    let fwd = t.rotation * activemap_geometry::Vector3::z();
+    assert!((fwd.x + 1.0).abs() < 1e-9);
+}
+
+#[test]
+fn bad_configuration_is_rejected() {
+    let scene = box_room([0.0, 0.0, 0.0], [4.0, 3.0, 2.5]);
+    let err = Simulator::new(
+        scene.clone(),
+        SimConfig {
+            start: Some(PlanarPose::new(0.05, 1.0, 0.0)),
+            ..SimConfig::with_resolution(8, 8)
+        },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(err, crate::SimError::StartNotNavigable { .. }),
+        "{err}"
+    );
+    let err = Simulator::new(
+        scene,
+        SimConfig {
+            camera_height: -1.0,
+            ..SimConfig::default()
+        },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("camera_height"), "{err}");
+}
+
+#[test]
+fn a_huge_footprint_is_refused_not_allocated() {
+    // 2 km × 2 km at 5 cm would need 1.6 G cells.
+    let scene = box_room([0.0, 0.0, 0.0], [2000.0, 2000.0, 2.5]);
+    let err = Navigation::build(&scene, 0.0, AgentShape::default(), 0.05).unwrap_err();
+    assert!(err.to_string().contains("nav_cell_size"), "{err}");
+}
