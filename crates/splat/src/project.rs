@@ -1,0 +1,335 @@
+//! EWA projection of one Gaussian into the image (SPEC §3) and its vector-Jacobian product.
+//!
+//! Forward: `p_c = R_cw·μ + t_cw`; cull `z ≤ near`; `Σ = (R(q)·S)(R(q)·S)ᵀ`, `Σ_c = W Σ Wᵀ`
+//! (`W = R_cw`); `Σ' = J Σ_c Jᵀ + 0.3·I` with the pinhole Jacobian `J` evaluated at `x/z`, `y/z`
+//! clamped to 1.3× the field of view (as 3DGS/gsplat); conic `Q = Σ'⁻¹`; mean
+//! `(fx·x/z + cx, fy·y/z + cy)`.
+//!
+//! Support: a Gaussian touches the pixels of the axis-aligned box of half-widths
+//! `√Σ'ₓₓ·min(3, √(2 ln(255·o)))` (and the same in y) around its mean, i.e. the bounding box of
+//! its 3σ ellipse, shrunk to where `α ≥ 1/255` can still happen. Pixels outside that box get
+//! nothing from it. Unlike 3DGS (which truncates at tile granularity) this makes the image
+//! independent of the tile size.
+//!
+//! Backward: for upstream gradients on `u = (mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)` it returns
+//! the gradients on the mean, quaternion, log-scale and the camera pose τ = [ρ, θ] for the left
+//! update `T_cw ← Exp(τ)·T_cw` (SPEC §3: `∂p_c/∂ρ = I`, `∂p_c/∂θ = −[p_c]×`, `∂(W v)/∂θ = −[W v]×`).
+
+use crate::camera::CameraT;
+use crate::gaussians::{Gaussians, SH_C0, sigmoid};
+use crate::real::Real;
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Vector3};
+
+/// EWA low-pass added to the 2D covariance (pixels², SPEC §3).
+pub const LOW_PASS: f64 = 0.3;
+/// Smallest alpha that is composited (SPEC §3).
+pub const ALPHA_MIN: f64 = 1.0 / 255.0;
+/// Largest alpha (SPEC §3).
+pub const ALPHA_MAX: f64 = 0.99;
+/// Compositing stops before transmittance would drop below this (SPEC §3).
+pub const T_MIN: f64 = 1e-4;
+
+/// A Gaussian projected into the image: what the rasteriser needs.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Splat<T: Real> {
+    /// Projected mean, pixels.
+    pub mean: [T; 2],
+    /// Conic `Σ'⁻¹` as `(Q_xx, Q_xy, Q_yy)`.
+    pub conic: [T; 3],
+    /// Opacity `sigmoid(logit)`.
+    pub opacity: T,
+    /// Camera-frame depth z, metres.
+    pub depth: T,
+    /// RGB colour `0.5 + C0·sh_dc`.
+    pub colour: [T; 3],
+    /// Inclusive pixel box `[x0, x1] × [y0, y1]` of the support, clipped to the image.
+    pub bbox: [u32; 4],
+}
+
+/// Intermediate values of the projection, shared by forward and backward.
+pub(crate) struct Chain<T: Real> {
+    p_c: Vector3<T>,
+    q_n: [T; 4],
+    q_norm: T,
+    rq: Matrix3<T>,
+    s: Vector3<T>,
+    m: Matrix3<T>,
+    w: Matrix3<T>,
+    sigma_c: Matrix3<T>,
+    j: Matrix2x3<T>,
+    clamped: [bool; 2],
+    t_xy: [T; 2],
+    cov: Matrix2<T>,
+    conic: Matrix2<T>,
+}
+
+/// Rotation matrix of a unit quaternion `[w, x, y, z]`.
+fn rotation_matrix<T: Real>(q: &[T; 4]) -> Matrix3<T> {
+    let [w, x, y, z] = *q;
+    let one = T::one();
+    let two = T::of(2.0);
+    Matrix3::new(
+        one - two * (y * y + z * z),
+        two * (x * y - w * z),
+        two * (x * z + w * y),
+        two * (x * y + w * z),
+        one - two * (x * x + z * z),
+        two * (y * z - w * x),
+        two * (x * z - w * y),
+        two * (y * z + w * x),
+        one - two * (x * x + y * y),
+    )
+}
+
+/// Runs the projection chain of Gaussian `i`; `None` when culled by the near plane or when
+/// degenerate (zero quaternion, non-positive 2D covariance, non-finite values).
+pub(crate) fn chain<T: Real>(cam: &CameraT<T>, g: &Gaussians<T>, i: usize) -> Option<Chain<T>> {
+    let mu = g.means[i];
+    let r = &cam.r;
+    let p = |k: usize| r[k][0] * mu[0] + r[k][1] * mu[1] + r[k][2] * mu[2] + cam.t[k];
+    let p_c = Vector3::new(p(0), p(1), p(2));
+    if p_c.z.partial_cmp(&cam.near) != Some(std::cmp::Ordering::Greater)
+        || !p_c.x.is_finite()
+        || !p_c.y.is_finite()
+    {
+        return None;
+    }
+    let q = g.rotations[i];
+    let q_norm = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if q_norm.partial_cmp(&T::zero()) != Some(std::cmp::Ordering::Greater) || !q_norm.is_finite() {
+        return None;
+    }
+    let q_n = q.map(|v| v / q_norm);
+    let rq = rotation_matrix(&q_n);
+    let ls = g.log_scales[i];
+    let s = Vector3::new(ls[0].exp(), ls[1].exp(), ls[2].exp());
+    let m = rq * Matrix3::from_diagonal(&s);
+    let w = Matrix3::new(
+        r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+    );
+    let wm = w * m;
+    let sigma_c = wm * wm.transpose();
+    let iz = T::one() / p_c.z;
+    let mut clamped = [false; 2];
+    let mut t_xy = [p_c.x, p_c.y];
+    for (k, lim) in [cam.lim_x, cam.lim_y].iter().enumerate() {
+        let ratio = t_xy[k] * iz;
+        if ratio < lim[0] || ratio > lim[1] {
+            clamped[k] = true;
+            t_xy[k] = ratio.max(lim[0]).min(lim[1]) * p_c.z;
+        }
+    }
+    let iz2 = iz * iz;
+    let j = Matrix2x3::new(
+        cam.fx * iz,
+        T::zero(),
+        -cam.fx * t_xy[0] * iz2,
+        T::zero(),
+        cam.fy * iz,
+        -cam.fy * t_xy[1] * iz2,
+    );
+    let low_pass = T::of(LOW_PASS);
+    let cov = j * sigma_c * j.transpose() + Matrix2::new(low_pass, T::zero(), T::zero(), low_pass);
+    let det = cov[(0, 0)] * cov[(1, 1)] - cov[(0, 1)] * cov[(1, 0)];
+    if det.partial_cmp(&T::zero()) != Some(std::cmp::Ordering::Greater) || !det.is_finite() {
+        return None;
+    }
+    let conic = Matrix2::new(
+        cov[(1, 1)] / det,
+        -cov[(0, 1)] / det,
+        -cov[(1, 0)] / det,
+        cov[(0, 0)] / det,
+    );
+    Some(Chain {
+        p_c,
+        q_n,
+        q_norm,
+        rq,
+        s,
+        m,
+        w,
+        sigma_c,
+        j,
+        clamped,
+        t_xy,
+        cov,
+        conic,
+    })
+}
+
+/// Projects Gaussian `i`; `None` when it cannot touch any pixel.
+pub(crate) fn project_one<T: Real>(
+    cam: &CameraT<T>,
+    g: &Gaussians<T>,
+    i: usize,
+) -> Option<Splat<T>> {
+    let opacity = sigmoid(g.opacity_logits[i]);
+    if !opacity.is_finite() || opacity < T::of(ALPHA_MIN) {
+        return None;
+    }
+    let c = chain(cam, g, i)?;
+    let iz = T::one() / c.p_c.z;
+    let mean = [
+        cam.fx * c.p_c.x * iz + cam.cx,
+        cam.fy * c.p_c.y * iz + cam.cy,
+    ];
+    let extent = T::of(3.0).min(
+        (T::of(2.0) * (T::of(255.0) * opacity).ln())
+            .max(T::zero())
+            .sqrt(),
+    );
+    let half = [c.cov[(0, 0)].sqrt() * extent, c.cov[(1, 1)].sqrt() * extent];
+    let mut bbox = [0u32; 4];
+    for k in 0..2 {
+        let size = if k == 0 { cam.width } else { cam.height };
+        let lo = (mean[k] - half[k]).ceil().max(T::zero());
+        let hi = (mean[k] + half[k]).floor().min(T::of(size as f64 - 1.0));
+        if !lo.is_finite() || !hi.is_finite() || lo > hi {
+            return None;
+        }
+        bbox[2 * k] = lo.to_f64() as u32;
+        bbox[2 * k + 1] = hi.to_f64() as u32;
+    }
+    let c0 = T::of(SH_C0);
+    let half_one = T::of(0.5);
+    Some(Splat {
+        mean,
+        conic: [c.conic[(0, 0)], c.conic[(0, 1)], c.conic[(1, 1)]],
+        opacity,
+        depth: c.p_c.z,
+        colour: g.sh_dc[i].map(|v| half_one + c0 * v),
+        bbox: [bbox[0], bbox[1], bbox[2], bbox[3]],
+    })
+}
+
+/// Gradients of one Gaussian's projection, from upstream gradients on `u`.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct ProjectionGrads<T: Real> {
+    pub mean: [T; 3],
+    pub rotation: [T; 4],
+    pub log_scale: [T; 3],
+    /// `[ρ, θ]` of the left pose update.
+    pub pose: [T; 6],
+}
+
+/// Vector-Jacobian product of the projection of Gaussian `i`: `up` holds the gradients on
+/// `(mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)` where `Q_xy` is the single off-diagonal coefficient
+/// of `σ = ½Q_xx dx² + Q_xy dx dy + ½Q_yy dy²`.
+pub(crate) fn project_vjp<T: Real>(
+    c: &Chain<T>,
+    cam: &CameraT<T>,
+    up: &[T; 6],
+) -> ProjectionGrads<T> {
+    let two = T::of(2.0);
+    let half = T::of(0.5);
+    let (fx, fy) = (cam.fx, cam.fy);
+    let (x, y, z) = (c.p_c.x, c.p_c.y, c.p_c.z);
+    let iz = T::one() / z;
+    let iz2 = iz * iz;
+    let iz3 = iz2 * iz;
+    // Conic → 2D covariance: dQ = −Q dΣ' Q.
+    let gq = Matrix2::new(up[2], up[3] * half, up[3] * half, up[4]);
+    let gs = -(c.conic * gq * c.conic);
+    // Σ' = J Σ_c Jᵀ.
+    let g_c = c.j.transpose() * gs * c.j;
+    let dj = gs * c.j * c.sigma_c * two;
+    let mut dp = Vector3::new(
+        up[0] * fx * iz,
+        up[1] * fy * iz,
+        -up[0] * fx * x * iz2 - up[1] * fy * y * iz2 + up[5],
+    );
+    dp.z += dj[(0, 0)] * (-fx * iz2) + dj[(1, 1)] * (-fy * iz2);
+    let focal = [fx, fy];
+    for k in 0..2 {
+        let d = dj[(k, 2)];
+        if c.clamped[k] {
+            dp.z += d * focal[k] * c.t_xy[k] * iz3;
+        } else {
+            dp[k] += d * (-focal[k] * iz2);
+            dp.z += d * two * focal[k] * c.t_xy[k] * iz3;
+        }
+    }
+    let mean_grad = c.w.transpose() * dp;
+    // Σ_c = W Σ Wᵀ, Σ = M Mᵀ, M = R(q) S.
+    let d_sigma = c.w.transpose() * g_c * c.w;
+    let dm = d_sigma * c.m * two;
+    let mut d_rq = Matrix3::zeros();
+    let mut log_scale = [T::zero(); 3];
+    for jj in 0..3 {
+        let mut ds = T::zero();
+        for ii in 0..3 {
+            d_rq[(ii, jj)] = dm[(ii, jj)] * c.s[jj];
+            ds += dm[(ii, jj)] * c.rq[(ii, jj)];
+        }
+        log_scale[jj] = ds * c.s[jj];
+    }
+    let g = |a: usize, b: usize| d_rq[(a, b)];
+    let [w, qx, qy, qz] = c.q_n;
+    let four = T::of(4.0);
+    let dqn = [
+        two * (-qz * g(0, 1) + qy * g(0, 2) + qz * g(1, 0) - qx * g(1, 2) - qy * g(2, 0)
+            + qx * g(2, 1)),
+        two * (qy * g(0, 1) + qz * g(0, 2) + qy * g(1, 0) - w * g(1, 2)
+            + qz * g(2, 0)
+            + w * g(2, 1))
+            - four * qx * (g(1, 1) + g(2, 2)),
+        two * (qx * g(0, 1) + w * g(0, 2) + qx * g(1, 0) + qz * g(1, 2) - w * g(2, 0)
+            + qz * g(2, 1))
+            - four * qy * (g(0, 0) + g(2, 2)),
+        two * (-w * g(0, 1)
+            + qx * g(0, 2)
+            + w * g(1, 0)
+            + qy * g(1, 2)
+            + qx * g(2, 0)
+            + qy * g(2, 1))
+            - four * qz * (g(0, 0) + g(1, 1)),
+    ];
+    let dot = dqn[0] * w + dqn[1] * qx + dqn[2] * qy + dqn[3] * qz;
+    let rotation = [0, 1, 2, 3].map(|k| (dqn[k] - c.q_n[k] * dot) / c.q_norm);
+    // Pose: ∂p_c/∂ρ = I, ∂p_c/∂θ = −[p_c]×, Σ_c = W Σ Wᵀ with ∂(W v)/∂θ = −[W v]×.
+    let cross = c.p_c.cross(&dp);
+    let p = c.sigma_c * g_c;
+    let pose = [
+        dp.x,
+        dp.y,
+        dp.z,
+        cross.x + two * (p[(1, 2)] - p[(2, 1)]),
+        cross.y + two * (p[(2, 0)] - p[(0, 2)]),
+        cross.z + two * (p[(0, 1)] - p[(1, 0)]),
+    ];
+    ProjectionGrads {
+        mean: [mean_grad.x, mean_grad.y, mean_grad.z],
+        rotation,
+        log_scale,
+        pose,
+    }
+}
+
+/// Row-wise evaluation of `σ = ½Q_xx dx² + Q_xy dx dy + ½Q_yy dy²` (SPEC §3): the terms in
+/// `dy` are computed once per pixel row. Forward, backward and Fisher share it, so they agree
+/// bit for bit on every alpha and threshold test.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SigmaRow<T: Real> {
+    half_qa: T,
+    b: T,
+    c: T,
+}
+
+impl<T: Real> SigmaRow<T> {
+    /// Row terms of splat `s` at vertical offset `dy = mean_y − pixel_y`.
+    #[inline(always)]
+    pub fn new(s: &Splat<T>, dy: T) -> Self {
+        let half = T::of(0.5);
+        Self {
+            half_qa: half * s.conic[0],
+            b: s.conic[1] * dy,
+            c: half * s.conic[2] * dy * dy,
+        }
+    }
+
+    /// σ at horizontal offset `dx = mean_x − pixel_x`.
+    #[inline(always)]
+    pub fn sigma(&self, dx: T) -> T {
+        dx * (self.half_qa * dx + self.b) + self.c
+    }
+}
