@@ -10,10 +10,13 @@
 //! - [`test_poses`]: the seeded test poses on the navigable plane;
 //! - [`views`]: all image metrics of one test view and their means over the views;
 //! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
-//! - [`bench`](mod@bench): timings of every metric (`bench::run`).
+//! - [`bench`](mod@bench): timings of every metric (`bench::run`);
+//! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder
+//!   ([`run_folder`]);
+//! - [`html`]: the self-contained `report.html` of a run ([`html::write_report`]).
 //!
 //! Images are [`ImageView`]s: borrowed row-major `f32` buffers, RGB in [0, 1], depth in metres.
-//! No transport and no I/O beyond reading the LPIPS weights.
+//! No transport. I/O only in `lpips` (weights), `run_folder`, `run_eval` and `html`.
 
 pub mod ate;
 pub mod bench;
@@ -21,13 +24,19 @@ pub mod completeness;
 pub mod coverage;
 pub mod depth;
 pub mod error;
+pub mod html;
 pub mod image;
 pub mod lpips;
 pub mod psnr;
 pub mod report;
+pub mod run_eval;
+pub mod run_folder;
 pub mod ssim;
 pub mod test_poses;
 pub mod views;
+
+#[cfg(test)]
+pub(crate) mod testing;
 
 pub use ate::{AteOptions, AteResult, associate, ate, umeyama_se3};
 pub use completeness::{COMPLETENESS_THRESHOLD_M, PointGrid, completeness, sample_mesh_surface};

@@ -1,0 +1,95 @@
+//! Test fixtures: small synthetic run folders on a one-room procedural house, laid out as the
+//! `evaluator` operator writes them.
+
+use crate::run_eval::{SceneSpec, start_from_world};
+use crate::run_folder::files;
+use activemap_geometry::tum::Trajectory;
+use activemap_geometry::{Intrinsics, Isometry3};
+use activemap_sim::{Action, Simulator};
+use activemap_splat::Gaussians;
+use std::path::Path;
+
+/// A one-room house, small enough for fast tests.
+pub fn small_house() -> SceneSpec {
+    SceneSpec {
+        scene: "house:3".into(),
+        max_rooms: Some(1),
+        max_area: Some(12.0),
+    }
+}
+
+/// The simulator of [`small_house`] with a `size`² camera at 90°.
+pub fn simulator(size: u32) -> Simulator {
+    small_house()
+        .simulator(Intrinsics::from_hfov(
+            size,
+            size,
+            std::f64::consts::FRAC_PI_2,
+        ))
+        .unwrap()
+}
+
+/// What map a synthetic run holds.
+pub enum MapKind {
+    /// No Gaussian.
+    Empty,
+    /// Opaque grey Gaussians at mesh surface samples, in the run's map (start) frame.
+    SurfaceInMapFrame,
+    /// The same Gaussians left in the world frame (a frame bug the evaluation must expose).
+    SurfaceInWorldFrame,
+}
+
+/// Writes a run folder into `dir`: 12 true poses (turns and forward steps from the house's
+/// start), the estimate = the truth in the map frame (exact), a map of `kind`, `coverage.csv`
+/// ending at 0.42 and `summary.json` naming the scene.
+pub fn write_run(dir: &Path, kind: MapKind) {
+    let mut sim = simulator(16);
+    let floor_z = sim.navigation().floor_z();
+    let mut truth = Trajectory::default();
+    let actions = [Action::TurnLeft, Action::Forward, Action::Forward];
+    for k in 0..12 {
+        truth.push(k as f64 * 0.1, sim.true_pose());
+        sim.step(actions[k % actions.len()]);
+    }
+    let to_map = start_from_world(&truth.poses[0], floor_z);
+    let mut estimate = Trajectory::default();
+    for (t, p) in truth.stamps.iter().zip(&truth.poses) {
+        estimate.push(*t, to_map * p);
+    }
+    truth.write(&dir.join(files::TRAJECTORY_TRUE)).unwrap();
+    estimate.write(&dir.join(files::TRAJECTORY_EST)).unwrap();
+    let mut map = Gaussians::<f32>::new();
+    let frame = match kind {
+        MapKind::Empty => None,
+        MapKind::SurfaceInMapFrame => Some(to_map),
+        MapKind::SurfaceInWorldFrame => Some(Isometry3::identity()),
+    };
+    if let Some(frame) = frame {
+        for p in activemap_sim::ground_truth::surface_samples(sim.scene(), 60_000, 11) {
+            let q = frame * p;
+            map.push(
+                [q.x, q.y, q.z],
+                [0.5, 0.5, 0.5],
+                [1.0, 0.0, 0.0, 0.0],
+                0.99,
+                [0.03; 3],
+            );
+        }
+    }
+    activemap_splat::ply::write_ply(&dir.join(files::MAP), &map).unwrap();
+    std::fs::write(
+        dir.join(files::COVERAGE),
+        "step,coverage\n1,0.100000\n5,0.300000\n11,0.420000\n",
+    )
+    .unwrap();
+    let summary = serde_json::json!({
+        "steps": 12, "coverage": 0.42, "ate_m": 0.0, "path_length_m": 0.3,
+        "episode": "Running at step 12: synthetic", "recording_present": false,
+        "map_gaussians": map.len(), "scene": "house:3", "max_rooms": 1, "max_area": 12.0
+    });
+    std::fs::write(
+        dir.join(files::SUMMARY),
+        serde_json::to_string_pretty(&summary).unwrap(),
+    )
+    .unwrap();
+}
