@@ -1,0 +1,52 @@
+//! `activemap bench slam`: the scripted loop of [`crate::scripted`] over 500 frames at 200×200
+//! and 400×400, one row per case.
+
+use crate::error::SlamError;
+use crate::scripted::{LoopConfig, LoopResult, run_loop};
+
+/// One benchmark case and its metrics.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchRow {
+    /// Case name, e.g. `loop500_200`.
+    pub case: String,
+    /// The loop's metrics.
+    pub result: LoopResult,
+}
+
+impl std::fmt::Display for BenchRow {
+    /// `slam <case> ate_cm <x> psnr_train <y> psnr_test <z> track_fps <f>` plus mapping time,
+    /// Gaussian count, keyframes and lost frames.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let r = &self.result;
+        write!(
+            f,
+            "slam {} ate_cm {:.3} psnr_train {:.2} psnr_test {:.2} track_fps {:.2} map_s_per_kf {:.3} gaussians {} keyframes {} lost {}",
+            self.case,
+            r.ate_cm,
+            r.psnr_train,
+            r.psnr_test,
+            r.track_fps,
+            r.map_seconds_per_keyframe,
+            r.gaussians,
+            r.keyframes,
+            r.lost
+        )
+    }
+}
+
+/// Runs the loop for each `(resolution, frames)` case (issue 5: `[(200, 500), (400, 500)]`).
+pub fn run(cases: &[(u32, usize)]) -> Result<Vec<BenchRow>, SlamError> {
+    cases
+        .iter()
+        .map(|&(resolution, frames)| {
+            let result = run_loop(&LoopConfig::new(resolution, frames))?;
+            Ok(BenchRow {
+                case: format!("loop{frames}_{resolution}"),
+                result,
+            })
+        })
+        .collect()
+}
+
+/// The cases of issue 5.
+pub const DEFAULT_CASES: [(u32, usize); 2] = [(200, 500), (400, 500)];

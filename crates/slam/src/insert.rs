@@ -1,0 +1,188 @@
+//! Gaussian insertion from a keyframe's depth (SPEC §4): back-project a seeded random
+//! `sample_fraction` (1/64) of the depth pixels that lie in UNOBSERVED areas, colour from the
+//! pixel, opacity 0.5, identity rotation, isotropic scale from the nearest-neighbour distance.
+//!
+//! Unobserved (decision documented here): a pixel with a depth reading is unobserved when the
+//! current map, rendered at the keyframe pose without unknown-space Gaussians, covers it with
+//! opacity below `min_opacity` (0.5), or when the map's normalised depth `D̂/o` disagrees with
+//! the reading by more than `max(depth_tolerance, depth_tolerance_fraction·D)` (5 cm, 5 %):
+//! then the map shows a different surface there (new geometry in front, or a gap behind).
+//!
+//! Scale: as 3DGS, `s = √(mean of the squared distances to the 3 nearest new points)`, clamped
+//! to `[min_scale, max_scale]`. The neighbour search is brute force over the new points of the
+//! keyframe (at most a few thousand), which is simple and exact.
+
+use crate::frame::Frame;
+use activemap_geometry::{Isometry3, Point3};
+use activemap_splat::Render;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+/// Insertion settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InsertConfig {
+    /// Fraction of the unobserved depth pixels back-projected (1/64).
+    pub sample_fraction: f64,
+    /// Rendered opacity below which a pixel is unobserved (0.5).
+    pub min_opacity: f32,
+    /// Absolute depth disagreement that makes a covered pixel unobserved, metres (0.05).
+    pub depth_tolerance: f32,
+    /// Relative depth disagreement that makes a covered pixel unobserved (0.05).
+    pub depth_tolerance_fraction: f32,
+    /// Initial opacity (0.5).
+    pub opacity: f64,
+    /// Initial scale = `scale_factor ×` the nearest-neighbour distance (3DGS: 1).
+    pub scale_factor: f64,
+    /// Smallest initial scale, metres.
+    pub min_scale: f64,
+    /// Largest initial scale, metres.
+    pub max_scale: f64,
+    /// Upper bound on Gaussians inserted per keyframe (keeps the neighbour search bounded).
+    pub max_per_keyframe: usize,
+}
+
+impl Default for InsertConfig {
+    fn default() -> Self {
+        Self {
+            sample_fraction: 1.0 / 64.0,
+            min_opacity: 0.5,
+            depth_tolerance: 0.05,
+            depth_tolerance_fraction: 0.05,
+            opacity: 0.5,
+            scale_factor: 1.0,
+            min_scale: 0.002,
+            max_scale: 0.2,
+            max_per_keyframe: 8000,
+        }
+    }
+}
+
+/// Per pixel: true where the frame has depth that the rendered map does not explain.
+pub fn unobserved_mask(render: &Render<f32>, frame: &Frame, config: &InsertConfig) -> Vec<bool> {
+    frame
+        .depth
+        .iter()
+        .enumerate()
+        .map(|(p, &d)| {
+            if d <= 0.0 {
+                return false;
+            }
+            let o = render.opacity[p];
+            if o < config.min_opacity {
+                return true;
+            }
+            let rendered = render.depth[p] / o;
+            (rendered - d).abs()
+                > config
+                    .depth_tolerance
+                    .max(config.depth_tolerance_fraction * d)
+        })
+        .collect()
+}
+
+/// A Gaussian to insert, in natural units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewGaussian {
+    /// World position, metres.
+    pub mean: [f64; 3],
+    /// RGB in [0, 1].
+    pub rgb: [f64; 3],
+    /// Isotropic scale, metres.
+    pub scale: f64,
+}
+
+/// Samples the new Gaussians of a keyframe at `T_world_camera = pose` (see the module doc).
+pub fn sample_new_gaussians(
+    frame: &Frame,
+    pose: &Isometry3<f64>,
+    mask: &[bool],
+    config: &InsertConfig,
+    rng: &mut ChaCha8Rng,
+) -> Vec<NewGaussian> {
+    let w = frame.width();
+    let k = &frame.intrinsics;
+    let mut points = Vec::new();
+    for (p, &unobserved) in mask.iter().enumerate() {
+        // Draw for every pixel so the stream of random numbers does not depend on the mask.
+        let pick = rng.random::<f64>() < config.sample_fraction;
+        if !unobserved || !pick {
+            continue;
+        }
+        let (u, v) = ((p % w) as f64, (p / w) as f64);
+        let camera_point: Point3<f64> = k.unproject(u, v, frame.depth[p] as f64);
+        let world = pose * camera_point;
+        points.push((world, frame.rgb[p].map(|c| c as f64)));
+    }
+    if points.len() > config.max_per_keyframe {
+        // Uniform random subset (partial Fisher–Yates), so the cap does not favour any region.
+        for i in 0..config.max_per_keyframe {
+            let j = rng.random_range(i..points.len());
+            points.swap(i, j);
+        }
+        points.truncate(config.max_per_keyframe);
+    }
+    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
+    let scales = nearest_neighbour_scales(&positions, 3);
+    points
+        .iter()
+        .zip(scales)
+        .map(|((p, rgb), s)| NewGaussian {
+            mean: [p.x, p.y, p.z],
+            rgb: *rgb,
+            scale: if s.is_finite() {
+                (s * config.scale_factor).clamp(config.min_scale, config.max_scale)
+            } else {
+                config.max_scale
+            },
+        })
+        .collect()
+}
+
+/// Per point, √(mean squared distance to its `k` nearest other points) (∞ for a lone point).
+pub fn nearest_neighbour_scales(points: &[[f64; 3]], k: usize) -> Vec<f64> {
+    points
+        .par_iter()
+        .enumerate()
+        .map(|(i, a)| {
+            let mut best = vec![f64::INFINITY; k];
+            for (j, b) in points.iter().enumerate() {
+                if i == j {
+                    continue;
+                }
+                let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
+                if d2 < best[k - 1] {
+                    best[k - 1] = d2;
+                    best.sort_by(f64::total_cmp);
+                }
+            }
+            let finite: Vec<f64> = best.into_iter().filter(|d| d.is_finite()).collect();
+            if finite.is_empty() {
+                f64::INFINITY
+            } else {
+                (finite.iter().sum::<f64>() / finite.len() as f64).sqrt()
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nn_scale_on_a_unit_grid() {
+        // On a 3×3 planar grid of spacing 0.1 the centre's 3 nearest are at 0.1: scale 0.1;
+        // a corner's are 0.1, 0.1 and √2·0.1: √((0.01+0.01+0.02)/3).
+        let mut pts = Vec::new();
+        for i in 0..3 {
+            for j in 0..3 {
+                pts.push([i as f64 * 0.1, j as f64 * 0.1, 1.0]);
+            }
+        }
+        let s = nearest_neighbour_scales(&pts, 3);
+        assert!((s[4] - 0.1).abs() < 1e-12);
+        assert!((s[0] - (0.04f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!(nearest_neighbour_scales(&[[0.0; 3]], 3)[0].is_infinite());
+    }
+}

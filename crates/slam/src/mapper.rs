@@ -1,0 +1,693 @@
+//! Keyframe mapping (SPEC §4): on each keyframe insert Gaussians in unobserved areas
+//! ([`crate::insert`]), drop the unknown-space Gaussians the keyframe observes
+//! ([`crate::unknown`]), optimise the map over a window of the most recent keyframes plus a
+//! few random older ones (mapping loss + isotropic regulariser `w·mean|s − mean(s)|`), then
+//! prune and densify.
+//!
+//! Pruning: after every keyframe's optimisation, Gaussians with opacity below
+//! `prune_opacity_early` (0.005) go; Gaussians visible in the window that have had at least
+//! `prune_min_age` optimisation steps and still have opacity below `prune_opacity_window`
+//! (0.7, MonoGS `gaussian_th`) go too, as do Gaussians larger than `prune_max_scale`.
+//! Densification (3DGS): Gaussians whose mean screen-space gradient (in NDC units, i.e. the
+//! pixel gradient × width/2) exceeds `densify_grad` (2e-4) are cloned when small
+//! (max scale ≤ `densify_split_scale`) and split in two (scales / 1.6, means sampled from the
+//! Gaussian) when large. Unknown-space Gaussians are never optimised, pruned or densified.
+//! Keyframe poses are the tracker's (they are not refined here).
+
+use crate::error::SlamError;
+use crate::frame::Frame;
+use crate::insert::{InsertConfig, sample_new_gaussians, unobserved_mask};
+use crate::loss::{mapping_loss, rgb_mask};
+use crate::map_adam::{MapAdam, MapLearningRates};
+use crate::unknown::{FrontierCell, UnknownSpaceConfig, observed_unknown};
+use activemap_geometry::Isometry3;
+use activemap_splat::{
+    Camera, FLAG_UNKNOWN_SPACE, Gaussians, Gradients, RenderOptions, backward, render,
+};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// Mapper settings; defaults follow SPEC §4 where it names a value.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapperConfig {
+    /// Insertion settings.
+    pub insert: InsertConfig,
+    /// Unknown-space settings.
+    pub unknown: UnknownSpaceConfig,
+    /// Number of most recent keyframes optimised together (10).
+    pub window: usize,
+    /// Random older keyframes added to the window (2).
+    pub random_older: usize,
+    /// Optimisation iterations per keyframe (each renders every window view once).
+    pub iterations: usize,
+    /// Weight α of the colour term of the mapping loss.
+    pub alpha: f32,
+    /// `Σ RGB` threshold of the colour mask.
+    pub rgb_boundary: f32,
+    /// Weight of the isotropic regulariser (10).
+    pub isotropic_weight: f32,
+    /// Learning rates.
+    pub learning_rates: MapLearningRates,
+    /// Opacity below which any Gaussian is pruned (0.005).
+    pub prune_opacity_early: f64,
+    /// Opacity below which an old-enough Gaussian visible in the window is pruned (0.7).
+    pub prune_opacity_window: f64,
+    /// Optimisation steps a Gaussian must have had before the window threshold applies.
+    pub prune_min_age: u32,
+    /// Largest allowed scale, metres.
+    pub prune_max_scale: f64,
+    /// Densification threshold on the mean NDC-space gradient of the projected mean (2e-4).
+    pub densify_grad: f64,
+    /// Split (rather than clone) Gaussians whose largest scale exceeds this, metres.
+    pub densify_split_scale: f64,
+    /// No densification once the map holds this many Gaussians.
+    pub max_gaussians: usize,
+    /// Seed of every random choice of the mapper.
+    pub seed: u64,
+}
+
+impl Default for MapperConfig {
+    fn default() -> Self {
+        Self {
+            insert: InsertConfig::default(),
+            unknown: UnknownSpaceConfig::default(),
+            window: 10,
+            random_older: 2,
+            iterations: 10,
+            alpha: 0.95,
+            rgb_boundary: 0.01,
+            isotropic_weight: 10.0,
+            learning_rates: MapLearningRates::default(),
+            prune_opacity_early: 0.005,
+            prune_opacity_window: 0.7,
+            prune_min_age: 30,
+            prune_max_scale: 0.5,
+            densify_grad: 2e-4,
+            densify_split_scale: 0.05,
+            max_gaussians: 150_000,
+            seed: 0,
+        }
+    }
+}
+
+impl MapperConfig {
+    /// Checks ranges; names the offending field.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let f = self.insert.sample_fraction;
+        if !(f > 0.0 && f <= 1.0) {
+            return Err(SlamError::Config {
+                field: "insert.sample_fraction",
+                value: f.to_string(),
+                reason: "must be in (0, 1]",
+            });
+        }
+        if self.window == 0 {
+            return Err(SlamError::Config {
+                field: "window",
+                value: "0".into(),
+                reason: "must be ≥ 1",
+            });
+        }
+        if !(0.0..=1.0).contains(&self.alpha) {
+            return Err(SlamError::Config {
+                field: "alpha",
+                value: self.alpha.to_string(),
+                reason: "must be in [0, 1]",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A keyframe kept for mapping: the frame (mapping resolution), its pose and exposure.
+#[derive(Debug, Clone)]
+pub struct Keyframe {
+    /// The observed frame.
+    pub frame: Frame,
+    /// `T_world_camera` from the tracker.
+    pub pose: Isometry3<f64>,
+    /// Exposure (a, b) from the tracker.
+    pub exposure: [f64; 2],
+    /// Colour mask of the mapping loss.
+    pub rgb_mask: Vec<bool>,
+}
+
+/// What one keyframe's mapping did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MappingReport {
+    /// Gaussians inserted from depth.
+    pub inserted: usize,
+    /// Unknown-space Gaussians removed because the keyframe observes their space.
+    pub unknown_removed: usize,
+    /// Gaussians pruned.
+    pub pruned: usize,
+    /// Gaussians added by densification.
+    pub densified: usize,
+    /// Views in the optimisation window.
+    pub window_views: usize,
+    /// Mean mapping loss over the window at the last iteration.
+    pub final_loss: f64,
+    /// Map size afterwards.
+    pub gaussians: usize,
+}
+
+/// The mapper: the Gaussian map, its optimiser state and the keyframes.
+#[derive(Debug, Clone)]
+pub struct Mapper {
+    config: MapperConfig,
+    map: Gaussians<f32>,
+    ids: Vec<u64>,
+    next_id: u64,
+    adam: MapAdam,
+    keyframes: Vec<Keyframe>,
+    rng: ChaCha8Rng,
+}
+
+impl Mapper {
+    /// An empty map.
+    pub fn new(config: MapperConfig) -> Result<Self, SlamError> {
+        config.validate()?;
+        let rng = ChaCha8Rng::seed_from_u64(config.seed);
+        Ok(Self {
+            config,
+            map: Gaussians::new(),
+            ids: Vec::new(),
+            next_id: 0,
+            adam: MapAdam::default(),
+            keyframes: Vec::new(),
+            rng,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MapperConfig {
+        &self.config
+    }
+
+    /// The current map (including unknown-space Gaussians, flagged).
+    pub fn map(&self) -> &Gaussians<f32> {
+        &self.map
+    }
+
+    /// Stable ids of the map's Gaussians (parallel to the map; survive pruning).
+    pub fn ids(&self) -> &[u64] {
+        &self.ids
+    }
+
+    /// The keyframes so far.
+    pub fn keyframes(&self) -> &[Keyframe] {
+        &self.keyframes
+    }
+
+    /// Number of unknown-space Gaussians in the map.
+    pub fn unknown_count(&self) -> usize {
+        self.map
+            .flags
+            .iter()
+            .filter(|&&f| f & FLAG_UNKNOWN_SPACE != 0)
+            .count()
+    }
+
+    /// Appends Gaussians keeping ids and optimiser state in step.
+    fn append(&mut self, added: &Gaussians<f32>) {
+        self.map.extend_from(added);
+        self.adam.grow(added.len());
+        self.ids
+            .extend(self.next_id..self.next_id + added.len() as u64);
+        self.next_id += added.len() as u64;
+    }
+
+    /// Removes Gaussians (`keep[i] == false`) from the map, ids and optimiser state.
+    fn retain(&mut self, keep: &[bool]) -> Result<usize, SlamError> {
+        let before = self.map.len();
+        self.map.retain(keep)?;
+        self.adam.retain(keep);
+        let mut k = keep.iter();
+        self.ids.retain(|_| *k.next().unwrap_or(&false));
+        Ok(before - self.map.len())
+    }
+
+    /// Adds unknown-space Gaussians above `cells` (SPEC §5); returns how many were added.
+    pub fn seed_unknown_space(
+        &mut self,
+        cells: &[FrontierCell],
+        seed: u64,
+    ) -> Result<usize, SlamError> {
+        crate::unknown::validate_cells(cells)?;
+        let mut added = Gaussians::new();
+        let n = crate::unknown::seed(&mut added, cells, &self.config.unknown, seed);
+        self.append(&added);
+        Ok(n)
+    }
+
+    /// Removes the unknown-space Gaussians that `frame` at `pose` observes; returns how many.
+    pub fn remove_observed_unknown(
+        &mut self,
+        frame: &Frame,
+        pose: &Isometry3<f64>,
+    ) -> Result<usize, SlamError> {
+        let seen = observed_unknown(&self.map, frame, pose, self.config.unknown.margin);
+        let keep: Vec<bool> = seen.iter().map(|s| !s).collect();
+        self.retain(&keep)
+    }
+
+    /// Inserts Gaussians from `frame` at `pose` where the map does not explain the depth.
+    pub fn insert_from(
+        &mut self,
+        frame: &Frame,
+        pose: &Isometry3<f64>,
+    ) -> Result<usize, SlamError> {
+        let camera = Camera::from_world_pose(frame.intrinsics, pose);
+        let options = RenderOptions {
+            exposure: [0.0, 0.0],
+            exclude_flags: FLAG_UNKNOWN_SPACE,
+        };
+        let rendered = render(&self.map, &camera, &options)?;
+        let mask = unobserved_mask(&rendered, frame, &self.config.insert);
+        let new = sample_new_gaussians(frame, pose, &mask, &self.config.insert, &mut self.rng);
+        let mut added = Gaussians::new();
+        for g in &new {
+            added.push(
+                g.mean,
+                g.rgb,
+                [1.0, 0.0, 0.0, 0.0],
+                self.config.insert.opacity,
+                [g.scale; 3],
+            );
+        }
+        self.append(&added);
+        Ok(new.len())
+    }
+
+    /// Processes a keyframe: unknown-space removal, insertion, window optimisation, pruning,
+    /// densification.
+    pub fn add_keyframe(
+        &mut self,
+        frame: Frame,
+        pose: Isometry3<f64>,
+        exposure: [f64; 2],
+    ) -> Result<MappingReport, SlamError> {
+        let mut report = MappingReport {
+            unknown_removed: self.remove_observed_unknown(&frame, &pose)?,
+            ..Default::default()
+        };
+        report.inserted = self.insert_from(&frame, &pose)?;
+        let mask = rgb_mask(&frame, self.config.rgb_boundary, 0.0);
+        self.keyframes.push(Keyframe {
+            frame,
+            pose,
+            exposure,
+            rgb_mask: mask,
+        });
+        let refined = self.optimise(self.config.iterations)?;
+        report.window_views = refined.window_views;
+        report.final_loss = refined.final_loss;
+        report.pruned = refined.pruned;
+        report.densified = refined.densified;
+        report.gaussians = self.map.len();
+        Ok(report)
+    }
+
+    /// Runs `iterations` optimisation steps over the current window (the most recent
+    /// keyframes plus random older ones), then prunes and densifies. `add_keyframe` calls it;
+    /// callers may also call it to refine the map between keyframes.
+    pub fn optimise(&mut self, iterations: usize) -> Result<MappingReport, SlamError> {
+        let mut report = MappingReport::default();
+        if self.keyframes.is_empty() {
+            report.gaussians = self.map.len();
+            return Ok(report);
+        }
+        let window = self.window_indices();
+        report.window_views = window.len();
+        let mut grad_sum = vec![0f64; self.map.len()];
+        let mut grad_count = vec![0u32; self.map.len()];
+        let mut in_window = vec![false; self.map.len()];
+        for _ in 0..iterations {
+            report.final_loss =
+                self.optimise_once(&window, &mut grad_sum, &mut grad_count, &mut in_window)?;
+        }
+        if iterations > 0 {
+            let (pruned, densified) = self.prune_and_densify(&grad_sum, &grad_count, &in_window)?;
+            report.pruned = pruned;
+            report.densified = densified;
+        }
+        report.gaussians = self.map.len();
+        Ok(report)
+    }
+
+    /// The window: the `window` most recent keyframes plus `random_older` random older ones.
+    fn window_indices(&mut self) -> Vec<usize> {
+        let n = self.keyframes.len();
+        let start = n.saturating_sub(self.config.window);
+        let mut out: Vec<usize> = (start..n).collect();
+        let mut older: Vec<usize> = (0..start).collect();
+        for _ in 0..self.config.random_older.min(older.len()) {
+            let j = self.rng.random_range(0..older.len());
+            out.push(older.swap_remove(j));
+        }
+        out
+    }
+
+    /// One optimisation step over the window views; returns the mean loss over the views.
+    fn optimise_once(
+        &mut self,
+        window: &[usize],
+        grad_sum: &mut [f64],
+        grad_count: &mut [u32],
+        in_window: &mut [bool],
+    ) -> Result<f64, SlamError> {
+        let n = self.map.len();
+        let mut total: Option<Gradients<f32>> = None;
+        let mut active = vec![false; n];
+        let mut loss_sum = 0.0;
+        for &kf in window {
+            let keyframe = &self.keyframes[kf];
+            let camera = Camera::from_world_pose(keyframe.frame.intrinsics, &keyframe.pose);
+            let options = RenderOptions {
+                exposure: keyframe.exposure,
+                exclude_flags: FLAG_UNKNOWN_SPACE,
+            };
+            let rendered = render(&self.map, &camera, &options)?;
+            let loss = mapping_loss(
+                &rendered,
+                &keyframe.frame,
+                &keyframe.rgb_mask,
+                self.config.alpha,
+            );
+            loss_sum += loss.value;
+            let grads = backward(&self.map, &rendered, &loss.grads)?;
+            let ndc = 0.5 * keyframe.frame.width() as f64;
+            for i in 0..n {
+                if rendered.context.visible[i] {
+                    active[i] = true;
+                    in_window[i] = true;
+                    grad_sum[i] += grads.mean2d_norm[i] as f64 * ndc;
+                    grad_count[i] += 1;
+                }
+            }
+            match &mut total {
+                None => total = Some(grads),
+                Some(t) => add_gradients(t, &grads),
+            }
+        }
+        let Some(mut total) = total else {
+            return Ok(0.0);
+        };
+        self.add_isotropic_gradient(&mut total, &active);
+        self.adam
+            .step(&mut self.map, &total, &active, &self.config.learning_rates);
+        Ok(loss_sum / window.len().max(1) as f64)
+    }
+
+    /// Adds ∂/∂log-scale of `w·mean_{i,k}|s_ik − s̄_i|` over the active Gaussians.
+    fn add_isotropic_gradient(&self, grads: &mut Gradients<f32>, active: &[bool]) {
+        let count = active.iter().filter(|&&a| a).count();
+        if count == 0 || self.config.isotropic_weight == 0.0 {
+            return;
+        }
+        let scale = self.config.isotropic_weight / (3 * count) as f32;
+        for i in 0..self.map.len() {
+            if !active[i] {
+                continue;
+            }
+            let s = self.map.log_scales[i].map(f32::exp);
+            let mean = (s[0] + s[1] + s[2]) / 3.0;
+            let signs = s.map(|v| {
+                if v > mean {
+                    1.0
+                } else if v < mean {
+                    -1.0
+                } else {
+                    0.0
+                }
+            });
+            let sign_mean = (signs[0] + signs[1] + signs[2]) / 3.0;
+            for j in 0..3 {
+                // ∂/∂s_j Σ_k |s_k − s̄| = sign_j − mean(sign); chain through s = e^{log s}.
+                grads.log_scales[i][j] += scale * (signs[j] - sign_mean) * s[j];
+            }
+        }
+    }
+
+    /// Prunes by opacity and size and densifies by gradient (see the module doc); returns
+    /// (pruned, added by densification). Statistics index the map before this call.
+    fn prune_and_densify(
+        &mut self,
+        grad_sum: &[f64],
+        grad_count: &[u32],
+        in_window: &[bool],
+    ) -> Result<(usize, usize), SlamError> {
+        let n = self.map.len();
+        let cfg = &self.config;
+        let mut keep: Vec<bool> = (0..n)
+            .map(|i| {
+                if self.map.flags[i] & FLAG_UNKNOWN_SPACE != 0 {
+                    return true;
+                }
+                let o = self.map.opacity(i);
+                let old = self.adam.steps(i) >= cfg.prune_min_age;
+                let weak_in_window = in_window.get(i).copied().unwrap_or(false)
+                    && old
+                    && o < cfg.prune_opacity_window;
+                o >= cfg.prune_opacity_early
+                    && !weak_in_window
+                    && max_scale(&self.map, i) <= cfg.prune_max_scale
+            })
+            .collect();
+        let pruned = keep.iter().filter(|k| !**k).count();
+        let mut added = Gaussians::<f32>::new();
+        for i in 0..n {
+            if n + added.len() >= cfg.max_gaussians {
+                break;
+            }
+            let count = grad_count.get(i).copied().unwrap_or(0);
+            if !keep[i] || count == 0 || self.map.flags[i] & FLAG_UNKNOWN_SPACE != 0 {
+                continue;
+            }
+            if grad_sum[i] / (count as f64) <= cfg.densify_grad {
+                continue;
+            }
+            if max_scale(&self.map, i) <= cfg.densify_split_scale {
+                copy_gaussian(&self.map, i, &mut added);
+            } else {
+                // Split: two samples from the Gaussian, scales / 1.6; the original goes.
+                keep[i] = false;
+                let q = self.map.rotations[i];
+                let rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                    q[0] as f64,
+                    q[1] as f64,
+                    q[2] as f64,
+                    q[3] as f64,
+                ));
+                let s = self.map.log_scales[i].map(|v| (v as f64).exp());
+                for _ in 0..2 {
+                    let z: [f64; 3] = [0; 3].map(|_| StandardNormal.sample(&mut self.rng));
+                    let offset = rotation * Vector3::new(z[0] * s[0], z[1] * s[1], z[2] * s[2]);
+                    copy_gaussian(&self.map, i, &mut added);
+                    let last = added.len() - 1;
+                    for k in 0..3 {
+                        added.means[last][k] += offset[k] as f32;
+                        added.log_scales[last][k] -= 1.6f32.ln();
+                    }
+                }
+            }
+        }
+        let densified = added.len();
+        self.retain(&keep)?;
+        self.append(&added);
+        Ok((pruned, densified))
+    }
+}
+
+/// Largest per-axis scale of Gaussian `i`, metres.
+fn max_scale(map: &Gaussians<f32>, i: usize) -> f64 {
+    map.log_scales[i]
+        .iter()
+        .fold(f32::MIN, |a, &b| a.max(b))
+        .exp() as f64
+}
+
+/// Appends a copy of Gaussian `i` of `src` (raw parameters) to `dst`.
+fn copy_gaussian(src: &Gaussians<f32>, i: usize, dst: &mut Gaussians<f32>) {
+    dst.means.push(src.means[i]);
+    dst.sh_dc.push(src.sh_dc[i]);
+    dst.rotations.push(src.rotations[i]);
+    dst.opacity_logits.push(src.opacity_logits[i]);
+    dst.log_scales.push(src.log_scales[i]);
+    dst.flags.push(src.flags[i]);
+}
+
+/// Adds `b` into `a` (same map).
+fn add_gradients(a: &mut Gradients<f32>, b: &Gradients<f32>) {
+    for i in 0..a.means.len() {
+        for k in 0..3 {
+            a.means[i][k] += b.means[i][k];
+            a.sh_dc[i][k] += b.sh_dc[i][k];
+            a.log_scales[i][k] += b.log_scales[i][k];
+        }
+        for k in 0..4 {
+            a.rotations[i][k] += b.rotations[i][k];
+        }
+        a.opacity_logits[i] += b.opacity_logits[i];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::unknown::FrontierCell;
+    use activemap_geometry::Intrinsics;
+
+    /// A 32×32, 90° camera facing a textured plane; `depth_at(x, y)` gives the depth per pixel.
+    fn plane_frame(depth_at: impl Fn(usize, usize) -> f32) -> Frame {
+        let k = Intrinsics::from_hfov(32, 32, std::f64::consts::FRAC_PI_2);
+        let mut rgb = Vec::new();
+        let mut depth = Vec::new();
+        for y in 0..32 {
+            for x in 0..32 {
+                let c = if (x / 4 + y / 4) % 2 == 0 { 0.8 } else { 0.2 };
+                rgb.push([c, 0.5, 1.0 - c]);
+                depth.push(depth_at(x, y));
+            }
+        }
+        Frame::new(k, rgb, depth, 0.0).unwrap()
+    }
+
+    fn dense_config() -> MapperConfig {
+        let mut c = MapperConfig {
+            iterations: 0,
+            ..MapperConfig::default()
+        };
+        c.insert.sample_fraction = 0.5;
+        c
+    }
+
+    #[test]
+    fn insertion_happens_in_unobserved_areas_only() {
+        let mut mapper = Mapper::new(dense_config()).unwrap();
+        let wall = plane_frame(|_, _| 2.0);
+        let first = mapper.insert_from(&wall, &Isometry3::identity()).unwrap();
+        assert!(first > 300, "{first}");
+        // The same view again: everything is explained, nothing is added.
+        assert_eq!(
+            mapper.insert_from(&wall, &Isometry3::identity()).unwrap(),
+            0
+        );
+        // A box appears in front of the left half: new Gaussians there only, at its depth.
+        let with_box = plane_frame(|x, _| if x < 16 { 1.0 } else { 2.0 });
+        let before = mapper.map().len();
+        let added = mapper
+            .insert_from(&with_box, &Isometry3::identity())
+            .unwrap();
+        assert!(added > 100, "{added}");
+        for i in before..mapper.map().len() {
+            let m = mapper.map().means[i];
+            assert!(
+                (m[2] - 1.0).abs() < 1e-3 && m[0] < 0.0,
+                "new Gaussian at {m:?} outside the box"
+            );
+        }
+        // Ids stay parallel and unique.
+        assert_eq!(mapper.ids().len(), mapper.map().len());
+        assert_eq!(*mapper.ids().last().unwrap(), mapper.map().len() as u64 - 1);
+    }
+
+    #[test]
+    fn pruning_removes_transparent_and_weak_old_gaussians_but_not_unknown_space() {
+        let mut mapper = Mapper::new(dense_config()).unwrap();
+        let wall = plane_frame(|_, _| 2.0);
+        mapper
+            .add_keyframe(wall, Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        let cells = [FrontierCell {
+            centre: [5.0, 5.0],
+            size: 0.05,
+            z_range: [0.0, 1.0],
+        }];
+        assert_eq!(mapper.seed_unknown_space(&cells, 1).unwrap(), 200);
+        let n = mapper.map().len();
+        // Gaussian 0 nearly transparent, Gaussian 1 at 0.5 opacity (weak, but young).
+        mapper.map.opacity_logits[0] = activemap_splat::gaussians::logit(0.001) as f32;
+        let id0 = mapper.ids()[0];
+        let report = mapper.optimise(1).unwrap();
+        assert!(
+            !mapper.ids().contains(&id0),
+            "the transparent Gaussian survived"
+        );
+        assert_eq!(mapper.unknown_count(), 200);
+        assert!(report.pruned >= 1 && mapper.map().len() < n + report.densified);
+        // Once old enough, Gaussians below 0.7 in the window are pruned too.
+        let cfg = MapperConfig {
+            prune_min_age: 1,
+            ..dense_config()
+        };
+        let mut mapper2 = Mapper::new(cfg).unwrap();
+        mapper2
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        let weak = mapper2.ids()[5];
+        mapper2.map.opacity_logits[5] = activemap_splat::gaussians::logit(0.3) as f32;
+        mapper2.optimise(1).unwrap();
+        assert!(!mapper2.ids().contains(&weak));
+        let strong_survivors = (0..mapper2.map().len())
+            .filter(|&i| mapper2.map().opacity(i) >= 0.7)
+            .count();
+        assert_eq!(
+            strong_survivors,
+            mapper2.map().len() - mapper2.unknown_count()
+        );
+    }
+
+    #[test]
+    fn unknown_space_is_replaced_where_a_keyframe_observes_it() {
+        let mut mapper = Mapper::new(dense_config()).unwrap();
+        // Two cells straight ahead of the camera (optical z): one at 1 m (in front of the
+        // 2 m wall: observed free space), one at 3 m (behind the wall: still unknown). The
+        // camera looks along +z, so "height" here is the optical z of the box.
+        let cells = [
+            FrontierCell {
+                centre: [0.0, 0.0],
+                size: 0.1,
+                z_range: [0.95, 1.05],
+            },
+            FrontierCell {
+                centre: [0.0, 0.0],
+                size: 0.1,
+                z_range: [2.95, 3.05],
+            },
+        ];
+        mapper.seed_unknown_space(&cells, 7).unwrap();
+        assert_eq!(mapper.unknown_count(), 400);
+        assert!(
+            mapper
+                .map()
+                .flags
+                .iter()
+                .all(|f| f & FLAG_UNKNOWN_SPACE != 0)
+        );
+        let report = mapper
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        assert_eq!(report.unknown_removed, 200);
+        assert_eq!(mapper.unknown_count(), 200);
+        let remaining_z: Vec<f32> = (0..mapper.map().len())
+            .filter(|&i| mapper.map().flags[i] & FLAG_UNKNOWN_SPACE != 0)
+            .map(|i| mapper.map().means[i][2])
+            .collect();
+        assert!(remaining_z.iter().all(|&z| z > 2.9));
+        assert!(
+            mapper
+                .seed_unknown_space(
+                    &[FrontierCell {
+                        centre: [f64::NAN, 0.0],
+                        size: 0.1,
+                        z_range: [0.0, 1.0]
+                    }],
+                    0
+                )
+                .is_err()
+        );
+    }
+}

@@ -1,0 +1,280 @@
+//! Frame-to-map tracking (SPEC §4): Adam on the pose increment τ = [ρ, θ] of the left update
+//! `T_cw ← Exp(τ)·T_cw` and on the exposure (a, b), minimising the tracking loss of
+//! [`crate::loss::tracking_loss`]. Like MonoGS, τ is folded into the pose after every step
+//! (and reset to 0) while the Adam moments persist; the loop stops once |τ| < `convergence`.
+//!
+//! The tracking-quality signal: after optimisation the render is compared with the frame
+//! ([`Residuals`]). The frame is `Lost` when the map covers too little of it, or when the
+//! covered part disagrees in depth or colour beyond the configured limits: the map no longer
+//! explains it. Unknown-space Gaussians (SPEC §5) are never rendered for tracking.
+
+use crate::adam::Adam;
+use crate::error::SlamError;
+use crate::frame::{Frame, SkipReason};
+use crate::loss::{Residuals, residuals, rgb_mask, tracking_loss};
+use activemap_geometry::Isometry3;
+use activemap_geometry::se3;
+use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, backward, render};
+use nalgebra::Vector6;
+
+/// Tracker settings; defaults are SPEC §4's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerConfig {
+    /// Adam learning rate of the translation part ρ (0.001).
+    pub lr_translation: f64,
+    /// Adam learning rate of the rotation part θ (0.003).
+    pub lr_rotation: f64,
+    /// Adam learning rate of the exposure a, b (0.01).
+    pub lr_exposure: f64,
+    /// Whether the exposure is optimised at all.
+    pub optimise_exposure: bool,
+    /// Iteration cap (100).
+    pub max_iterations: usize,
+    /// Stop once the step |τ| falls below this (1e-4).
+    pub convergence: f64,
+    /// Weight α of the colour term (0.95 synthetic, 0.9 real sensors).
+    pub alpha: f32,
+    /// `Σ RGB` above which a pixel counts for the colour term (0.01).
+    pub rgb_boundary: f32,
+    /// Colour pixels need an image gradient above this × the median (MonoGS edge threshold);
+    /// 0 keeps every pixel.
+    pub edge_factor: f32,
+    /// Compare depth readings with the normalised render `D̂/o` (see
+    /// [`crate::loss::tracking_loss`]; true by default, false = SPEC §4 verbatim).
+    pub normalise_depth: bool,
+    /// Track on a frame downscaled by this integer factor (speed; 1 = full resolution).
+    pub downscale: usize,
+    /// `Lost` when the map covers less than this fraction of the valid-depth pixels.
+    pub lost_min_coverage: f64,
+    /// `Lost` when the median depth residual exceeds this fraction of the median depth.
+    pub lost_max_depth_residual: f64,
+    /// `Lost` when the mean colour residual over covered pixels exceeds this.
+    pub lost_max_photometric: f64,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            lr_translation: 0.001,
+            lr_rotation: 0.003,
+            lr_exposure: 0.01,
+            optimise_exposure: true,
+            max_iterations: 100,
+            convergence: 1e-4,
+            alpha: 0.95,
+            rgb_boundary: 0.01,
+            edge_factor: 1.1,
+            normalise_depth: true,
+            downscale: 1,
+            lost_min_coverage: 0.3,
+            lost_max_depth_residual: 0.1,
+            lost_max_photometric: 0.3,
+        }
+    }
+}
+
+impl TrackerConfig {
+    /// Checks ranges; names the offending field.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let positive = [
+            ("lr_translation", self.lr_translation),
+            ("lr_rotation", self.lr_rotation),
+            ("lr_exposure", self.lr_exposure),
+            ("convergence", self.convergence),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(SlamError::Config {
+                    field,
+                    value: v.to_string(),
+                    reason: "must be finite and > 0",
+                });
+            }
+        }
+        if !(0.0..=1.0).contains(&self.alpha) {
+            return Err(SlamError::Config {
+                field: "alpha",
+                value: self.alpha.to_string(),
+                reason: "must be in [0, 1]",
+            });
+        }
+        if self.downscale == 0 {
+            return Err(SlamError::Config {
+                field: "downscale",
+                value: "0".into(),
+                reason: "must be ≥ 1",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Tracking outcome of one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrackingStatus {
+    /// The map explains the frame at the estimated pose.
+    Ok,
+    /// The residuals show the map no longer explains the frame (the pose is a guess).
+    Lost,
+    /// The frame was unusable and not tracked (the pose is the prediction).
+    Skipped(SkipReason),
+}
+
+/// The result of tracking one frame.
+#[derive(Debug, Clone)]
+pub struct TrackOutput {
+    /// Estimated `T_world_camera`.
+    pub pose: Isometry3<f64>,
+    /// Estimated exposure (a, b): rendered colour `e^a·c + b` matches the frame.
+    pub exposure: [f64; 2],
+    /// Ok / lost / skipped.
+    pub status: TrackingStatus,
+    /// Residuals of the final render (they justify the status).
+    pub residuals: Residuals,
+    /// Optimisation iterations run.
+    pub iterations: usize,
+    /// Whether the step fell below the convergence threshold.
+    pub converged: bool,
+    /// Final tracking loss.
+    pub loss: f64,
+    /// Which map Gaussians the final render saw (index into the map), for co-visibility.
+    pub visible: Vec<bool>,
+}
+
+/// Decides the status from residuals (see the module doc).
+pub fn classify(config: &TrackerConfig, r: &Residuals, median_depth: f64) -> TrackingStatus {
+    let depth_limit = config.lost_max_depth_residual * median_depth.max(0.1);
+    let explained = r.coverage >= config.lost_min_coverage
+        && r.depth_median.is_finite()
+        && r.depth_median <= depth_limit
+        && r.photometric <= config.lost_max_photometric;
+    if explained {
+        TrackingStatus::Ok
+    } else {
+        TrackingStatus::Lost
+    }
+}
+
+/// Tracks `frame` (already at tracking resolution) against `map`, starting from the predicted
+/// `T_world_camera` and exposure. Unusable frames return `Skipped` with the prediction.
+pub fn track(
+    config: &TrackerConfig,
+    map: &Gaussians<f32>,
+    frame: &Frame,
+    predicted_pose: &Isometry3<f64>,
+    predicted_exposure: [f64; 2],
+) -> Result<TrackOutput, SlamError> {
+    config.validate()?;
+    let pose_ok = predicted_pose
+        .translation
+        .vector
+        .iter()
+        .chain(predicted_pose.rotation.coords.iter())
+        .all(|v| v.is_finite());
+    if !pose_ok {
+        return Err(SlamError::Input {
+            what: "predicted pose",
+            reason: "not finite".into(),
+        });
+    }
+    let skipped = |reason| TrackOutput {
+        pose: *predicted_pose,
+        exposure: predicted_exposure,
+        status: TrackingStatus::Skipped(reason),
+        residuals: Residuals::default(),
+        iterations: 0,
+        converged: false,
+        loss: f64::NAN,
+        visible: vec![false; map.len()],
+    };
+    if let Err(reason) = frame.usability() {
+        return Ok(skipped(reason));
+    }
+    let mask = rgb_mask(frame, config.rgb_boundary, config.edge_factor);
+    let median_depth = frame.median_depth().unwrap_or(1.0);
+    let lr_e = if config.optimise_exposure {
+        config.lr_exposure
+    } else {
+        0.0
+    };
+    let (lt, lr) = (config.lr_translation, config.lr_rotation);
+    let mut adam = Adam::new([lt, lt, lt, lr, lr, lr, lr_e, lr_e]);
+    let mut camera_from_world = predicted_pose.inverse();
+    let mut exposure = predicted_exposure;
+    let mut iterations = 0;
+    let mut converged = false;
+    let options = |exposure| RenderOptions {
+        exposure,
+        exclude_flags: FLAG_UNKNOWN_SPACE,
+    };
+    let mut last = None;
+    while iterations < config.max_iterations {
+        let camera = Camera::new(frame.intrinsics, camera_from_world);
+        let out = render(map, &camera, &options(exposure))?;
+        let loss = tracking_loss(&out, frame, &mask, config.alpha, config.normalise_depth);
+        let grads = backward(map, &out, &loss.grads)?;
+        iterations += 1;
+        let g = [
+            grads.pose[0],
+            grads.pose[1],
+            grads.pose[2],
+            grads.pose[3],
+            grads.pose[4],
+            grads.pose[5],
+            grads.exposure[0],
+            grads.exposure[1],
+        ];
+        let delta = adam.step(&g);
+        let tau = Vector6::new(delta[0], delta[1], delta[2], delta[3], delta[4], delta[5]);
+        last = Some((out, loss.value));
+        if !tau.iter().all(|v| v.is_finite()) {
+            break;
+        }
+        camera_from_world = se3::left_update(&camera_from_world, &tau);
+        if config.optimise_exposure {
+            exposure = [exposure[0] + delta[6], exposure[1] + delta[7]];
+        }
+        if tau.norm() < config.convergence {
+            converged = true;
+            break;
+        }
+    }
+    // Residuals at the final pose (one extra forward pass, no backward).
+    let camera = Camera::new(frame.intrinsics, camera_from_world);
+    let final_render = render(map, &camera, &options(exposure))?;
+    let loss = if iterations > 0 {
+        tracking_loss(
+            &final_render,
+            frame,
+            &mask,
+            config.alpha,
+            config.normalise_depth,
+        )
+        .value
+    } else {
+        last.map_or(f64::NAN, |(_, l)| l)
+    };
+    let res = residuals(&final_render, frame);
+    let pose = camera_from_world.inverse();
+    let finite = pose
+        .translation
+        .vector
+        .iter()
+        .chain(pose.rotation.coords.iter())
+        .all(|v| v.is_finite());
+    let (pose, status) = if finite {
+        (pose, classify(config, &res, median_depth))
+    } else {
+        (*predicted_pose, TrackingStatus::Lost)
+    };
+    Ok(TrackOutput {
+        pose,
+        exposure,
+        status,
+        residuals: res,
+        iterations,
+        converged,
+        loss,
+        visible: final_render.context.visible,
+    })
+}
