@@ -1,5 +1,540 @@
 //! `activemap`: the command-line entry point (see `activemap --help`).
+//!
+//! One binary: built-in operators run as `activemap node` subprocesses of `activemap run`.
 
-fn main() -> anyhow::Result<()> {
-    anyhow::bail!("activemap: no command implemented yet")
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use activemap_runtime::dataflow::{Dataflow, NodeImpl};
+use activemap_runtime::graph::{GraphFormat, render};
+use activemap_runtime::launch::{LaunchOptions, NodeExit, run_local};
+use activemap_runtime::node::{NodeSetup, RunInfo, install_stop_signals};
+use activemap_runtime::{bench, record};
+use anyhow::{Context as _, bail};
+use clap::{Parser, Subcommand, ValueEnum};
+
+mod benches;
+mod evaluate;
+
+#[derive(Parser)]
+#[command(
+    name = "activemap",
+    version,
+    about = "Autonomous active mapping: 3DGS SLAM, Fisher-information paths and an LLM planner, as a dataflow of operators"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Check a dataflow file; errors are printed as file:line:column.
+    Validate {
+        /// Dataflow file.
+        file: PathBuf,
+    },
+    /// Print the dataflow as a graph.
+    Graph {
+        /// Dataflow file.
+        file: PathBuf,
+        /// Output format.
+        #[arg(long, value_enum, default_value_t = Format::Mermaid)]
+        format: Format,
+    },
+    /// Run every node of a dataflow on this machine (Ctrl-C stops everything cleanly).
+    Run {
+        /// Dataflow file.
+        file: PathBuf,
+        /// Run folder (logs, recording); default runs/<run time>.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Step budget passed to the operators.
+        #[arg(long)]
+        max_steps: Option<u64>,
+        /// Do not write recording.mcap.
+        #[arg(long)]
+        no_record: bool,
+        /// Do not evaluate the run (metrics.json) when it ends; report.html is still written.
+        #[arg(long)]
+        no_eval: bool,
+        /// Test views of the end-of-run evaluation (SPEC §8: 2000).
+        #[arg(long, default_value_t = 2000)]
+        eval_views: usize,
+    },
+    /// Evaluate a finished run (SPEC §8): renders the map at seeded test views against the
+    /// simulator's ground truth; writes metrics.json, metrics.md and report.html.
+    Eval {
+        /// Run folder.
+        run_dir: PathBuf,
+        #[command(flatten)]
+        args: evaluate::EvalArgs,
+    },
+    /// Write a run folder's self-contained report.html.
+    Report {
+        /// Run folder.
+        run_dir: PathBuf,
+    },
+    /// Distributed run: start this machine's share of a flow (the nodes whose `deploy.machine` is
+    /// MACHINE) behind a Zenoh router on the machine's endpoints; runs until they finish or stop.
+    Up {
+        /// Dataflow file (the same on every machine).
+        file: PathBuf,
+        /// This machine's id in the file.
+        #[arg(long)]
+        machine: String,
+        /// Run id shared by all machines of the run.
+        #[arg(long)]
+        run_id: String,
+        /// Run folder (logs, recording of this machine's topics).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Step budget passed to the operators.
+        #[arg(long)]
+        max_steps: Option<u64>,
+        /// Do not write recording.mcap.
+        #[arg(long)]
+        no_record: bool,
+    },
+    /// Stop a run on every machine (alias: down).
+    #[command(alias = "down")]
+    Stop {
+        /// Run id.
+        #[arg(long)]
+        run_id: String,
+        /// Zenoh endpoint of any machine's router, e.g. tcp/127.0.0.2:7447.
+        #[arg(long, required = true)]
+        connect: Vec<String>,
+    },
+    /// List run folders.
+    List {
+        /// Folder holding run folders.
+        #[arg(long, default_value = "runs")]
+        dir: PathBuf,
+    },
+    /// Print the last lines of a run's node logs.
+    Logs {
+        /// Run folder.
+        run_dir: PathBuf,
+        /// Only this node.
+        #[arg(long)]
+        node: Option<String>,
+        /// Lines per log.
+        #[arg(long, default_value_t = 40)]
+        lines: usize,
+    },
+    /// Run one operator alone on its recorded inputs and compare its outputs with the recording.
+    Replay {
+        /// Recording (recording.mcap of a run folder).
+        recording: PathBuf,
+        /// Node to replay.
+        #[arg(long)]
+        node: String,
+    },
+    /// List the operators of this build.
+    Operators,
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        which: BenchCommand,
+    },
+    /// Run one node of a launched flow (used by `run`).
+    #[command(hide = true)]
+    Node {
+        /// Run folder written by the launcher.
+        #[arg(long)]
+        run_dir: PathBuf,
+        /// Node id.
+        #[arg(long)]
+        node: String,
+    },
+}
+
+/// One subcommand per benchmark area: adding one is one variant here and one arm in `bench`.
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Latency of an 800×800 RGB-D frame between two processes: iceoryx2, iceoryx2 in place, Zenoh, memcpy.
+    Transport(TransportArgs),
+    /// Splat renderer: forward, forward+backward and Fisher pass, optionally against the JAX reference.
+    Splat(benches::SplatArgs),
+    /// Simulator: RGB-D frames per second.
+    Sim(benches::SimArgs),
+    /// SLAM on scripted loops: ATE, PSNR, tracking fps, mapping time.
+    Slam(benches::SlamArgs),
+    /// Planning library: A*, occupancy, frontiers, library-only FBE episodes.
+    Planning(benches::PlanningArgs),
+    /// Evaluation metrics: time per metric.
+    Metrics(benches::MetricsArgs),
+}
+
+#[derive(clap::Args)]
+struct TransportArgs {
+    /// Frames measured per path.
+    #[arg(long, default_value_t = 200)]
+    frames: usize,
+    /// Frame side, pixels.
+    #[arg(long, default_value_t = 800)]
+    size: u32,
+    /// Gap between frames, µs.
+    #[arg(long, default_value_t = 5000)]
+    period_us: u64,
+    /// Internal: act as the publisher of this path.
+    #[arg(long, hide = true)]
+    peer: Option<String>,
+    /// Internal: service key for the peer.
+    #[arg(long, hide = true, default_value = "")]
+    key: String,
+    /// Internal: Zenoh endpoint for the peer.
+    #[arg(long, hide = true, default_value = "")]
+    endpoint: String,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Format {
+    Mermaid,
+    Dot,
+}
+
+fn load(file: &Path) -> anyhow::Result<Dataflow> {
+    Dataflow::load(file, &activemap_operators::catalog()).map_err(|d| anyhow::anyhow!("{d}"))
+}
+
+fn main() -> ExitCode {
+    match real_main() {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn real_main() -> anyhow::Result<ExitCode> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Validate { file } => {
+            let flow = load(&file)?;
+            println!(
+                "{}: ok ({} nodes, {} machines)",
+                file.display(),
+                flow.nodes.len(),
+                flow.machines.len()
+            );
+        }
+        Command::Graph { file, format } => {
+            let flow = load(&file)?;
+            let format = match format {
+                Format::Mermaid => GraphFormat::Mermaid,
+                Format::Dot => GraphFormat::Dot,
+            };
+            print!("{}", render(&flow, format));
+        }
+        Command::Operators => {
+            for r in activemap_operators::registry() {
+                let d = r.descriptor;
+                let state = if r.implementation.is_some() {
+                    "built"
+                } else {
+                    "planned"
+                };
+                println!("{:<16} {:<8} {}", d.name, state, d.summary);
+            }
+        }
+        Command::Run {
+            file,
+            out,
+            max_steps,
+            no_record,
+            no_eval,
+            eval_views,
+        } => {
+            let eval = (!no_eval).then(|| evaluate::EvalArgs {
+                views: eval_views,
+                ..Default::default()
+            });
+            return run(&file, out, max_steps, !no_record, None, eval);
+        }
+        Command::Eval { run_dir, args } => evaluate::eval(&run_dir, &args)?,
+        Command::Report { run_dir } => evaluate::report(&run_dir)?,
+        Command::Up {
+            file,
+            machine,
+            run_id,
+            out,
+            max_steps,
+            no_record,
+        } => {
+            return run(
+                &file,
+                out,
+                max_steps,
+                !no_record,
+                Some((machine, run_id)),
+                None,
+            );
+        }
+        Command::Stop { run_id, connect } => {
+            activemap_runtime::launch::stop_run(&run_id, &connect)?;
+            println!("stop sent to run {run_id}");
+        }
+        Command::List { dir } => {
+            let mut runs: Vec<_> = std::fs::read_dir(&dir)
+                .with_context(|| format!("reading {}", dir.display()))?
+                .flatten()
+                .filter(|e| e.path().join(RunInfo::FILE).exists())
+                .collect();
+            runs.sort_by_key(|e| e.file_name());
+            for e in runs {
+                let info = RunInfo::load(&e.path())?;
+                let nodes = std::fs::read_dir(e.path().join("logs"))
+                    .map(|d| d.count() / 2)
+                    .unwrap_or(0);
+                println!(
+                    "{:<30} run {}  {nodes} nodes",
+                    e.path().display(),
+                    info.run_id
+                );
+            }
+        }
+        Command::Logs {
+            run_dir,
+            node,
+            lines,
+        } => {
+            let logs = activemap_runtime::node::logs_dir(&run_dir);
+            let mut files: Vec<_> = std::fs::read_dir(&logs)
+                .with_context(|| format!("reading {}", logs.display()))?
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| {
+                    node.as_ref().is_none_or(|n| {
+                        p.file_name()
+                            .is_some_and(|f| f.to_string_lossy().starts_with(&format!("{n}.")))
+                    })
+                })
+                .collect();
+            files.sort();
+            for f in files {
+                println!("==> {} <==", f.display());
+                println!("{}", activemap_runtime::launch::tail(&f, lines));
+            }
+        }
+        Command::Node { run_dir, node } => run_node(&run_dir, &node)?,
+        Command::Replay { recording, node } => return replay(&recording, &node),
+        Command::Bench { which } => match which {
+            BenchCommand::Transport(args) => bench_transport(&args)?,
+            BenchCommand::Splat(args) => benches::splat(&args)?,
+            BenchCommand::Sim(args) => benches::sim(&args)?,
+            BenchCommand::Slam(args) => benches::slam(&args)?,
+            BenchCommand::Planning(args) => benches::planning(&args)?,
+            BenchCommand::Metrics(args) => benches::metrics(&args)?,
+        },
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run(
+    file: &Path,
+    out: Option<PathBuf>,
+    max_steps: Option<u64>,
+    record: bool,
+    distributed: Option<(String, String)>,
+    eval: Option<evaluate::EvalArgs>,
+) -> anyhow::Result<ExitCode> {
+    let flow = load(file)?;
+    let local = |machine: &str| distributed.as_ref().is_none_or(|(m, _)| m == machine);
+    for n in flow.nodes.iter().filter(|n| local(&n.machine)) {
+        if let NodeImpl::Operator(op) = &n.implementation {
+            let entry = activemap_operators::find(op).context("validated operator missing")?;
+            if entry.implementation.is_none() {
+                bail!(
+                    "{}:{}: node `{}` uses operator `{op}`, which is declared but not built yet in this version",
+                    flow.file,
+                    n.loc,
+                    n.id
+                );
+            }
+        }
+    }
+    let run_dir = out.unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
+        PathBuf::from("runs").join(format!("run-{secs}"))
+    });
+    let mut opts = LaunchOptions::new(
+        run_dir,
+        std::env::current_exe().context("locating the activemap executable")?,
+    );
+    opts.max_steps = max_steps;
+    opts.record = record;
+    opts.progress = true;
+    if let Some((machine, run_id)) = distributed {
+        opts.machine = Some(machine);
+        opts.run_id = Some(run_id);
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    install_stop_signals(&stop)?;
+    let report = run_local(&flow, &opts, stop)?;
+    eprintln!(
+        "activemap: run {} in {}",
+        report.run_id,
+        report.run_dir.display()
+    );
+    for (id, (exit, restarts)) in &report.nodes {
+        let exit = match exit {
+            NodeExit::Finished => "finished".to_string(),
+            NodeExit::Stopped => "stopped".to_string(),
+            NodeExit::Crashed(why) => format!("crashed ({why})"),
+        };
+        eprintln!(
+            "  {id:<20} {exit}{}",
+            if *restarts > 0 {
+                format!(", {restarts} restarts")
+            } else {
+                String::new()
+            }
+        );
+    }
+    if let Some(stats) = &report.recording {
+        eprintln!(
+            "activemap: recorded {} messages ({} bytes) to {}",
+            stats.messages,
+            stats.bytes,
+            report.run_dir.join("recording.mcap").display()
+        );
+        for (topic, n) in &stats.dropped {
+            eprintln!("activemap: warning: the recorder lost {n} messages on {topic}");
+        }
+    }
+    if let Some(failure) = report.failure {
+        eprintln!("error: the flow stopped: {failure}");
+        return Ok(ExitCode::FAILURE);
+    }
+    if report.interrupted {
+        eprintln!("activemap: stopped by signal");
+        return Ok(ExitCode::from(130));
+    }
+    finish_run(&report.run_dir, eval)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// After a successful run whose flow wrote an evaluation summary (an `evaluator` node): the
+/// metrics of SPEC §8 (unless disabled) and report.html, so one command leaves a report.
+fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Result<()> {
+    if !run_dir
+        .join(activemap_eval::run_folder::files::SUMMARY)
+        .exists()
+    {
+        return Ok(());
+    }
+    match eval {
+        Some(args) => {
+            eprintln!(
+                "activemap: evaluating the run at {} test views (skip with --no-eval)",
+                args.views
+            );
+            evaluate::eval(run_dir, &args)
+        }
+        None => evaluate::report(run_dir),
+    }
+}
+
+fn run_node(run_dir: &Path, node: &str) -> anyhow::Result<()> {
+    let run = RunInfo::load(run_dir)?;
+    let flow = load(&run_dir.join(RunInfo::DATAFLOW))?;
+    let spec = flow
+        .node(node)
+        .with_context(|| format!("node `{node}` is not in the dataflow"))?;
+    let NodeImpl::Operator(op) = &spec.implementation else {
+        bail!("node `{node}` is an external executable, not a built-in operator");
+    };
+    let implementation = activemap_operators::find(op)
+        .and_then(|r| r.implementation)
+        .with_context(|| format!("operator `{op}` is not built in this version"))?;
+    let stop = Arc::new(AtomicBool::new(false));
+    install_stop_signals(&stop)?;
+    (implementation.run)(NodeSetup {
+        dataflow: &flow,
+        run: &run,
+        node_id: node,
+        stop,
+    })?;
+    Ok(())
+}
+
+fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
+    let recording = record::read_recording(recording_path)?;
+    if recording.dataflow_yaml.is_empty() {
+        bail!(
+            "{}: no embedded dataflow (not an activemap recording?)",
+            recording_path.display()
+        );
+    }
+    let name = format!("{} (embedded dataflow)", recording_path.display());
+    let flow = Dataflow::parse(
+        &name,
+        &recording.dataflow_yaml,
+        PathBuf::new(),
+        &activemap_operators::catalog(),
+    )
+    .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let spec = flow
+        .node(node)
+        .with_context(|| format!("node `{node}` is not in the recorded dataflow"))?;
+    let NodeImpl::Operator(op) = &spec.implementation else {
+        bail!("node `{node}` is an external executable; replay runs built-in operators");
+    };
+    let implementation = activemap_operators::find(op)
+        .and_then(|r| r.implementation)
+        .with_context(|| format!("operator `{op}` is not built in this version"))?;
+    let inputs = record::recorded_inputs(&recording, &flow, node)?;
+    let produced = (implementation.replay)(spec, &inputs)?;
+    let report = record::compare_outputs(&recording, node, &produced);
+    if recording.truncated {
+        eprintln!(
+            "warning: the recording ends early (its writer was killed); replaying what it holds"
+        );
+    }
+    for (port, (matched, recorded, made)) in &report.per_port {
+        println!("  {node}/{port}: {matched} matched, {recorded} recorded, {made} produced");
+    }
+    println!(
+        "replay {node}: {} inputs, {}/{} outputs matched",
+        inputs.len(),
+        report.matched(),
+        report.recorded()
+    );
+    Ok(if report.all_match() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+fn bench_transport(args: &TransportArgs) -> anyhow::Result<()> {
+    let period = Duration::from_micros(args.period_us);
+    if let Some(path) = &args.peer {
+        bench::transport_peer(
+            path,
+            &args.key,
+            args.frames,
+            args.size,
+            period,
+            &args.endpoint,
+        )?;
+        return Ok(());
+    }
+    let opts = bench::TransportBenchOptions {
+        frames: args.frames,
+        size: args.size,
+        period,
+    };
+    let rows = bench::run_transport(&std::env::current_exe()?, &opts)?;
+    print!("{}", bench::format_rows(&rows));
+    Ok(())
 }

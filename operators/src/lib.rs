@@ -1,1 +1,77 @@
-//! The built-in dataflow operators: thin wrappers wiring library algorithms to typed inputs and outputs.
+//! The built-in dataflow operators and their registry.
+//!
+//! Every operator has a descriptor (ports, types, config check: what `activemap validate` needs)
+//! and, once built, an implementation ([`OperatorImpl`]). Operators of the pipeline that are not
+//! built yet are registered with their descriptor only ([`planned`]), so the reference
+//! `dataflow.yaml` validates; `activemap run` refuses to launch them with a clear message.
+//!
+//! Adding an operator: write a module with a type implementing
+//! [`activemap_runtime::Operator`] and a `pub fn registered() -> Registered`, then add one line to
+//! [`registry`] (and drop its entry from [`planned`]).
+
+use activemap_runtime::{OperatorDescriptor, OperatorImpl};
+
+pub mod convert;
+pub mod evaluator;
+pub mod follower;
+pub mod frontier;
+pub mod mapper;
+pub mod occupancy;
+pub mod planned;
+pub mod planner;
+pub mod scorer;
+pub mod sim;
+pub mod testing;
+pub mod tracker;
+
+/// A registry entry: what the validator knows, and how to run it (None while not built).
+#[derive(Clone, Copy)]
+pub struct Registered {
+    /// Ports, types and config check.
+    pub descriptor: OperatorDescriptor,
+    /// Entry points, or None for a planned operator.
+    pub implementation: Option<OperatorImpl>,
+}
+
+/// Every operator known to this build.
+pub fn registry() -> Vec<Registered> {
+    let mut all = vec![
+        testing::counter_source::registered(),
+        testing::doubler::registered(),
+        testing::frame_source::registered(),
+        testing::frame_checker::registered(),
+        sim::registered(),
+        tracker::registered(),
+        mapper::registered(),
+        occupancy::registered(),
+        frontier::registered(),
+        planner::registered(),
+        scorer::registered(),
+        follower::registered(),
+        evaluator::registered(),
+    ];
+    all.extend(planned::registered());
+    all
+}
+
+/// The descriptors, for validation.
+pub fn catalog() -> Vec<OperatorDescriptor> {
+    registry().into_iter().map(|r| r.descriptor).collect()
+}
+
+/// The registry entry of operator `name`.
+pub fn find(name: &str) -> Option<Registered> {
+    registry().into_iter().find(|r| r.descriptor.name == name)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn operator_names_are_unique() {
+        let mut names: Vec<_> = super::catalog().iter().map(|d| d.name).collect();
+        let n = names.len();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), n);
+    }
+}

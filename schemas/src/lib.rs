@@ -1,1 +1,31 @@
-//! Every message type of the dataflow and its topic, with schema versions.
+//! Every message type of the dataflow (SPEC §1) and its topic, with schema versions.
+//!
+//! Two wire formats:
+//! - **small messages** (actions, poses, paths, ...) are serde structs encoded with postcard behind a
+//!   2-byte schema-version prefix ([`SmallMessage`]);
+//! - **large payloads** (RGB-D frames, Gaussian maps, occupancy grids) are a `#[repr(C)]` header
+//!   followed by 8-byte aligned slices ([`rgbd`], [`gaussian_map`], [`occupancy`]), so a producer can
+//!   write them in place into a loaned shared-memory sample and a consumer can read them without a copy.
+//!
+//! Every payload carries its schema version; decoding a payload with another version, a truncated
+//! payload or garbage is an [`SchemaError`], never a panic. [`MessageKind`] names every type, its
+//! transport class and whether it is evaluation-only (ground truth), and [`topics`] lists the
+//! canonical topic of each stage.
+
+pub mod error;
+pub mod gaussian_map;
+pub mod kind;
+mod layout;
+pub mod messages;
+pub mod occupancy;
+pub mod rgbd;
+pub mod small;
+pub mod topics;
+
+pub use error::SchemaError;
+pub use gaussian_map::{GaussianMap, GaussianMapHeader, GaussianMapMut, GaussianMapView};
+pub use kind::{MessageKind, Payload, TransportClass};
+pub use messages::*;
+pub use occupancy::{CellState, OccupancyGrid, OccupancyGridHeader, OccupancyGridView};
+pub use rgbd::{RgbdFrame, RgbdFrameHeader, RgbdFrameMut, RgbdFrameView};
+pub use small::SmallMessage;

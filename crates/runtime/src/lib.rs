@@ -1,1 +1,96 @@
-//! Dataflow runtime: operator API, iceoryx2/Zenoh transport, launcher, recorder and replay.
+//! Dataflow runtime: the operator API, the dataflow file and its validation, the iceoryx2/Zenoh
+//! transport, the launcher, the recorder and replay.
+//!
+//! # Writing an operator
+//!
+//! An operator is a type implementing [`Operator`]: it is built from its node's `config:` and then
+//! receives [`Event`]s — input messages, timer ticks, end of an input stream, stop — and sends
+//! outputs through the [`Context`]. The runtime picks the transport: large payloads
+//! (RGB-D frames, maps, grids) travel through iceoryx2 shared memory on one machine and are
+//! bridged over Zenoh to other machines; small messages travel over Zenoh.
+//!
+//! ```no_run
+//! use activemap_runtime::{Context, Event, Flow, Operator};
+//! use activemap_schemas::{Action, ActionKind, RgbdFrameHeader, RgbdFrameMut, RgbdFrameView};
+//!
+//! /// Config from the dataflow file; unknown keys are a validation error.
+//! #[derive(serde::Deserialize)]
+//! #[serde(deny_unknown_fields)]
+//! struct MyConfig {
+//!     #[serde(default = "default_size")]
+//!     size: u32,
+//! }
+//! fn default_size() -> u32 { 800 }
+//!
+//! struct MyCamera { size: u32, frame: u64 }
+//!
+//! impl Operator for MyCamera {
+//!     type Config = MyConfig;
+//!
+//!     fn new(config: MyConfig, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+//!         Ok(Self { size: config.size, frame: 0 })
+//!     }
+//!
+//!     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
+//!         match event {
+//!             // An input `action:` of type Action: decode (checks the type and schema version).
+//!             Event::Input(input) if input.port == "action" => {
+//!                 let action: Action = input.decode()?;
+//!                 if action.action == ActionKind::Stop {
+//!                     return Ok(Flow::Stop);
+//!                 }
+//!                 // Large output, written in place into a loaned shared-memory sample: no copy.
+//!                 self.frame += 1;
+//!                 let header = RgbdFrameHeader::new(self.frame, 0.0, [400.0, 400.0, 399.5, 399.5],
+//!                                                   self.size, self.size);
+//!                 ctx.loan("rgbd", header.payload_len()?, |buf| {
+//!                     let frame = RgbdFrameMut::init(buf, header)?;
+//!                     frame.rgb.fill(128);
+//!                     frame.depth.fill(1.5);
+//!                     Ok(())
+//!                 })?;
+//!             }
+//!             // A large input is read in place: `RgbdFrameView::parse(input.bytes)`.
+//!             Event::Input(input) => {
+//!                 let _view = RgbdFrameView::parse(input.bytes)?;
+//!             }
+//!             Event::Timer { name: _ } => {}
+//!             Event::InputClosed { .. } | Event::Stop => {}
+//!         }
+//!         Ok(Flow::Continue)
+//!     }
+//! }
+//! ```
+//!
+//! Register it in `activemap-operators` (an [`OperatorDescriptor`] with its ports and config check,
+//! plus [`OperatorImpl::of::<MyCamera>()`]), then use it in a dataflow file:
+//!
+//! ```yaml
+//! nodes:
+//!   - id: camera
+//!     operator: my_camera
+//!     config: { size: 800 }
+//!     inputs:
+//!       action: follower/action          # or { source: follower/action, queue_size: 1, drop: block }
+//! ```
+//!
+//! `activemap validate FILE` checks it; `activemap run FILE` runs every node as an `activemap node`
+//! subprocess; `activemap replay REC --node camera` re-runs the node alone on its recorded inputs.
+
+pub mod bench;
+pub mod catalog;
+pub mod dataflow;
+mod error;
+pub mod graph;
+pub mod launch;
+pub mod node;
+pub mod operator;
+pub mod record;
+pub mod transport;
+pub mod yaml;
+
+pub use catalog::{OperatorDescriptor, PortSpec, check_config_as};
+pub use dataflow::{Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, RestartPolicy};
+pub use error::RuntimeError;
+pub use node::{NodeSetup, OperatorImpl, RunInfo};
+pub use operator::{Context, Event, Flow, Input, Operator, OutputSink};

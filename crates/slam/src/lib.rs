@@ -27,16 +27,13 @@
 // Index loops over the parallel arrays of the structure-of-arrays map read better than zips.
 #![allow(clippy::needless_range_loop)]
 
-pub mod adam;
 pub mod bench;
 pub mod error;
 pub mod frame;
 pub mod insert;
 pub mod keyframe;
 pub mod loss;
-pub mod map_adam;
 pub mod mapper;
-pub mod metrics;
 pub mod scripted;
 pub mod slam;
 pub mod tracker;

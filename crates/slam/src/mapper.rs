@@ -18,11 +18,11 @@ use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::insert::{InsertConfig, sample_new_gaussians, unobserved_mask};
 use crate::loss::{mapping_loss, rgb_mask};
-use crate::map_adam::{MapAdam, MapLearningRates};
 use crate::unknown::{FrontierCell, UnknownSpaceConfig, observed_unknown};
 use activemap_geometry::Isometry3;
 use activemap_splat::{
-    Camera, FLAG_UNKNOWN_SPACE, Gaussians, Gradients, RenderOptions, backward, render,
+    AdamConfig, Camera, FLAG_UNKNOWN_SPACE, GaussianAdam, Gaussians, Gradients, RenderOptions,
+    backward, render,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -48,8 +48,8 @@ pub struct MapperConfig {
     pub rgb_boundary: f32,
     /// Weight of the isotropic regulariser (10).
     pub isotropic_weight: f32,
-    /// Learning rates.
-    pub learning_rates: MapLearningRates,
+    /// Adam learning rates per parameter group (MonoGS/3DGS values; mean 0.002 m per step).
+    pub learning_rates: AdamConfig,
     /// Opacity below which any Gaussian is pruned (0.005).
     pub prune_opacity_early: f64,
     /// Opacity below which an old-enough Gaussian visible in the window is pruned (0.7).
@@ -79,7 +79,14 @@ impl Default for MapperConfig {
             alpha: 0.95,
             rgb_boundary: 0.01,
             isotropic_weight: 10.0,
-            learning_rates: MapLearningRates::default(),
+            learning_rates: AdamConfig {
+                lr_mean: 0.002,
+                lr_colour: 0.0025,
+                lr_rotation: 0.001,
+                lr_opacity: 0.05,
+                lr_scale: 0.005,
+                ..AdamConfig::default()
+            },
             prune_opacity_early: 0.005,
             prune_opacity_window: 0.7,
             prune_min_age: 30,
@@ -160,7 +167,7 @@ pub struct Mapper {
     map: Gaussians<f32>,
     ids: Vec<u64>,
     next_id: u64,
-    adam: MapAdam,
+    adam: GaussianAdam,
     keyframes: Vec<Keyframe>,
     rng: ChaCha8Rng,
 }
@@ -170,12 +177,13 @@ impl Mapper {
     pub fn new(config: MapperConfig) -> Result<Self, SlamError> {
         config.validate()?;
         let rng = ChaCha8Rng::seed_from_u64(config.seed);
+        let adam = GaussianAdam::new(config.learning_rates);
         Ok(Self {
             config,
             map: Gaussians::new(),
             ids: Vec::new(),
             next_id: 0,
-            adam: MapAdam::default(),
+            adam,
             keyframes: Vec::new(),
             rng,
         })
@@ -396,8 +404,7 @@ impl Mapper {
             return Ok(0.0);
         };
         self.add_isotropic_gradient(&mut total, &active);
-        self.adam
-            .step(&mut self.map, &total, &active, &self.config.learning_rates);
+        self.adam.step_active(&mut self.map, &total, &active)?;
         Ok(loss_sum / window.len().max(1) as f64)
     }
 

@@ -6,8 +6,8 @@
 //! each side `forward` steps then 18 × 5° left turns, until `frames` frames. The world is
 //! anchored at the true start pose (the robot's known origin), so the map and the truth share
 //! a frame up to drift; ATE is still reported after Umeyama alignment (SPEC §8).
-//! Metrics: ATE RMSE over all frames ([`crate::metrics::ate_rmse`], Umeyama SE(3); kept local
-//! so this crate does not break when the evaluation crate is mid-edit), training-view PSNR (map rendered
+//! Metrics (from `activemap-eval`, SPEC §8): ATE RMSE over all frames ([`activemap_eval::ate`],
+//! Umeyama SE(3) alignment), training-view PSNR (map rendered
 //! at the estimated keyframe poses against the keyframe images), held-out PSNR (map rendered
 //! at poses never given to SLAM: every `held_out_every`-th loop pose shifted 2.5 cm forward
 //! and turned 2.5°, against the simulator's image there), tracking frames per second, mapping
@@ -17,6 +17,8 @@ use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::slam::{MotionPrior, Slam, SlamConfig};
 use crate::tracker::TrackingStatus;
+use activemap_eval::{AteOptions, ImageView};
+use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose, UnitQuaternion, Vector3, camera_pose_from_planar};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, SimConfig, Simulator};
@@ -140,12 +142,17 @@ fn colour_psnr(
             exclude_flags: FLAG_UNKNOWN_SPACE,
         },
     )?;
-    let rendered: Vec<[f32; 3]> = out
+    let rendered: Vec<f32> = out
         .colour
         .iter()
-        .map(|c| c.map(|v| v.clamp(0.0, 1.0)))
+        .flat_map(|c| c.map(|v| v.clamp(0.0, 1.0)))
         .collect();
-    Ok(crate::metrics::psnr(&rendered, &frame.rgb))
+    let (width, height) = (frame.width(), frame.height());
+    Ok(activemap_eval::psnr(
+        ImageView::rgb(&rendered, width, height)?,
+        ImageView::rgb(frame.rgb.as_flattened(), width, height)?,
+        1.0,
+    )?)
 }
 
 /// Runs the scripted loop and measures it (see the module doc).
@@ -173,7 +180,7 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
     let mut slam_config = config.slam.clone();
     slam_config.initial_pose = sim.true_pose();
     let mut slam = Slam::new(slam_config)?;
-    let (mut truth, mut estimate) = (Vec::new(), Vec::new());
+    let (mut truth, mut estimate) = (Trajectory::default(), Trajectory::default());
     let (mut track_seconds, mut tracked, mut map_seconds, mut lost) = (0.0, 0usize, 0.0, 0usize);
     let mut held_out = Vec::new();
     for i in 0..config.frames {
@@ -195,8 +202,8 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
         if out.status == TrackingStatus::Lost {
             lost += 1;
         }
-        truth.push(sim.true_pose().translation.vector);
-        estimate.push(out.pose.translation.vector);
+        truth.push(frame.stamp, sim.true_pose());
+        estimate.push(frame.stamp, out.pose);
         if i % config.held_out_every.max(1) == config.held_out_every / 2 {
             let p = sim.true_planar_pose();
             let shifted = PlanarPose::new(
@@ -211,7 +218,7 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
             ));
         }
     }
-    let ate_rmse = crate::metrics::ate_rmse(&truth, &estimate)?;
+    let ate_rmse = activemap_eval::ate(&truth, &estimate, AteOptions::default())?.rmse;
     let map = slam.map();
     let keyframes = slam.mapper().keyframes();
     let mut train = Vec::new();

@@ -8,13 +8,14 @@
 //! covered part disagrees in depth or colour beyond the configured limits: the map no longer
 //! explains it. Unknown-space Gaussians (SPEC §5) are never rendered for tracking.
 
-use crate::adam::Adam;
 use crate::error::SlamError;
 use crate::frame::{Frame, SkipReason};
 use crate::loss::{Residuals, residuals, rgb_mask, tracking_loss};
 use activemap_geometry::Isometry3;
 use activemap_geometry::se3;
-use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, backward, render};
+use activemap_splat::{
+    AdamState, Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, backward, render,
+};
 use nalgebra::Vector6;
 
 /// Tracker settings; defaults are SPEC §4's.
@@ -198,7 +199,8 @@ pub fn track(
         0.0
     };
     let (lt, lr) = (config.lr_translation, config.lr_rotation);
-    let mut adam = Adam::new([lt, lt, lt, lr, lr, lr, lr_e, lr_e]);
+    let rates = [lt, lt, lt, lr, lr, lr, lr_e, lr_e];
+    let mut adam = AdamState::new();
     let mut camera_from_world = predicted_pose.inverse();
     let mut exposure = predicted_exposure;
     let mut iterations = 0;
@@ -224,7 +226,9 @@ pub fn track(
             grads.exposure[0],
             grads.exposure[1],
         ];
-        let delta = adam.step(&g);
+        // Adam on a zero vector: the result is the step Δ itself (τ is reset every iteration).
+        let mut delta = [0.0; 8];
+        adam.step(&mut delta, &g, |k| rates[k])?;
         let tau = Vector6::new(delta[0], delta[1], delta[2], delta[3], delta[4], delta[5]);
         last = Some((out, loss.value));
         if !tau.iter().all(|v| v.is_finite()) {

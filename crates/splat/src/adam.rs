@@ -57,7 +57,8 @@ impl AdamConfig {
 }
 
 /// Adam moments of a flat parameter vector; every entry keeps its own step count, so entries
-/// appended later (densification) get the right bias correction.
+/// appended later (densification) get the right bias correction. A non-finite gradient entry
+/// counts as zero, so one bad pixel cannot poison the moments for good.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AdamState {
     m: Vec<f64>,
@@ -84,6 +85,7 @@ impl AdamState {
     /// One Adam step on entry `k` with learning rate `lr`: returns the parameter change.
     #[inline]
     fn delta(&mut self, k: usize, grad: f64, lr: f64, beta1: f64, beta2: f64, eps: f64) -> f64 {
+        let grad = if grad.is_finite() { grad } else { 0.0 };
         self.steps[k] += 1;
         let t = self.steps[k] as i32;
         self.m[k] = beta1 * self.m[k] + (1.0 - beta1) * grad;
@@ -159,7 +161,9 @@ impl AdamState {
     }
 }
 
-/// Adam over all Gaussians, one learning rate per parameter group.
+/// Adam over all Gaussians, one learning rate per parameter group. Every Gaussian keeps its own
+/// step count (its bias correction), so Gaussians inserted later, or left out of some steps
+/// through [`GaussianAdam::step_active`], start from fresh, correctly corrected moments.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GaussianAdam {
     /// Hyper-parameters.
@@ -176,12 +180,66 @@ impl GaussianAdam {
         }
     }
 
+    /// Number of Gaussians with optimiser state.
+    pub fn len(&self) -> usize {
+        self.state.len() / PARAMS_PER_GAUSSIAN
+    }
+
+    /// True when no Gaussian has optimiser state yet.
+    pub fn is_empty(&self) -> bool {
+        self.state.is_empty()
+    }
+
+    /// Number of Adam steps Gaussian `i` has had (0 when out of range): its age for pruning.
+    pub fn steps(&self, i: usize) -> u32 {
+        // All entries of a Gaussian are stepped together, so its first entry holds the count.
+        self.state
+            .steps
+            .get(i * PARAMS_PER_GAUSSIAN)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Adds fresh state (zero moments, zero steps) for `count` Gaussians appended to the map.
+    /// Optional: [`GaussianAdam::step`] also grows to the map size.
+    pub fn grow(&mut self, count: usize) {
+        self.state
+            .grow(self.state.len() + count * PARAMS_PER_GAUSSIAN);
+    }
+
     /// One step on every Gaussian. New Gaussians (appended since the last step) start with
     /// zero moments.
     pub fn step<T: Real>(
         &mut self,
         gaussians: &mut Gaussians<T>,
         grads: &Gradients<T>,
+    ) -> Result<(), SplatError> {
+        self.step_where(gaussians, grads, |_| true)
+    }
+
+    /// One step on the Gaussians with `active[i]`; the others keep their parameters, moments
+    /// and step counts (e.g. Gaussians unseen in every view of a mapping window).
+    pub fn step_active<T: Real>(
+        &mut self,
+        gaussians: &mut Gaussians<T>,
+        grads: &Gradients<T>,
+        active: &[bool],
+    ) -> Result<(), SplatError> {
+        if active.len() != gaussians.len() {
+            return Err(SplatError::Length {
+                what: "adam active mask",
+                expected: gaussians.len(),
+                got: active.len(),
+            });
+        }
+        self.step_where(gaussians, grads, |i| active[i])
+    }
+
+    fn step_where<T: Real>(
+        &mut self,
+        gaussians: &mut Gaussians<T>,
+        grads: &Gradients<T>,
+        active: impl Fn(usize) -> bool,
     ) -> Result<(), SplatError> {
         let n = gaussians.len();
         if grads.means.len() != n {
@@ -193,7 +251,7 @@ impl GaussianAdam {
         }
         self.state.grow(n * PARAMS_PER_GAUSSIAN);
         let c = self.config;
-        for i in 0..n {
+        for i in (0..n).filter(|&i| active(i)) {
             let g = grads.params(i);
             for (k, gk) in g.iter().enumerate() {
                 let d = self.state.delta(
@@ -277,5 +335,98 @@ mod tests {
         adam.retain(&[false]);
         g.retain(&[false]).unwrap();
         assert!(g.is_empty());
+    }
+
+    /// Gradients that are zero except `mean_x[i]` on the x coordinate of mean `i`.
+    fn mean_x_gradients(mean_x: &[f64]) -> Gradients<f64> {
+        let n = mean_x.len();
+        Gradients {
+            means: mean_x.iter().map(|&g| [g, 0.0, 0.0]).collect(),
+            sh_dc: vec![[0.0; 3]; n],
+            rotations: vec![[0.0; 4]; n],
+            opacity_logits: vec![0.0; n],
+            log_scales: vec![[0.0; 3]; n],
+            mean2d_norm: vec![0.0; n],
+            pose: nalgebra::Vector6::zeros(),
+            exposure: [0.0; 2],
+        }
+    }
+
+    /// Scalar Adam written out from Kingma & Ba, Algorithm 1: the parameter changes for the
+    /// gradient sequence `grads` (β₁ = 0.9, β₂ = 0.999, ε = 1e-15).
+    fn reference_adam_deltas(grads: &[f64], lr: f64) -> Vec<f64> {
+        let (mut m, mut v) = (0.0, 0.0);
+        grads
+            .iter()
+            .enumerate()
+            .map(|(t, g)| {
+                let t = t as i32 + 1;
+                m = 0.9 * m + 0.1 * g;
+                v = 0.999 * v + 0.001 * g * g;
+                let m_hat = m / (1.0 - 0.9f64.powi(t));
+                let v_hat = v / (1.0 - 0.999f64.powi(t));
+                -lr * m_hat / (v_hat.sqrt() + 1e-15)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_gaussian_has_its_own_bias_correction() {
+        let lr = 0.01;
+        let config = AdamConfig {
+            lr_mean: lr,
+            ..Default::default()
+        };
+        let mut adam = GaussianAdam::new(config);
+        let mut g = Gaussians::<f64>::new();
+        g.push([0.0; 3], [0.5; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3]);
+        // Gaussian 0 alone for five steps.
+        let early = [0.3, -0.1, 0.7, 0.2, -0.4];
+        for &gx in &early {
+            adam.step(&mut g, &mean_x_gradients(&[gx])).unwrap();
+        }
+        assert_eq!((adam.len(), adam.steps(0), adam.steps(1)), (1, 5, 0));
+        // Gaussian 1 is inserted later; its first step must be a first step (−lr·sign g), not
+        // a sixth one (a shared t = 6 would give −0.522·lr here).
+        g.push([0.0; 3], [0.5; 3], [1.0, 0.0, 0.0, 0.0], 0.0, [0.0; 3]);
+        adam.grow(1);
+        assert_eq!((adam.len(), adam.steps(1)), (2, 0));
+        let x0 = g.means[0][0];
+        adam.step(&mut g, &mean_x_gradients(&[0.5, 2.0])).unwrap();
+        assert!((g.means[1][0] + lr).abs() < 1e-12, "{}", g.means[1][0]);
+        let expected0 = reference_adam_deltas(&[0.3, -0.1, 0.7, 0.2, -0.4, 0.5], lr)[5];
+        assert!((g.means[0][0] - x0 - expected0).abs() < 1e-12);
+        // Gaussian 0 sits one step out: parameters, moments and count untouched; Gaussian 1
+        // takes its second step.
+        let x0 = g.means[0][0];
+        adam.step_active(&mut g, &mean_x_gradients(&[9.0, -1.0]), &[false, true])
+            .unwrap();
+        assert_eq!(g.means[0][0], x0);
+        assert_eq!((adam.steps(0), adam.steps(1)), (6, 2));
+        let expected1 = reference_adam_deltas(&[2.0, -1.0], lr);
+        assert!((g.means[1][0] - expected1[0] - expected1[1]).abs() < 1e-12);
+        // Its next step continues its own sequence (the skipped gradient 9.0 never counted).
+        adam.step(&mut g, &mean_x_gradients(&[-0.2, 0.0])).unwrap();
+        let expected0 = reference_adam_deltas(&[0.3, -0.1, 0.7, 0.2, -0.4, 0.5, -0.2], lr)[6];
+        assert!((g.means[0][0] - x0 - expected0).abs() < 1e-12);
+        // Pruning keeps the survivors' counts; a bad mask length is an error, not a panic.
+        adam.retain(&[false, true]);
+        g.retain(&[false, true]).unwrap();
+        assert_eq!((adam.len(), adam.steps(0)), (1, 3));
+        assert!(
+            adam.step_active(&mut g, &mean_x_gradients(&[1.0]), &[true, true])
+                .is_err()
+        );
+    }
+
+    #[test]
+    fn non_finite_gradients_count_as_zero() {
+        let mut s = AdamState::new();
+        let mut p = [1.0f64, 1.0];
+        s.step(&mut p, &[f64::NAN, 1.0], |_| 0.1).unwrap();
+        s.step(&mut p, &[f64::INFINITY, 1.0], |_| 0.1).unwrap();
+        // Zero gradients with zero moments leave the entry where it was.
+        assert_eq!(p[0], 1.0);
+        assert!((p[1] - 0.8).abs() < 1e-12);
     }
 }

@@ -1,0 +1,61 @@
+//! `activemap eval RUN_DIR` and `activemap report RUN_DIR`: the paper's metrics of a finished run
+//! (SPEC §8) and its self-contained `report.html`, both from `activemap-eval`.
+
+use std::path::Path;
+
+use activemap_eval::run_eval::{EvalOptions, LpipsSource, evaluate_run};
+
+/// Options of `activemap eval`.
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    /// Number of seeded test views on the navigable plane (SPEC §8: 2000).
+    #[arg(long, default_value_t = 2000)]
+    pub views: usize,
+    /// Test render width, pixels.
+    #[arg(long, default_value_t = 160)]
+    pub width: u32,
+    /// Test render height, pixels.
+    #[arg(long, default_value_t = 160)]
+    pub height: u32,
+    /// Skip LPIPS even when its weights are present.
+    #[arg(long)]
+    pub no_lpips: bool,
+}
+
+impl Default for EvalArgs {
+    fn default() -> Self {
+        let d = EvalOptions::default();
+        Self {
+            views: d.test_views,
+            width: d.width,
+            height: d.height,
+            no_lpips: false,
+        }
+    }
+}
+
+/// Evaluates a run folder, writes `metrics.json`, `metrics.md` and `report.html`, and prints the
+/// table.
+pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
+    let options = EvalOptions {
+        test_views: args.views,
+        width: args.width,
+        height: args.height,
+        lpips: if args.no_lpips {
+            LpipsSource::Off
+        } else {
+            LpipsSource::Default
+        },
+        ..EvalOptions::default()
+    };
+    let metrics = evaluate_run(run_dir, &options)?;
+    println!("{}", metrics.to_markdown());
+    report(run_dir)
+}
+
+/// Writes `report.html` for a run folder and prints its path.
+pub fn report(run_dir: &Path) -> anyhow::Result<()> {
+    let path = activemap_eval::html::write_report(run_dir)?;
+    println!("report: {}", path.display());
+    Ok(())
+}

@@ -1,0 +1,65 @@
+//! Operator descriptors: the ports, types and config check of every built-in operator, known to the
+//! validator independently of whether the operator is implemented yet.
+
+use activemap_schemas::MessageKind;
+
+/// One typed port of an operator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PortSpec {
+    /// Port name as written in dataflow files.
+    pub name: &'static str,
+    /// Message kind the port carries.
+    pub kind: MessageKind,
+}
+
+/// Checks an operator's `config:` value; returns a message naming the bad field.
+pub type ConfigCheck = fn(&serde_json::Value) -> Result<(), String>;
+
+/// What the validator knows about a built-in operator.
+#[derive(Debug, Clone, Copy)]
+pub struct OperatorDescriptor {
+    /// Name used in `operator:`.
+    pub name: &'static str,
+    /// One line: what the operator does.
+    pub summary: &'static str,
+    /// Input ports.
+    pub inputs: &'static [PortSpec],
+    /// Output ports.
+    pub outputs: &'static [PortSpec],
+    /// True for evaluation operators, the only ones allowed to read ground truth.
+    pub evaluation: bool,
+    /// Config check (usually: deserialise into the operator's config struct).
+    pub check_config: ConfigCheck,
+}
+
+impl OperatorDescriptor {
+    /// Input port named `name`.
+    pub fn input(&self, name: &str) -> Option<&PortSpec> {
+        self.inputs.iter().find(|p| p.name == name)
+    }
+
+    /// Output port named `name`.
+    pub fn output(&self, name: &str) -> Option<&PortSpec> {
+        self.outputs.iter().find(|p| p.name == name)
+    }
+}
+
+/// Config check for operators whose config deserialises into `C` (use with `#[serde(deny_unknown_fields)]`).
+pub fn check_config_as<C: serde::de::DeserializeOwned>(
+    value: &serde_json::Value,
+) -> Result<(), String> {
+    config_from_value::<C>(value).map(|_| ())
+}
+
+/// Deserialise a node's config; `null` (no `config:` key) deserialises from an empty mapping so
+/// configs with all-default fields need not be written.
+pub fn config_from_value<C: serde::de::DeserializeOwned>(
+    value: &serde_json::Value,
+) -> Result<C, String> {
+    let value = if value.is_null() {
+        serde_json::Value::Object(Default::default())
+    } else {
+        value.clone()
+    };
+    serde_json::from_value(value).map_err(|e| e.to_string())
+}

@@ -1,0 +1,501 @@
+//! The launcher: run every node of a dataflow as a subprocess, with per-node logs, a start barrier,
+//! crash reporting with the tail of stderr, restart policies, clean stop on Ctrl-C, and recording.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use crate::RuntimeError;
+use crate::dataflow::{Dataflow, NodeImpl, RestartPolicy};
+use crate::node::{RunInfo, control_key, logs_dir};
+use crate::record::{Recorder, RecorderStats};
+use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh};
+
+/// Options of [`run_local`].
+#[derive(Debug, Clone)]
+pub struct LaunchOptions {
+    /// Run folder (created): logs, `run.json`, the dataflow copy, the recording.
+    pub run_dir: PathBuf,
+    /// The `activemap` executable that runs built-in operators (`activemap node ...`).
+    pub exe: PathBuf,
+    /// Step budget passed to the nodes.
+    pub max_steps: Option<u64>,
+    /// Write `recording.mcap`.
+    pub record: bool,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+    /// Give up when the nodes are not all ready after this long.
+    pub startup_timeout: Duration,
+    /// Grace period between SIGTERM and SIGKILL when stopping.
+    pub stop_grace: Duration,
+    /// Distributed mode (`activemap up`): launch only the nodes deployed on this machine, with a
+    /// router on the machine's own endpoints connected to the other machines'.
+    pub machine: Option<String>,
+    /// Run id shared by every machine of a distributed run (default: a fresh one).
+    pub run_id: Option<String>,
+}
+
+impl LaunchOptions {
+    /// Defaults for a run folder and executable.
+    pub fn new(run_dir: PathBuf, exe: PathBuf) -> Self {
+        Self {
+            run_dir,
+            exe,
+            max_steps: None,
+            record: true,
+            progress: false,
+            startup_timeout: Duration::from_secs(60),
+            stop_grace: Duration::from_secs(5),
+            machine: None,
+            run_id: None,
+        }
+    }
+}
+
+/// How one node ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum NodeExit {
+    /// Exited with status 0.
+    Finished,
+    /// Exited with a non-zero status or a signal.
+    Crashed(String),
+    /// Stopped by the launcher.
+    Stopped,
+}
+
+/// Result of a run.
+#[derive(Debug, Clone)]
+pub struct RunReport {
+    /// The run folder.
+    pub run_dir: PathBuf,
+    /// The run id.
+    pub run_id: String,
+    /// Per node: how it ended and how often it was restarted.
+    pub nodes: BTreeMap<String, (NodeExit, u32)>,
+    /// Why the flow stopped early (a crash report), if it did.
+    pub failure: Option<String>,
+    /// True when stopped by Ctrl-C / SIGTERM.
+    pub interrupted: bool,
+    /// Recorder statistics, when recording.
+    pub recording: Option<RecorderStats>,
+}
+
+/// A fresh run id: unique per process and time.
+pub fn new_run_id() -> String {
+    let nanos = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    format!("r{:x}{:x}", std::process::id(), nanos & 0xffff_ffff_ffff)
+}
+
+/// A free TCP port on `ip` (bound then released).
+pub fn free_port(ip: &str) -> Result<u16, RuntimeError> {
+    let l = std::net::TcpListener::bind((ip, 0))
+        .map_err(|e| RuntimeError::Other(format!("no free port on {ip}: {e}")))?;
+    l.local_addr()
+        .map(|a| a.port())
+        .map_err(|e| RuntimeError::Other(e.to_string()))
+}
+
+/// Last `lines` lines of a file.
+pub fn tail(path: &Path, lines: usize) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let all: Vec<&str> = text.lines().collect();
+    all[all.len().saturating_sub(lines)..].join("\n")
+}
+
+fn describe_status(status: std::process::ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(c), _) => format!("exit status {c}"),
+        (None, Some(s)) => format!(
+            "killed by signal {s}{}",
+            if s == 9 { " (SIGKILL)" } else { "" }
+        ),
+        _ => "unknown exit".into(),
+    }
+}
+
+fn send_sigterm(child: &Child) {
+    // SAFETY: kill(2) on the pid of a child we own and have not reaped yet.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGTERM);
+    }
+}
+
+struct Running {
+    child: Option<Child>,
+    restarts: u32,
+    exit: Option<NodeExit>,
+}
+
+/// Start the node `id`'s process with logs under the run folder.
+fn spawn_node(dataflow: &Dataflow, id: &str, opts: &LaunchOptions) -> Result<Child, RuntimeError> {
+    let spec = dataflow
+        .node(id)
+        .ok_or_else(|| RuntimeError::UnknownNode(id.into()))?;
+    let logs = logs_dir(&opts.run_dir);
+    let out_path = logs.join(format!("{id}.stdout.log"));
+    let err_path = logs.join(format!("{id}.stderr.log"));
+    let open = |p: &Path| {
+        File::options()
+            .create(true)
+            .append(true)
+            .open(p)
+            .map_err(|e| RuntimeError::io(p, e))
+    };
+    let mut cmd = match &spec.implementation {
+        NodeImpl::Operator(_) => {
+            let mut c = Command::new(&opts.exe);
+            c.arg("node")
+                .arg("--run-dir")
+                .arg(&opts.run_dir)
+                .arg("--node")
+                .arg(id);
+            c
+        }
+        NodeImpl::Path { path, args } => {
+            let p = Path::new(path);
+            let exe = if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                dataflow.base_dir.join(p)
+            };
+            let mut c = Command::new(exe);
+            c.args(args);
+            c
+        }
+    };
+    cmd.env("ACTIVEMAP_RUN_DIR", &opts.run_dir)
+        .env("ACTIVEMAP_NODE_ID", id)
+        .stdin(Stdio::null())
+        .stdout(open(&out_path)?)
+        .stderr(open(&err_path)?);
+    cmd.spawn()
+        .map_err(|e| RuntimeError::Other(format!("cannot start node `{id}`: {e}")))
+}
+
+/// Run every node of `dataflow` on this machine until they all finish, one crashes (per its restart
+/// policy), or `stop` is set (Ctrl-C). Nodes are started behind a barrier: no node sends before
+/// every node has subscribed.
+pub fn run_local(
+    dataflow: &Dataflow,
+    opts: &LaunchOptions,
+    stop: Arc<AtomicBool>,
+) -> Result<RunReport, RuntimeError> {
+    std::fs::create_dir_all(logs_dir(&opts.run_dir))
+        .map_err(|e| RuntimeError::io(&opts.run_dir, e))?;
+    let yaml_copy = opts.run_dir.join(RunInfo::DATAFLOW);
+    std::fs::write(&yaml_copy, &dataflow.source).map_err(|e| RuntimeError::io(&yaml_copy, e))?;
+    let run_id = opts.run_id.clone().unwrap_or_else(new_run_id);
+    let (run, router) = match &opts.machine {
+        None => {
+            let port = free_port("127.0.0.1")?;
+            let endpoint = format!("tcp/127.0.0.1:{port}");
+            // One local router serves every machine of the file: `run` launches all nodes here.
+            let run = RunInfo {
+                run_id: run_id.clone(),
+                routers: dataflow
+                    .machines
+                    .iter()
+                    .map(|m| (m.id.clone(), vec![endpoint.clone()]))
+                    .collect(),
+                tls: BTreeMap::new(),
+                max_steps: opts.max_steps,
+            };
+            let router = ZenohSettings {
+                mode: "router".into(),
+                listen: vec![endpoint],
+                connect: vec![],
+                tls: None,
+            };
+            (run, router)
+        }
+        Some(machine) => {
+            let spec = dataflow.machine(machine).ok_or_else(|| {
+                RuntimeError::Other(format!("machine `{machine}` is not in the dataflow"))
+            })?;
+            if spec.listen.iter().any(|e| e.ends_with(":0")) {
+                return Err(RuntimeError::Other(format!(
+                    "machine `{machine}` needs explicit `listen` endpoints (with a port) for a distributed run"
+                )));
+            }
+            let run = RunInfo {
+                run_id: run_id.clone(),
+                routers: dataflow
+                    .machines
+                    .iter()
+                    .map(|m| (m.id.clone(), m.listen.clone()))
+                    .collect(),
+                tls: dataflow
+                    .machines
+                    .iter()
+                    .filter_map(|m| m.tls.clone().map(|t| (m.id.clone(), t)))
+                    .collect(),
+                max_steps: opts.max_steps,
+            };
+            let router = ZenohSettings {
+                mode: "router".into(),
+                listen: spec.listen.clone(),
+                connect: spec.connect.clone(),
+                tls: spec.tls.clone(),
+            };
+            (run, router)
+        }
+    };
+    run.save(&opts.run_dir)?;
+    let session = open_zenoh(&router)?;
+    let recorder = if opts.record {
+        Some(Recorder::start(
+            &opts.run_dir.join("recording.mcap"),
+            dataflow,
+            &run,
+            session.clone(),
+        )?)
+    } else {
+        None
+    };
+    let result = supervise(dataflow, opts, &run, &session, &stop);
+    let recording = match recorder {
+        Some(r) => Some(r.finish()?),
+        None => None,
+    };
+    let _ = zenoh::Wait::wait(session.close());
+    let (nodes, failure, interrupted) = result?;
+    Ok(RunReport {
+        run_dir: opts.run_dir.clone(),
+        run_id,
+        nodes,
+        failure,
+        interrupted,
+        recording,
+    })
+}
+
+type Supervised = (BTreeMap<String, (NodeExit, u32)>, Option<String>, bool);
+
+fn supervise(
+    dataflow: &Dataflow,
+    opts: &LaunchOptions,
+    run: &RunInfo,
+    session: &zenoh::Session,
+    stop: &AtomicBool,
+) -> Result<Supervised, RuntimeError> {
+    let ready_sub = ZenohSubscriber::create(
+        session,
+        &control_key(&run.run_id, "ready/*"),
+        1024,
+        crate::dataflow::DropPolicy::DropOldest,
+    )?;
+    let start_pub = ZenohPublisher::create(session, &control_key(&run.run_id, "start"))?;
+    let stop_pub = ZenohPublisher::create(session, &control_key(&run.run_id, "stop"))?;
+    // A stop broadcast by another machine or by `activemap stop`.
+    let stop_sub = ZenohSubscriber::create(
+        session,
+        &control_key(&run.run_id, "stop"),
+        1,
+        crate::dataflow::DropPolicy::DropOldest,
+    )?;
+    let mut nodes: BTreeMap<String, Running> = BTreeMap::new();
+    let everyone: Vec<&str> = dataflow.nodes.iter().map(|n| n.id.as_str()).collect();
+    for n in dataflow
+        .nodes
+        .iter()
+        .filter(|n| opts.machine.as_ref().is_none_or(|m| *m == n.machine))
+    {
+        let child = spawn_node(dataflow, &n.id, opts);
+        let child = match child {
+            Ok(c) => c,
+            Err(e) => {
+                for r in nodes.values_mut() {
+                    if let Some(c) = &mut r.child {
+                        let _ = c.kill();
+                        let _ = c.wait();
+                    }
+                }
+                return Err(e);
+            }
+        };
+        nodes.insert(
+            n.id.clone(),
+            Running {
+                child: Some(child),
+                restarts: 0,
+                exit: None,
+            },
+        );
+    }
+    let bar = if opts.progress {
+        let b = indicatif::ProgressBar::new_spinner();
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+        );
+        b.enable_steady_tick(Duration::from_millis(200));
+        Some(b)
+    } else {
+        None
+    };
+    let started_at = Instant::now();
+    let mut ready: BTreeSet<String> = BTreeSet::new();
+    let mut barrier_open = false;
+    let mut failure: Option<String> = None;
+    let mut interrupted = false;
+    loop {
+        while let Some(sample) = ready_sub.recv(None)? {
+            let id = String::from_utf8_lossy(&sample.payload().to_bytes()).to_string();
+            let fresh = ready.insert(id);
+            if barrier_open && fresh {
+                start_pub.send(0, Vec::new())?;
+            }
+        }
+        // The barrier spans every machine: remote nodes announce through the connected routers.
+        if !barrier_open && everyone.iter().all(|id| ready.contains(*id)) {
+            barrier_open = true;
+        }
+        if barrier_open && started_at.elapsed() < Duration::from_secs(600) {
+            // Repeat `start` while nodes may still be waiting (restarts, late subscribers).
+            start_pub.send(0, Vec::new())?;
+        }
+        if !barrier_open && started_at.elapsed() > opts.startup_timeout {
+            let missing: Vec<_> = everyone.iter().filter(|id| !ready.contains(**id)).collect();
+            failure = Some(format!(
+                "nodes not ready after {:?}: {}",
+                opts.startup_timeout,
+                missing
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+            break;
+        }
+        if stop.load(Ordering::Relaxed) || stop_sub.recv(None)?.is_some() {
+            interrupted = true;
+            break;
+        }
+        let mut crashed = None;
+        for (id, r) in nodes.iter_mut() {
+            let Some(child) = &mut r.child else { continue };
+            let Ok(Some(status)) = child.try_wait() else {
+                continue;
+            };
+            r.child = None;
+            if status.success() {
+                r.exit = Some(NodeExit::Finished);
+                eprintln!("activemap: node `{id}` finished");
+                continue;
+            }
+            let what = describe_status(status);
+            let stderr_tail = tail(
+                &logs_dir(&opts.run_dir).join(format!("{id}.stderr.log")),
+                20,
+            );
+            let spec = dataflow.node(id).expect("launched from the dataflow");
+            let report = format!(
+                "node `{id}` crashed: {what}\n--- last lines of {} ---\n{stderr_tail}",
+                logs_dir(&opts.run_dir)
+                    .join(format!("{id}.stderr.log"))
+                    .display()
+            );
+            eprintln!("activemap: {report}");
+            match spec.restart {
+                RestartPolicy::OnFailure(max) if r.restarts < max => {
+                    r.restarts += 1;
+                    ready.remove(id);
+                    eprintln!("activemap: restarting `{id}` ({}/{max})", r.restarts);
+                    r.child = Some(spawn_node(dataflow, id, opts)?);
+                }
+                _ => {
+                    r.exit = Some(NodeExit::Crashed(what));
+                    crashed = Some(report);
+                }
+            }
+        }
+        if let Some(report) = crashed {
+            failure = Some(report);
+            break;
+        }
+        if nodes.values().all(|r| r.child.is_none()) {
+            break;
+        }
+        if let Some(b) = &bar {
+            let running: Vec<_> = nodes
+                .iter()
+                .filter(|(_, r)| r.child.is_some())
+                .map(|(id, _)| id.as_str())
+                .collect();
+            b.set_message(format!(
+                "{}/{} nodes running: {}",
+                running.len(),
+                nodes.len(),
+                running.join(" ")
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Stop whatever still runs: broadcast stop, SIGTERM, then SIGKILL after the grace period.
+    // Other machines stop too when this one failed or was stopped (not when it simply finished).
+    if failure.is_some() || interrupted {
+        let _ = stop_pub.send(0, Vec::new());
+    }
+    for r in nodes.values() {
+        if let Some(c) = &r.child {
+            send_sigterm(c);
+        }
+    }
+    let deadline = Instant::now() + opts.stop_grace;
+    for (id, r) in nodes.iter_mut() {
+        let Some(child) = &mut r.child else { continue };
+        loop {
+            match child.try_wait() {
+                Ok(Some(_)) => {
+                    r.exit.get_or_insert(NodeExit::Stopped);
+                    break;
+                }
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(20))
+                }
+                _ => {
+                    eprintln!("activemap: node `{id}` ignored SIGTERM; killing it");
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    r.exit.get_or_insert(NodeExit::Stopped);
+                    break;
+                }
+            }
+        }
+        r.child = None;
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let summary = nodes
+        .into_iter()
+        .map(|(id, r)| (id, (r.exit.unwrap_or(NodeExit::Stopped), r.restarts)))
+        .collect();
+    Ok((summary, failure, interrupted))
+}
+
+/// Broadcast a stop to every node and daemon of run `run_id` through the router at `connect`.
+pub fn stop_run(run_id: &str, connect: &[String]) -> Result<(), RuntimeError> {
+    let session = open_zenoh(&ZenohSettings {
+        mode: "client".into(),
+        listen: vec![],
+        connect: connect.to_vec(),
+        tls: None,
+    })?;
+    let publisher = ZenohPublisher::create(&session, &control_key(run_id, "stop"))?;
+    // Give the declaration time to reach the router, then repeat to be safe.
+    for _ in 0..5 {
+        std::thread::sleep(Duration::from_millis(100));
+        publisher.send(0, Vec::new())?;
+    }
+    let _ = zenoh::Wait::wait(session.close());
+    Ok(())
+}

@@ -1,0 +1,177 @@
+//! Conversions between the wire messages of `activemap-schemas` and the library types the
+//! pipeline operators wrap (poses, Gaussian maps, occupancy grids, RGB-D frames), and the scene
+//! settings shared by the `sim` and `evaluator` operators.
+
+use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_planning::grid::{CellState as PlanCell, GridGeometry, OccupancyGrid as PlanGrid};
+use activemap_schemas::{
+    CellState as WireCell, GaussianMapHeader, GaussianMapMut, GaussianMapView,
+    OccupancyGrid as WireGrid, OccupancyGridView, Pose, RgbdFrameView,
+};
+use activemap_splat::Gaussians;
+use nalgebra::{Quaternion, Translation3, UnitQuaternion};
+
+/// Camera height above the floor, metres (SPEC §1, the simulator's robot): the robot knows its
+/// own mount, so the SLAM world is anchored at the start pose with the floor at z = 0.
+pub const CAMERA_HEIGHT_M: f64 = 0.88;
+
+/// The SLAM world anchor: the camera pose of a robot at the planar origin (the start pose
+/// defines the world frame; the robot is never told where it is in the scene).
+pub fn start_anchor(camera_height: f64) -> Isometry3<f64> {
+    camera_pose_from_planar(&PlanarPose::new(0.0, 0.0, 0.0), 0.0, camera_height)
+}
+
+/// An isometry as a wire pose.
+pub fn pose_to_wire(t: &Isometry3<f64>) -> Pose {
+    let q = t.rotation.quaternion();
+    Pose {
+        translation: [t.translation.x, t.translation.y, t.translation.z],
+        rotation_xyzw: [q.i, q.j, q.k, q.w],
+    }
+}
+
+/// A wire pose as an isometry; fails on a non-finite or zero quaternion.
+pub fn pose_from_wire(p: &Pose) -> anyhow::Result<Isometry3<f64>> {
+    let [x, y, z, w] = p.rotation_xyzw;
+    let q = Quaternion::new(w, x, y, z);
+    anyhow::ensure!(
+        q.coords
+            .iter()
+            .chain(p.translation.iter())
+            .all(|v| v.is_finite())
+            && q.norm() > 1e-9,
+        "pose is not finite or has a zero quaternion: {p:?}"
+    );
+    Ok(Isometry3::from_parts(
+        Translation3::new(p.translation[0], p.translation[1], p.translation[2]),
+        UnitQuaternion::from_quaternion(q),
+    ))
+}
+
+/// Header of the wire map of `g`.
+pub fn map_header(g: &Gaussians<f32>, frame_id: u64, stamp: f64) -> GaussianMapHeader {
+    GaussianMapHeader::new(stamp, frame_id, g.len() as u64)
+}
+
+/// Writes `g` into a loaned wire-map buffer (colours are the SH DC coefficients; rotations go
+/// from the library's `[w, x, y, z]` to the wire's xyzw).
+pub fn write_map(
+    buf: &mut [u8],
+    header: GaussianMapHeader,
+    g: &Gaussians<f32>,
+) -> anyhow::Result<()> {
+    let m = GaussianMapMut::init(buf, header)?;
+    for i in 0..g.len() {
+        m.means[3 * i..3 * i + 3].copy_from_slice(&g.means[i]);
+        m.colors[3 * i..3 * i + 3].copy_from_slice(&g.sh_dc[i]);
+        let [w, x, y, z] = g.rotations[i];
+        m.rotations[4 * i..4 * i + 4].copy_from_slice(&[x, y, z, w]);
+        m.opacities[i] = g.opacity_logits[i];
+        m.log_scales[3 * i..3 * i + 3].copy_from_slice(&g.log_scales[i]);
+    }
+    Ok(())
+}
+
+/// Reads a wire map into library Gaussians (inverse of [`write_map`]).
+pub fn read_map(bytes: &[u8]) -> anyhow::Result<(GaussianMapHeader, Gaussians<f32>)> {
+    let v = GaussianMapView::parse(bytes)?;
+    let n = v.header.count as usize;
+    let (means, colors, rotations, opacities, log_scales) = (
+        v.means(),
+        v.colors(),
+        v.rotations(),
+        v.opacities(),
+        v.log_scales(),
+    );
+    let mut g = Gaussians::<f32>::new();
+    for i in 0..n {
+        g.means
+            .push([means[3 * i], means[3 * i + 1], means[3 * i + 2]]);
+        g.sh_dc
+            .push([colors[3 * i], colors[3 * i + 1], colors[3 * i + 2]]);
+        let r = &rotations[4 * i..4 * i + 4];
+        g.rotations.push([r[3], r[0], r[1], r[2]]);
+        g.opacity_logits.push(opacities[i]);
+        g.log_scales.push([
+            log_scales[3 * i],
+            log_scales[3 * i + 1],
+            log_scales[3 * i + 2],
+        ]);
+        g.flags.push(0);
+    }
+    Ok((v.header, g))
+}
+
+/// The wire byte of a planning cell state.
+pub fn cell_to_wire(c: PlanCell) -> u8 {
+    match c {
+        PlanCell::Free => WireCell::Free as u8,
+        PlanCell::Occupied => WireCell::Occupied as u8,
+        PlanCell::Unknown => WireCell::Unknown as u8,
+    }
+}
+
+/// `grid` as a wire occupancy grid (small enough to encode and copy into the shared-memory
+/// sample: 1 byte per 5 cm cell).
+pub fn grid_to_wire(grid: &PlanGrid, frame_id: u64, stamp: f64) -> WireGrid {
+    let g = &grid.geometry;
+    WireGrid {
+        stamp,
+        frame_id,
+        origin: [g.origin_x, g.origin_y],
+        resolution: g.resolution,
+        width: g.width as u32,
+        height: g.height as u32,
+        cells: grid.data.iter().map(|c| cell_to_wire(*c)).collect(),
+    }
+}
+
+/// Reads a wire grid into a planning grid; fails on a bad cell byte.
+pub fn read_grid(bytes: &[u8]) -> anyhow::Result<(u64, PlanGrid)> {
+    let v = OccupancyGridView::parse(bytes)?;
+    let h = v.header;
+    let geometry = GridGeometry::new(
+        h.origin_x,
+        h.origin_y,
+        h.resolution,
+        h.width as usize,
+        h.height as usize,
+    )?;
+    let mut data = Vec::with_capacity(v.cells.len());
+    for (i, b) in v.cells.iter().enumerate() {
+        data.push(match WireCell::from_byte(*b) {
+            Some(WireCell::Free) => PlanCell::Free,
+            Some(WireCell::Occupied) => PlanCell::Occupied,
+            Some(WireCell::Unknown) => PlanCell::Unknown,
+            None => anyhow::bail!(
+                "occupancy grid frame {}: cell {i} holds invalid byte {b}",
+                h.frame_id
+            ),
+        });
+    }
+    Ok((h.frame_id, PlanGrid::from_data(geometry, data)?))
+}
+
+/// Intrinsics of a wire RGB-D frame.
+pub fn frame_intrinsics(v: &RgbdFrameView<'_>) -> Intrinsics {
+    let h = &v.header;
+    Intrinsics {
+        fx: h.fx,
+        fy: h.fy,
+        cx: h.cx,
+        cy: h.cy,
+        width: h.width,
+        height: h.height,
+    }
+}
+
+/// A wire RGB-D frame as a SLAM frame.
+pub fn slam_frame(v: &RgbdFrameView<'_>) -> anyhow::Result<activemap_slam::Frame> {
+    let k = frame_intrinsics(v);
+    Ok(activemap_slam::Frame::from_rgb8(
+        k,
+        v.rgb,
+        v.depth().into_owned(),
+        v.header.stamp,
+    )?)
+}

@@ -1,0 +1,408 @@
+//! `evaluator` (evaluation only: the one node that reads ground truth): writes the run
+//! folder's results — `trajectory_est.tum` and `trajectory_true.tum` (TUM), `map.ply` (3DGS
+//! PLY of the last map), `bev.png` (bird's-eye view of the last occupancy grid with the
+//! estimated path in green, the true path in blue and the frontier centroids in red),
+//! `coverage.csv` (2D coverage per step, SPEC §8: seen floor / reachable navigable floor) and
+//! `summary.json` (steps, coverage, ATE, path length, whether `recording.mcap` is present).
+//!
+//! The loop's world is anchored at the robot's start pose; coverage maps each reachable
+//! navigable cell of the scene (ground truth) into that frame with the true start pose.
+
+use std::path::{Path as FsPath, PathBuf};
+
+use activemap_eval::{AteOptions, ate, coverage_2d};
+use activemap_geometry::frames::planar_from_camera_pose;
+use activemap_geometry::tum::Trajectory;
+use activemap_geometry::{Isometry3, PlanarPose};
+use activemap_planning::OccupancyGrid as PlanGrid;
+use activemap_planning::grid::CellState;
+use activemap_runtime::{
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+};
+use activemap_schemas::{EpisodeStatus, Frontiers, MessageKind as K, PoseEstimate, TruePose};
+use activemap_sim::NavigableMap;
+use activemap_splat::Gaussians;
+use nalgebra::Point2;
+
+use crate::Registered;
+use crate::convert::{pose_from_wire, read_grid, read_map};
+use crate::sim::SceneConfig;
+
+/// Config.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// The scene the `sim` node runs (same keys), for the ground-truth navigable floor.
+    #[serde(default = "default_scene")]
+    pub scene: String,
+    /// As in `sim`.
+    #[serde(default)]
+    pub max_rooms: Option<u32>,
+    /// As in `sim`.
+    #[serde(default)]
+    pub max_area: Option<f64>,
+    /// Output folder; default the run folder (`ACTIVEMAP_RUN_DIR`), else the working directory.
+    #[serde(default)]
+    pub out: Option<PathBuf>,
+    /// Pixels per grid cell in `bev.png`.
+    #[serde(default = "default_scale")]
+    pub bev_pixels_per_cell: u32,
+}
+
+fn default_scene() -> String {
+    "house:7".into()
+}
+fn default_scale() -> u32 {
+    4
+}
+
+/// What the evaluator measured (also `summary.json`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Summary {
+    /// Pose estimates received.
+    pub steps: u64,
+    /// Final 2D coverage in [0, 1].
+    pub coverage: f64,
+    /// RMSE ATE after SE(3) alignment, metres (None with fewer than 3 poses).
+    pub ate_m: Option<f64>,
+    /// Length of the true path, metres.
+    pub path_length_m: f64,
+    /// Last episode status message.
+    pub episode: String,
+    /// Whether `recording.mcap` was in the output folder when the evaluator finished.
+    pub recording_present: bool,
+    /// Gaussians in the last map.
+    pub map_gaussians: usize,
+    /// The scene the run explored (`house:<seed>` or a file), so `activemap eval` can rebuild it.
+    pub scene: String,
+    /// As in the `sim` config.
+    pub max_rooms: Option<u32>,
+    /// As in the `sim` config.
+    pub max_area: Option<f64>,
+}
+
+/// Ground-truth coverage: the reachable navigable floor of the scene.
+pub struct CoverageTruth {
+    navigable: NavigableMap,
+    reachable: Vec<bool>,
+}
+
+impl CoverageTruth {
+    /// The truth for a start at world (x, y).
+    pub fn new(navigable: NavigableMap, start: Point2<f64>) -> Self {
+        let reachable = navigable.reachable_from(start.x, start.y);
+        Self {
+            navigable,
+            reachable,
+        }
+    }
+
+    /// Fraction of the reachable navigable cells that are free in `grid`, whose frame is the
+    /// robot's start frame `start` (planar, world).
+    pub fn coverage(&self, grid: &PlanGrid, start: &PlanarPose) -> anyhow::Result<f64> {
+        let f = &self.navigable.frame;
+        let (s, c) = start.yaw.sin_cos();
+        let mut seen = vec![false; self.reachable.len()];
+        for j in 0..f.height {
+            for i in 0..f.width {
+                let idx = j * f.width + i;
+                if !self.reachable[idx] {
+                    continue;
+                }
+                let (x, y) = f.centre(i, j);
+                let (dx, dy) = (x - start.x, y - start.y);
+                let local = Point2::new(c * dx + s * dy, -s * dx + c * dy);
+                seen[idx] = grid.get(grid.geometry.cell_of(local)) == Some(&CellState::Free);
+            }
+        }
+        Ok(coverage_2d(&seen, &self.reachable, f.width, f.height)?)
+    }
+}
+
+/// The operator.
+pub struct Evaluator {
+    out: PathBuf,
+    scene: SceneConfig,
+    scale: u32,
+    truth: Option<(CoverageTruth, PlanarPose, Isometry3<f64>)>,
+    estimated: Trajectory,
+    true_traj: Trajectory,
+    coverage: Vec<(u64, f64)>,
+    grid: Option<PlanGrid>,
+    regions: Option<Frontiers>,
+    map: Option<Gaussians<f32>>,
+    episode: String,
+    pending_grids: Vec<(u64, PlanGrid)>,
+    written: bool,
+}
+
+impl Evaluator {
+    fn score_pending(&mut self) -> anyhow::Result<()> {
+        let Some((truth, start, _)) = &self.truth else {
+            return Ok(());
+        };
+        for (k, grid) in self.pending_grids.drain(..) {
+            self.coverage.push((k, truth.coverage(&grid, start)?));
+            self.grid = Some(grid);
+        }
+        Ok(())
+    }
+
+    /// Writes every output file; returns the summary.
+    pub fn write_outputs(&mut self) -> anyhow::Result<Summary> {
+        std::fs::create_dir_all(&self.out)?;
+        self.estimated.write(&self.out.join("trajectory_est.tum"))?;
+        self.true_traj
+            .write(&self.out.join("trajectory_true.tum"))?;
+        let mut csv = String::from("step,coverage\n");
+        for (k, c) in &self.coverage {
+            csv.push_str(&format!("{k},{c:.6}\n"));
+        }
+        std::fs::write(self.out.join("coverage.csv"), csv)?;
+        if let Some(map) = &self.map {
+            activemap_splat::ply::write_ply(&self.out.join("map.ply"), map)?;
+        }
+        if let (Some(grid), Some((_, _, anchor))) = (&self.grid, &self.truth) {
+            write_bev(
+                &self.out.join("bev.png"),
+                grid,
+                &self.estimated,
+                &self.true_traj,
+                anchor,
+                self.regions.as_ref(),
+                self.scale,
+            )?;
+        }
+        let ate_m = if self.estimated.len() >= 3 {
+            Some(ate(&self.true_traj, &self.estimated, AteOptions::default())?.rmse)
+        } else {
+            None
+        };
+        let mut path_length_m = 0.0;
+        for w in self.true_traj.poses.windows(2) {
+            path_length_m += (w[1].translation.vector - w[0].translation.vector).norm();
+        }
+        let summary = Summary {
+            steps: self.estimated.len() as u64,
+            coverage: self.coverage.last().map_or(0.0, |c| c.1),
+            ate_m,
+            path_length_m,
+            episode: self.episode.clone(),
+            recording_present: self.out.join("recording.mcap").exists(),
+            map_gaussians: self.map.as_ref().map_or(0, |m| m.len()),
+            scene: self.scene.scene.clone(),
+            max_rooms: self.scene.max_rooms,
+            max_area: self.scene.max_area,
+        };
+        std::fs::write(
+            self.out.join("summary.json"),
+            serde_json::to_string_pretty(&summary)?,
+        )?;
+        eprintln!(
+            "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m → {}",
+            summary.steps,
+            summary.coverage * 100.0,
+            summary
+                .ate_m
+                .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0)),
+            summary.path_length_m,
+            self.out.display()
+        );
+        Ok(summary)
+    }
+}
+
+/// Draws the bird's-eye PNG: grid (free white, occupied black, unknown grey), true path (blue,
+/// mapped into the start frame by `anchor` = T_world_start-camera⁻¹ alignment), estimated path
+/// (green), frontier centroids (red squares). Image up = +y.
+pub fn write_bev(
+    path: &FsPath,
+    grid: &PlanGrid,
+    estimated: &Trajectory,
+    truth: &Trajectory,
+    start_from_world: &Isometry3<f64>,
+    regions: Option<&Frontiers>,
+    scale: u32,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (1..=16).contains(&scale),
+        "evaluator: bev_pixels_per_cell must be in 1..=16"
+    );
+    let g = &grid.geometry;
+    let (w, h) = (g.width as u32 * scale, g.height as u32 * scale);
+    let mut img = image::RgbImage::new(w, h);
+    for (i, state) in grid.data.iter().enumerate() {
+        let cell = g.cell_at(i);
+        let colour = match state {
+            CellState::Free => [255, 255, 255],
+            CellState::Occupied => [0, 0, 0],
+            CellState::Unknown => [160, 160, 160],
+        };
+        for dy in 0..scale {
+            for dx in 0..scale {
+                let px = cell.x as u32 * scale + dx;
+                let py = h - 1 - (cell.y as u32 * scale + dy);
+                img.put_pixel(px, py, image::Rgb(colour));
+            }
+        }
+    }
+    let mut dot = |p: Point2<f64>, colour: [u8; 3], radius: i64| {
+        let u = g.to_cell_units(p);
+        let (cx, cy) = (
+            (u.x * scale as f64) as i64,
+            h as i64 - 1 - (u.y * scale as f64) as i64,
+        );
+        for y in cy - radius..=cy + radius {
+            for x in cx - radius..=cx + radius {
+                if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
+                    img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+                }
+            }
+        }
+    };
+    for p in &truth.poses {
+        let q = start_from_world * p;
+        dot(
+            Point2::new(q.translation.x, q.translation.y),
+            [40, 80, 255],
+            0,
+        );
+    }
+    for p in &estimated.poses {
+        dot(
+            Point2::new(p.translation.x, p.translation.y),
+            [0, 170, 0],
+            0,
+        );
+    }
+    if let Some(f) = regions {
+        for r in &f.regions {
+            dot(
+                Point2::new(r.centroid[0], r.centroid[1]),
+                [230, 0, 0],
+                scale as i64,
+            );
+        }
+    }
+    img.save(path)?;
+    Ok(())
+}
+
+impl Operator for Evaluator {
+    type Config = Config;
+
+    fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+        let out = config
+            .out
+            .clone()
+            .or_else(|| std::env::var_os("ACTIVEMAP_RUN_DIR").map(PathBuf::from))
+            .unwrap_or_else(|| PathBuf::from("."));
+        Ok(Self {
+            out,
+            scene: SceneConfig {
+                scene: config.scene,
+                max_rooms: config.max_rooms,
+                max_area: config.max_area,
+            },
+            scale: config.bev_pixels_per_cell,
+            truth: None,
+            estimated: Trajectory::default(),
+            true_traj: Trajectory::default(),
+            coverage: Vec::new(),
+            grid: None,
+            regions: None,
+            map: None,
+            episode: String::new(),
+            pending_grids: Vec::new(),
+            written: false,
+        })
+    }
+
+    fn on_event(&mut self, event: Event<'_>, _ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
+        match event {
+            Event::Input(input) => match input.port {
+                "pose" => {
+                    let e: PoseEstimate = input.decode()?;
+                    self.estimated
+                        .push(e.stamp, pose_from_wire(&e.t_world_camera)?);
+                }
+                "true_pose" => {
+                    let t: TruePose = input.decode()?;
+                    let pose = pose_from_wire(&t.t_world_camera)?;
+                    if self.truth.is_none() {
+                        let start = planar_from_camera_pose(&pose);
+                        let sim = self.scene.simulator(16, 16, 90.0)?;
+                        let nav = activemap_sim::ground_truth::navigable_map(sim.navigation());
+                        let truth = CoverageTruth::new(nav, Point2::new(start.x, start.y));
+                        let anchor = crate::convert::start_anchor(
+                            pose.translation.z - sim.navigation().floor_z(),
+                        );
+                        let start_from_world = anchor * pose.inverse();
+                        self.truth = Some((truth, start, start_from_world));
+                    }
+                    self.true_traj.push(t.stamp, pose);
+                }
+                "episode" => {
+                    let s: EpisodeStatus = input.decode()?;
+                    self.episode = format!("{:?} at step {}: {}", s.state, s.step, s.message);
+                }
+                "map" => self.map = Some(read_map(input.bytes)?.1),
+                "grid" => self.pending_grids.push(read_grid(input.bytes)?),
+                "regions" => self.regions = Some(input.decode()?),
+                other => anyhow::bail!("evaluator: unexpected input `{other}`"),
+            },
+            Event::Stop => {
+                self.score_pending()?;
+                if !self.written {
+                    self.written = true;
+                    self.write_outputs()?;
+                }
+                return Ok(Flow::Stop);
+            }
+            _ => {}
+        }
+        self.score_pending()?;
+        Ok(Flow::Continue)
+    }
+}
+
+/// Registry entry.
+pub fn registered() -> Registered {
+    const INPUTS: &[PortSpec] = &[
+        PortSpec {
+            name: "pose",
+            kind: K::PoseEstimate,
+        },
+        PortSpec {
+            name: "true_pose",
+            kind: K::TruePose,
+        },
+        PortSpec {
+            name: "map",
+            kind: K::GaussianMap,
+        },
+        PortSpec {
+            name: "episode",
+            kind: K::EpisodeStatus,
+        },
+        PortSpec {
+            name: "grid",
+            kind: K::OccupancyGrid,
+        },
+        PortSpec {
+            name: "regions",
+            kind: K::Frontiers,
+        },
+    ];
+    Registered {
+        descriptor: OperatorDescriptor {
+            name: "evaluator",
+            summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE (SPEC §8)",
+            inputs: INPUTS,
+            outputs: &[],
+            evaluation: true,
+            check_config: check_config_as::<Config>,
+        },
+        implementation: Some(OperatorImpl::of::<Evaluator>()),
+    }
+}

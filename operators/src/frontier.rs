@@ -1,0 +1,205 @@
+//! `frontier`: frontier regions of each occupancy grid (SPEC §6), wrapping
+//! `activemap_planning::frontier::extract_frontiers`: (3×3 dilation of the connected free space
+//! − free space) ∩ unknown, connected regions above the minimum size, each with its size,
+//! centroid and the closest cell the robot can reach. Only reachable regions are published,
+//! largest first, with ids 0..N−1. One message per grid.
+
+use std::collections::BTreeMap;
+
+use activemap_geometry::frames::planar_from_camera_pose;
+use activemap_planning::OccupancyGrid as PlanGrid;
+use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
+use activemap_planning::frontier::{FrontierConfig, extract_frontiers};
+use activemap_runtime::{
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+};
+use activemap_schemas::{FrontierRegion, Frontiers, MessageKind as K, PoseEstimate};
+use nalgebra::Point2;
+
+use crate::Registered;
+use crate::convert::{pose_from_wire, read_grid};
+
+/// Config.
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Regions need more than this many cells (SPEC §6: 5).
+    #[serde(default = "default_min")]
+    pub min_region_cells: usize,
+    /// Robot width in cells for reachability (SPEC §6: 3).
+    #[serde(default = "default_width")]
+    pub robot_width_cells: f64,
+}
+
+fn default_min() -> usize {
+    5
+}
+fn default_width() -> f64 {
+    3.0
+}
+
+/// The reachable frontier regions of `grid` seen from `robot`, largest first (ties: the
+/// library's order), as wire regions.
+pub fn frontier_regions(
+    grid: &PlanGrid,
+    robot: Point2<f64>,
+    config: &Config,
+) -> anyhow::Result<Vec<FrontierRegion>> {
+    let clearance = ClearanceConfig {
+        robot_width_cells: config.robot_width_cells,
+        ..ClearanceConfig::default()
+    };
+    let map = ClearanceMap::new(grid, &clearance)?;
+    let fc = FrontierConfig {
+        min_region_cells: config.min_region_cells,
+        ..FrontierConfig::default()
+    };
+    let found = extract_frontiers(grid, &map, robot, &fc)?;
+    let mut regions: Vec<_> = found
+        .regions
+        .iter()
+        .filter_map(|r| {
+            let a = r.approach?;
+            Some(FrontierRegion {
+                id: 0,
+                size_cells: r.size() as u32,
+                centroid: [r.centroid.x, r.centroid.y],
+                closest_reachable_cell: [a.cell.x, a.cell.y],
+            })
+        })
+        .collect();
+    regions.sort_by_key(|r| std::cmp::Reverse(r.size_cells));
+    for (i, r) in regions.iter_mut().enumerate() {
+        r.id = i as u32;
+    }
+    Ok(regions)
+}
+
+/// The operator's state.
+pub struct Frontier {
+    config: Config,
+    grids: BTreeMap<u64, (f64, PlanGrid)>,
+    poses: BTreeMap<u64, Point2<f64>>,
+}
+
+impl Operator for Frontier {
+    type Config = Config;
+
+    fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+        Ok(Self {
+            config,
+            grids: BTreeMap::new(),
+            poses: BTreeMap::new(),
+        })
+    }
+
+    fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
+        match event {
+            Event::Input(input) if input.port == "grid" => {
+                let stamp = activemap_schemas::OccupancyGridView::parse(input.bytes)?
+                    .header
+                    .stamp;
+                let (k, grid) = read_grid(input.bytes)?;
+                self.grids.insert(k, (stamp, grid));
+            }
+            Event::Input(input) if input.port == "pose" => {
+                let e: PoseEstimate = input.decode()?;
+                let p = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
+                self.poses.insert(e.frame_id, Point2::new(p.x, p.y));
+            }
+            Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
+            _ => return Ok(Flow::Continue),
+        }
+        while let Some((&k, _)) = self.grids.first_key_value() {
+            let Some(robot) = self.poses.remove(&k) else {
+                break;
+            };
+            let (stamp, grid) = self.grids.remove(&k).expect("present");
+            let regions = frontier_regions(&grid, robot, &self.config)?;
+            ctx.send(
+                "regions",
+                &Frontiers {
+                    frame_id: k,
+                    stamp,
+                    regions,
+                },
+            )?;
+        }
+        Ok(Flow::Continue)
+    }
+}
+
+/// Registry entry.
+pub fn registered() -> Registered {
+    const INPUTS: &[PortSpec] = &[
+        PortSpec {
+            name: "grid",
+            kind: K::OccupancyGrid,
+        },
+        PortSpec {
+            name: "pose",
+            kind: K::PoseEstimate,
+        },
+    ];
+    const OUTPUTS: &[PortSpec] = &[PortSpec {
+        name: "regions",
+        kind: K::Frontiers,
+    }];
+    Registered {
+        descriptor: OperatorDescriptor {
+            name: "frontier",
+            summary: "Reachable frontier regions of the grid: size, centroid, closest reachable cell (SPEC §6)",
+            inputs: INPUTS,
+            outputs: OUTPUTS,
+            evaluation: false,
+            check_config: check_config_as::<Config>,
+        },
+        implementation: Some(OperatorImpl::of::<Frontier>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A hand-made room: free left part, unknown right part behind an open doorway. The only
+    /// frontier is the free/unknown boundary column, 5+ cells tall, reachable from the robot.
+    #[test]
+    fn one_region_on_a_hand_made_grid() {
+        let rows = [
+            "############",
+            "#.......????",
+            "#.......????",
+            "#.......????",
+            "#.......????",
+            "#.......????",
+            "#.......????",
+            "#.......????",
+            "############",
+        ];
+        let grid = PlanGrid::from_ascii(&rows, 0.05).unwrap();
+        let robot = grid.geometry.center(activemap_planning::Cell::new(3, 4));
+        let config = Config {
+            min_region_cells: 5,
+            robot_width_cells: 3.0,
+        };
+        let regions = frontier_regions(&grid, robot, &config).unwrap();
+        assert_eq!(regions.len(), 1, "{regions:?}");
+        let r = regions[0];
+        // The frontier is the unknown column x = 8 next to the free cells (rows 1..=7).
+        assert_eq!(r.size_cells, 7);
+        let c = grid.geometry.center(activemap_planning::Cell::new(8, 4));
+        assert!(
+            (r.centroid[0] - c.x).abs() < 1e-9 && (r.centroid[1] - c.y).abs() < 1e-9,
+            "{r:?}"
+        );
+        // Closing the doorway with a wall leaves nothing to explore.
+        let closed: Vec<String> = rows
+            .iter()
+            .map(|r| r.replacen("#.......?", "#.......#", 1))
+            .collect();
+        let closed: Vec<&str> = closed.iter().map(|s| s.as_str()).collect();
+        let grid = PlanGrid::from_ascii(&closed, 0.05).unwrap();
+        assert!(frontier_regions(&grid, robot, &config).unwrap().is_empty());
+    }
+}

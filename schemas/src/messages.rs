@@ -1,0 +1,289 @@
+//! The small (serde + postcard) messages of the pipeline, SPEC §1.
+
+use serde::{Deserialize, Serialize};
+
+use crate::small::SmallMessage;
+
+macro_rules! small_message {
+    ($ty:ident, $version:expr) => {
+        impl SmallMessage for $ty {
+            const TYPE_NAME: &'static str = stringify!($ty);
+            const VERSION: u16 = $version;
+        }
+    };
+}
+
+/// A rigid pose `T_world_camera` (SPEC §2): translation in metres and unit quaternion (x, y, z, w).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Translation, metres.
+    pub translation: [f64; 3],
+    /// Rotation quaternion, (x, y, z, w) as in TUM files.
+    pub rotation_xyzw: [f64; 4],
+}
+
+impl Pose {
+    /// The identity pose.
+    pub const IDENTITY: Self = Self {
+        translation: [0.0; 3],
+        rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
+    };
+}
+
+/// A pose on the motion plane: x, y in metres (world frame) and yaw in radians about world z.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PlanarPose2 {
+    /// World x, metres.
+    pub x: f64,
+    /// World y, metres.
+    pub y: f64,
+    /// Heading about world z, radians.
+    pub yaw: f64,
+}
+
+/// A discrete robot action (SPEC §1): forward 5 cm, turn 5° left or right, or stop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ActionKind {
+    /// Move forward one step.
+    Forward,
+    /// Turn left one step.
+    TurnLeft,
+    /// Turn right one step.
+    TurnRight,
+    /// End the episode.
+    Stop,
+}
+
+/// The follower's action for one simulator step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Action {
+    /// Step index the action answers (frame id of the frame it was computed from).
+    pub step: u64,
+    /// What to do.
+    pub action: ActionKind,
+}
+small_message!(Action, 1);
+
+/// Tracker outcome for one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TrackingStatus {
+    /// The optimisation converged.
+    Ok,
+    /// Tracking failed; the pose is a prediction.
+    Lost,
+    /// The frame was not tracked (e.g. the map is still empty).
+    Skipped,
+}
+
+/// The tracker's pose estimate for one frame (SPEC §4).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PoseEstimate {
+    /// Frame the estimate belongs to.
+    pub frame_id: u64,
+    /// Frame stamp, seconds.
+    pub stamp: f64,
+    /// Estimated `T_world_camera`.
+    pub t_world_camera: Pose,
+    /// Tracking status.
+    pub status: TrackingStatus,
+    /// Final photometric residual (mean absolute).
+    pub residual_rgb: f64,
+    /// Final depth residual (mean absolute, metres).
+    pub residual_depth: f64,
+    /// Optimiser iterations used.
+    pub iterations: u32,
+}
+small_message!(PoseEstimate, 1);
+
+/// Ground-truth camera pose from the simulator. Evaluation-only: no operator of the loop may read it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TruePose {
+    /// Frame the pose belongs to.
+    pub frame_id: u64,
+    /// Frame stamp, seconds.
+    pub stamp: f64,
+    /// True `T_world_camera`.
+    pub t_world_camera: Pose,
+}
+small_message!(TruePose, 1);
+
+/// One frontier region: connected free cells bordering unknown space (SPEC §6).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrontierRegion {
+    /// Index shown to the LLM (0..N−1).
+    pub id: u32,
+    /// Number of cells in the region.
+    pub size_cells: u32,
+    /// Centroid in world (x, y), metres.
+    pub centroid: [f64; 2],
+    /// Grid cell (ix, iy) of the region closest to the robot that is reachable.
+    pub closest_reachable_cell: [i32; 2],
+}
+
+/// The frontier regions of one occupancy grid.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Frontiers {
+    /// Frame the grid was built from.
+    pub frame_id: u64,
+    /// Stamp, seconds.
+    pub stamp: f64,
+    /// The regions, largest first.
+    pub regions: Vec<FrontierRegion>,
+}
+small_message!(Frontiers, 1);
+
+/// The planner's choice: a frontier to explore (or −1: refine the existing map, SPEC §7).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Goal {
+    /// Frame the decision was made on.
+    pub frame_id: u64,
+    /// Chosen frontier id, or −1 for "refine".
+    pub target: i32,
+    /// Centre the scorer samples candidate poses around.
+    pub focus: [f64; 2],
+}
+small_message!(Goal, 1);
+
+/// A path of planar waypoints from the Fisher scorer (SPEC §5, §6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Path {
+    /// Frame the path was planned on.
+    pub frame_id: u64,
+    /// Waypoints from the robot to the goal.
+    pub waypoints: Vec<PlanarPose2>,
+    /// Objective value Σ C_local − η·log EIG of the path (lower is better).
+    pub objective: f64,
+}
+small_message!(Path, 1);
+
+/// Why a replan is requested (SPEC §1: path done, or an obstacle appeared).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ReplanReason {
+    /// No path yet.
+    Startup,
+    /// The current path was completed.
+    PathDone,
+    /// The map now shows an obstacle close to the path.
+    ObstacleAhead,
+    /// The planner found no path.
+    NoPath,
+}
+
+/// Request from the follower to plan again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ReplanRequest {
+    /// Frame at which the request was made.
+    pub frame_id: u64,
+    /// Why.
+    pub reason: ReplanReason,
+}
+small_message!(ReplanRequest, 1);
+
+/// Episode state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum EpisodeState {
+    /// Steps remain.
+    Running,
+    /// `max_steps` reached or a stop action taken.
+    Finished,
+    /// The simulator failed.
+    Failed,
+}
+
+/// Progress of the episode, published by the simulator each step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeStatus {
+    /// Steps taken so far.
+    pub step: u64,
+    /// Step budget.
+    pub max_steps: u64,
+    /// State.
+    pub state: EpisodeState,
+    /// Human-readable note (scene, reason for failure).
+    pub message: String,
+}
+small_message!(EpisodeStatus, 1);
+
+/// One exchange with the multimodal LLM (SPEC §7), recorded for inspection and replay.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LlmExchange {
+    /// Frame the decision was made on.
+    pub frame_id: u64,
+    /// Text prompt sent.
+    pub prompt: String,
+    /// Annotated BEV image sent, PNG bytes.
+    pub bev_png: Vec<u8>,
+    /// Raw reply.
+    pub reply: String,
+    /// Parsed target, if the reply held a valid one.
+    pub target: Option<i32>,
+    /// True when the planner fell back to the largest frontier.
+    pub fell_back: bool,
+}
+small_message!(LlmExchange, 1);
+
+/// A counter sample, for diagnostics and the runtime's own tests.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Counter {
+    /// Sequence number.
+    pub seq: u64,
+    /// Value.
+    pub value: i64,
+}
+small_message!(Counter, 1);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::SchemaError;
+
+    #[test]
+    fn small_round_trip_version_and_garbage() {
+        let p = Path {
+            frame_id: 9,
+            waypoints: vec![PlanarPose2 {
+                x: 1.0,
+                y: -2.0,
+                yaw: 0.5,
+            }],
+            objective: -3.25,
+        };
+        let bytes = p.encode();
+        assert_eq!(&bytes[..2], &[1, 0]);
+        assert_eq!(Path::decode(&bytes).unwrap(), p);
+        let mut v2 = bytes.clone();
+        v2[0] = 2;
+        assert_eq!(
+            Path::decode(&v2).unwrap_err(),
+            SchemaError::VersionMismatch {
+                what: "Path",
+                expected: 1,
+                found: 2
+            }
+        );
+        for cut in 0..bytes.len() {
+            assert!(Path::decode(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
+        let mut trailing = bytes.clone();
+        trailing.push(0);
+        assert!(matches!(
+            Path::decode(&trailing),
+            Err(SchemaError::Malformed { .. })
+        ));
+        // Garbage: a huge declared vector length must be an error, not an allocation or a panic.
+        let garbage = [1u8, 0, 9, 0xff, 0xff, 0xff, 0xff, 0x0f];
+        assert!(Path::decode(&garbage).is_err());
+        // An enum tag out of range.
+        assert!(Action::decode(&[1, 0, 3, 9]).is_err());
+    }
+
+    #[test]
+    fn action_encoding_is_stable() {
+        // Pinned bytes: version 1 LE, varint step 300 = [0xac, 0x02], variant TurnRight = 2.
+        let a = Action {
+            step: 300,
+            action: ActionKind::TurnRight,
+        };
+        assert_eq!(a.encode(), vec![1, 0, 0xac, 0x02, 2]);
+    }
+}

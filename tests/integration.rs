@@ -1,0 +1,11 @@
+//! Integration tests of the `activemap` binary: real processes, real shared memory and Zenoh.
+//! Every process is started under a timeout, so a hang fails the test instead of blocking CI.
+
+mod integration {
+    mod bench;
+    mod distributed;
+    mod explore;
+    pub mod harness;
+    mod processes;
+    mod validate;
+}

@@ -1,0 +1,109 @@
+//! Issue 6 end to end: the reference exploration loop (`dataflow.yaml`: sim → tracker → mapper →
+//! occupancy → frontier → planner (FBE) → scorer → follower → sim) on a small procedural house at
+//! low resolution, as real processes with ESTIMATED poses. Checks that the episode ends by itself
+//! (no reachable frontier left, or the step budget), that the run folder holds every result file,
+//! and the coverage and tracking accuracy the evaluator measured.
+
+use std::time::Duration;
+
+use super::harness;
+
+/// The reference dataflow with a smaller house, a 64×64 camera and a step budget.
+fn small_flow(max_steps: u64) -> String {
+    let text =
+        std::fs::read_to_string(harness::root().join("dataflow.yaml")).expect("read dataflow.yaml");
+    let scene = r#"scene: "house:3", max_rooms: 2, max_area: 30"#;
+    let sim = format!(
+        r#"config: {{ {scene}, width: 64, height: 64, hfov_deg: 90, lockstep: true, max_steps: {max_steps} }}"#
+    );
+    let out: Vec<String> = text
+        .lines()
+        .map(|l| {
+            if l.contains("config: { scene: \"house:7\", width") {
+                format!("    {sim}")
+            } else if l.contains("config: { scene: \"house:7\" }") {
+                format!("    config: {{ {scene} }}")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    let joined = out.join("\n");
+    assert_eq!(
+        joined.matches("house:3").count(),
+        2,
+        "the test must rewrite both scene lines"
+    );
+    joined
+}
+
+/// Runs the small episode and returns the run folder (kept alive by the returned tempdir).
+fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, serde_json::Value) {
+    let tmp = tempfile::tempdir().unwrap();
+    let flow = tmp.path().join("explore.yaml");
+    std::fs::write(&flow, small_flow(max_steps)).unwrap();
+    let out = tmp.path().join("run");
+    let done = harness::run(
+        &[
+            "run",
+            flow.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--eval-views",
+            "20",
+        ],
+        tmp.path(),
+        Duration::from_secs(600),
+    );
+    assert!(done.status.success(), "run failed:\n{}", done.stderr);
+    for file in [
+        "trajectory_est.tum",
+        "trajectory_true.tum",
+        "map.ply",
+        "bev.png",
+        "coverage.csv",
+        "summary.json",
+        "recording.mcap",
+        "metrics.json",
+        "report.html",
+    ] {
+        assert!(
+            out.join(file).exists(),
+            "{file} missing; stderr:\n{}",
+            done.stderr
+        );
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    eprintln!("explore summary: {summary}");
+    (tmp, out, summary)
+}
+
+/// The whole loop runs as processes with estimated poses, ends by itself, and leaves every
+/// result file, the metrics and the report.
+#[test]
+fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
+    let (_tmp, out, summary) = run_episode(120);
+    let steps = summary["steps"].as_u64().unwrap();
+    assert!(steps > 50, "the loop stopped early: {summary}");
+    assert_eq!(summary["scene"], "house:3");
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert!(
+        metrics["test_views"].as_u64() == Some(20),
+        "metrics.json: {metrics}"
+    );
+}
+
+/// Issue 6's target. Measured 2026-11-22: 58 % coverage in 372 steps, the robot travels only
+/// 0.1 m (it turns in place and the planner runs out of reachable frontiers), ATE 21 cm. Open.
+#[test]
+#[ignore = "issue 6 open: FBE with estimated poses does not reach 80 % coverage yet"]
+fn fbe_episode_reaches_80_percent_coverage() {
+    let (_tmp, _out, summary) = run_episode(400);
+    let coverage = summary["coverage"].as_f64().unwrap();
+    assert!(
+        coverage >= 0.8,
+        "coverage {coverage} below the issue's 80 %: {summary}"
+    );
+}

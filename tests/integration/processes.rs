@@ -1,0 +1,172 @@
+//! Flows of real processes: shared-memory frames, record → replay, kill -9 recovery (the killed
+//! node holds iceoryx2 resources, which the next run must clean up).
+
+use std::time::Duration;
+
+use activemap_runtime::record::read_recording;
+use activemap_schemas::{Counter, SmallMessage};
+
+use super::harness::{pids_with, root, run, spawn, wait};
+
+fn counters(rec: &activemap_runtime::record::Recording, topic: &str) -> Vec<Counter> {
+    rec.messages
+        .iter()
+        .filter(|m| m.topic == topic && !m.bytes.is_empty())
+        .map(|m| Counter::decode(&m.bytes).expect("counter"))
+        .collect()
+}
+
+#[test]
+fn rgbd_800x800_crosses_processes_bit_exact_through_shared_memory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("run");
+    let out = run(
+        &[
+            "run",
+            "tests/data/dataflows/good/frames.yaml",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+        &root(),
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "run failed:\n{}", out.stderr);
+    let rec = read_recording(&out_dir.join("recording.mcap")).unwrap();
+    assert!(!rec.truncated);
+    // The checker process recomputed every pixel independently and compared bit for bit.
+    let reports = counters(&rec, "checker/report");
+    assert_eq!(reports.len(), 5, "{reports:?}");
+    for (i, r) in reports.iter().enumerate() {
+        assert_eq!(r.seq, i as u64 + 1);
+        assert_eq!(r.value, 1, "frame {} differed; see checker log", r.seq);
+    }
+    // The recorder read the same shared-memory frames.
+    let frames: Vec<_> = rec
+        .messages
+        .iter()
+        .filter(|m| m.topic == "camera/frame" && !m.bytes.is_empty())
+        .collect();
+    assert_eq!(frames.len(), 5);
+    assert_eq!(frames[0].bytes.len(), 64 + 800 * 800 * 3 + 800 * 800 * 4);
+}
+
+#[test]
+fn record_then_replay_reproduces_every_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("run");
+    let out = run(
+        &[
+            "run",
+            "tests/data/dataflows/good/counter.yaml",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+        &root(),
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "run failed:\n{}", out.stderr);
+    let rec_path = out_dir.join("recording.mcap");
+    let rec = read_recording(&rec_path).unwrap();
+    // Independent truth: the source sends 1..=20, the doubler (factor 3) answers 3·v, nothing lost.
+    let sent: Vec<i64> = counters(&rec, "source/count")
+        .iter()
+        .map(|c| c.value)
+        .collect();
+    assert_eq!(sent, (1..=20).collect::<Vec<_>>());
+    let doubled: Vec<i64> = counters(&rec, "double/doubled")
+        .iter()
+        .map(|c| c.value)
+        .collect();
+    assert_eq!(doubled, (1..=20).map(|v| 3 * v).collect::<Vec<_>>());
+    let out = run(
+        &["replay", rec_path.to_str().unwrap(), "--node", "double"],
+        &root(),
+        Duration::from_secs(60),
+    );
+    assert!(
+        out.status.success(),
+        "replay failed:\n{}\n{}",
+        out.stdout,
+        out.stderr
+    );
+    assert!(
+        out.stdout
+            .contains("replay double: 21 inputs, 20/20 outputs matched"),
+        "{}",
+        out.stdout
+    );
+}
+
+#[test]
+fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flow = tmp.path().join("long.yaml");
+    std::fs::write(
+        &flow,
+        "nodes:\n  - id: camera\n    operator: frame_source\n    config: { count: 100000, size: 64 }\n    timers: { tick: 5ms }\n  - id: victim\n    operator: frame_checker\n    inputs:\n      frame: camera/frame\n",
+    )
+    .unwrap();
+    let out_dir = tmp.path().join("run1");
+    let child = spawn(
+        &[
+            "run",
+            flow.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+        &root(),
+    );
+    // Wait until the victim is running and messages flow, then kill -9 it.
+    let needle_dir = out_dir.to_string_lossy().to_string();
+    let mut victim = None;
+    for _ in 0..600 {
+        let pids = pids_with(&["node", "--node victim", &needle_dir]);
+        let log = std::fs::read(out_dir.join("recording.mcap"))
+            .map(|b| b.len())
+            .unwrap_or(0);
+        if let Some(pid) = pids.first() {
+            if log > 4096 {
+                victim = Some(*pid);
+                break;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let victim = victim.expect("victim node never started");
+    // SAFETY: kill(2) on a pid found in /proc.
+    assert_eq!(unsafe { libc_kill(victim as i32, 9) }, 0);
+    let out = wait(child, Duration::from_secs(60), "run with a killed node");
+    assert!(!out.status.success());
+    assert!(
+        out.stderr
+            .contains("node `victim` crashed: killed by signal 9 (SIGKILL)"),
+        "stderr:\n{}",
+        out.stderr
+    );
+    // The recording written so far reads back.
+    let rec = read_recording(&out_dir.join("recording.mcap")).unwrap();
+    assert!(!counters(&rec, "victim/report").is_empty());
+    assert!(rec.messages.iter().any(|m| m.topic == "camera/frame"));
+    // No process of the run is left, and a second run starts and finishes cleanly.
+    assert!(
+        pids_with(&["node", &needle_dir]).is_empty(),
+        "leftover node processes"
+    );
+    let out2 = tmp.path().join("run2");
+    let out = run(
+        &[
+            "run",
+            "tests/data/dataflows/good/frames.yaml",
+            "--out",
+            out2.to_str().unwrap(),
+        ],
+        &root(),
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "second run failed:\n{}", out.stderr);
+}
+
+unsafe extern "C" {
+    #[link_name = "kill"]
+    fn libc_kill(pid: i32, sig: i32) -> i32;
+}
