@@ -6,16 +6,19 @@
 //! Per pixel and Gaussian `i` (transmittance `T_i` in front of it, `S` the colour/depth
 //! composited behind it): `∂C/∂c_i = α_i T_i`, `∂C/∂α_i = c_i T_i − S_C/(1 − α_i)`,
 //! `∂D/∂α_i = z_i T_i − S_D/(1 − α_i)`, `∂O/∂α_i = T_final/(1 − α_i)`; `α = o·e^{−σ}` (zero
-//! gradient where the 0.99 clamp is active). Tiles are walked back to front, Gaussian-major;
-//! each (tile, Gaussian) pair writes its own partial sums, reduced afterwards in a fixed order,
-//! so the result does not depend on the number of threads.
+//! gradient where the 0.99 clamp is active). Tiles are walked back to front, Gaussian-major, by
+//! the traversal shared with the Fisher pass ([`crate::walk`]); each (tile, Gaussian) pair
+//! writes its own partial sums, reduced afterwards in a fixed order, so the result does not
+//! depend on the number of threads.
 
 use crate::SplatError;
 use crate::gaussians::{Gaussians, SH_C0};
-use crate::project::{ALPHA_MAX, ALPHA_MIN, SigmaRow, Splat, chain, project_vjp};
-use crate::rasterize::{ForwardContext, Render, clip_box};
+use crate::project::{Splat, chain, project_vjp};
+use crate::rasterize::Render;
 use crate::real::Real;
-use crate::tiles::split_by_offsets;
+use crate::walk::{
+    BackSink, LANES, Lanes, PADDED, lane_sum, lanes, reduce_slots, walk_back, walk_tiles,
+};
 use nalgebra::Vector6;
 use rayon::prelude::*;
 
@@ -110,131 +113,110 @@ pub(crate) fn check_pixels(
     }
 }
 
-/// Per-pixel state of the backward walk.
-#[derive(Clone, Copy)]
-struct BackPixel<T: Real> {
-    /// Transmittance behind the current Gaussian (starts at T_final).
-    t: T,
-    /// Number of composited list entries.
-    last: usize,
-    /// ∂L/∂(raw colour) = e^a·∂L/∂(output colour).
-    g_col: [T; 3],
-    g_dep: T,
-    /// ∂L/∂opacity · T_final.
-    g_t: T,
-    /// Colour and depth composited behind the current Gaussian.
-    s_col: [T; 3],
-    s_dep: T,
-}
-
-/// Back-to-front walk of one tile writing the pair slots.
-#[allow(clippy::too_many_arguments)]
-fn backward_tile<T: Real>(
-    splats: &[Splat<T>],
-    list: &[u32],
-    rect: [usize; 4],
-    width: usize,
-    ctx: &ForwardContext<T>,
-    grads: &PixelGrads<T>,
+/// What the backward pass accumulates along the shared back-to-front walk
+/// ([`crate::walk::walk_back`]): per pixel the upstream gradients, per (tile, Gaussian) pair
+/// the [`SLOT`] partial sums.
+struct BackwardSink<'a, T: Real> {
+    pixel_grads: &'a PixelGrads<T>,
+    final_transmittance: &'a [T],
     gain: T,
-    slots: &mut [T],
-) {
-    let tw = rect[1] - rect[0];
-    let mut pixels = Vec::with_capacity(tw * (rect[3] - rect[2]));
-    for py in rect[2]..rect[3] {
-        for px in rect[0]..rect[1] {
-            let i = py * width + px;
-            pixels.push(BackPixel {
-                t: ctx.final_transmittance[i],
-                last: ctx.contributors[i] as usize,
-                g_col: grads.colour[i].map(|g| g * gain),
-                g_dep: grads.depth[i],
-                // ∂O/∂α_i = T_final/(1 − α_i): keep gO·T_final.
-                g_t: grads.opacity[i] * ctx.final_transmittance[i],
-                s_col: [T::zero(); 3],
-                s_dep: T::zero(),
-            });
-        }
-    }
-    let kmax = pixels.iter().map(|p| p.last).max().unwrap_or(0);
-    let (half, alpha_min, alpha_max) = (T::of(0.5), T::of(ALPHA_MIN), T::of(ALPHA_MAX));
-    for k in (0..kmax).rev() {
-        let s = &splats[list[k] as usize];
-        let Some([bx0, bx1, by0, by1]) = clip_box(s, &rect) else {
-            continue;
-        };
-        let [qa, qb, qc] = s.conic;
-        let mut acc = [T::zero(); SLOT];
-        for py in by0..=by1 {
-            let dy = s.mean[1] - T::of(py as f64);
-            let row_sigma = SigmaRow::new(s, dy);
-            let start = (py - rect[2]) * tw + bx0 - rect[0];
-            // Row sums of ∂L/∂σ·dx^i; the dy factors are applied once per row.
-            let mut row = [T::zero(); 3];
-            let mut pxf = T::of(bx0 as f64);
-            for st in &mut pixels[start..start + (bx1 - bx0 + 1)] {
-                let dx = s.mean[0] - pxf;
-                pxf += T::one();
-                if k >= st.last {
-                    continue;
-                }
-                let sigma = row_sigma.sigma(dx);
-                if sigma < T::zero() {
-                    continue;
-                }
-                let gauss = (-sigma).exp();
-                let raw = s.opacity * gauss;
-                let alpha = raw.min(alpha_max);
-                if alpha < alpha_min {
-                    continue;
-                }
-                let inv_one_minus = T::one() / (T::one() - alpha);
-                let t_i = st.t * inv_one_minus;
-                let weight = alpha * t_i;
-                let gc = st.g_col;
-                let mut d_alpha =
-                    st.g_dep * (s.depth * t_i - st.s_dep * inv_one_minus) + st.g_t * inv_one_minus;
-                for ch in 0..3 {
-                    d_alpha += gc[ch] * (s.colour[ch] * t_i - st.s_col[ch] * inv_one_minus);
-                    acc[7 + ch] += gc[ch] * weight;
-                    st.s_col[ch] += s.colour[ch] * weight;
-                }
-                acc[5] += st.g_dep * weight;
-                st.s_dep += s.depth * weight;
-                st.t = t_i;
-                if raw < alpha_max {
-                    acc[6] += d_alpha * gauss;
-                    let d_sigma = -d_alpha * alpha;
-                    row[0] += d_sigma;
-                    row[1] += d_sigma * dx;
-                    row[2] += d_sigma * dx * dx;
-                }
-            }
-            // ∂σ/∂mean = (Q_xx dx + Q_xy dy, Q_xy dx + Q_yy dy), ∂σ/∂Q = (½dx², dx dy, ½dy²).
-            acc[0] += qa * row[1] + qb * dy * row[0];
-            acc[1] += qb * row[1] + qc * dy * row[0];
-            acc[2] += half * row[2];
-            acc[3] += dy * row[1];
-            acc[4] += half * dy * dy * row[0];
-        }
-        slots[k * SLOT..(k + 1) * SLOT].copy_from_slice(&acc);
-    }
+    /// ∂L/∂(raw colour) = e^a·∂L/∂(output colour), per tile-local pixel.
+    g_col: [[T; PADDED]; 3],
+    /// ∂L/∂depth.
+    g_dep: [T; PADDED],
+    /// ∂L/∂opacity · T_final (∂O/∂α_i = T_final/(1 − α_i)).
+    g_t: [T; PADDED],
+    /// The current pair's splat.
+    splat: Splat<T>,
+    /// Per-lane row sums of ∂L/∂σ·dx^i, i = 0, 1, 2; the dy factors are applied per row.
+    row: [[T; LANES]; 3],
+    /// Per-lane pair sums of ∂L/∂(r, g, b), ∂L/∂z, ∂L/∂o.
+    pair: [[T; LANES]; 5],
+    /// ∂L/∂(mean_x, mean_y, Q_xx, Q_xy, Q_yy) of the current pair.
+    geo: [T; 5],
+    /// This tile's pair slots.
+    slots: &'a mut [T],
 }
 
-/// Sums the pair slots per Gaussian, in pair order (deterministic).
-pub(crate) fn reduce_pairs<T: Real, const N: usize>(
-    ids: &[u32],
-    slots: &[T],
-    gaussians: usize,
-) -> Vec<[T; N]> {
-    let mut out = vec![[T::zero(); N]; gaussians];
-    for (pair, &id) in ids.iter().enumerate() {
-        let dst = &mut out[id as usize];
-        for (d, s) in dst.iter_mut().zip(&slots[pair * N..(pair + 1) * N]) {
-            *d += *s;
+impl<T: Real> BackSink<T> for BackwardSink<'_, T> {
+    #[inline(always)]
+    fn init_pixel(&mut self, local: usize, pixel: usize) {
+        let g = self.pixel_grads.colour[pixel];
+        for ch in 0..3 {
+            self.g_col[ch][local] = g[ch] * self.gain;
         }
+        self.g_dep[local] = self.pixel_grads.depth[pixel];
+        self.g_t[local] = self.pixel_grads.opacity[pixel] * self.final_transmittance[pixel];
     }
-    out
+
+    #[inline(always)]
+    fn begin_pair(&mut self, _id: usize, splat: &Splat<T>) {
+        self.splat = *splat;
+        self.pair = [[T::zero(); LANES]; 5];
+        self.geo = [T::zero(); 5];
+    }
+
+    #[inline(always)]
+    fn begin_row(&mut self, _dy: T) {
+        self.row = [[T::zero(); LANES]; 3];
+    }
+
+    #[inline(always)]
+    fn step(&mut self, base: usize, ln: &Lanes<T>) {
+        let s = &self.splat;
+        let g_col = [
+            *lanes(&self.g_col[0], base),
+            *lanes(&self.g_col[1], base),
+            *lanes(&self.g_col[2], base),
+        ];
+        let g_dep = lanes(&self.g_dep, base);
+        let g_t = lanes(&self.g_t, base);
+        // Local copies of the accumulators keep the lane loop free of aliasing, so it vectorises.
+        let mut pair = self.pair;
+        let mut row = self.row;
+        for l in 0..LANES {
+            let (t_i, inv, weight) = (ln.t_i[l], ln.inv[l], ln.weight[l]);
+            let mut d_alpha =
+                g_dep[l].mul_add(s.depth.mul_add(t_i, -(ln.s_dep[l] * inv)), g_t[l] * inv);
+            for ch in 0..3 {
+                let behind = s.colour[ch].mul_add(t_i, -(ln.s_col[ch][l] * inv));
+                d_alpha = g_col[ch][l].mul_add(behind, d_alpha);
+                pair[ch][l] = g_col[ch][l].mul_add(weight, pair[ch][l]);
+            }
+            pair[3][l] = g_dep[l].mul_add(weight, pair[3][l]);
+            let d_alpha = d_alpha * ln.grad[l];
+            pair[4][l] = d_alpha.mul_add(ln.gauss[l], pair[4][l]);
+            let d_sigma = -d_alpha * ln.alpha[l];
+            let dx = ln.dx[l];
+            let d_sigma_dx = d_sigma * dx;
+            row[0][l] += d_sigma;
+            row[1][l] += d_sigma_dx;
+            row[2][l] = d_sigma_dx.mul_add(dx, row[2][l]);
+        }
+        self.pair = pair;
+        self.row = row;
+    }
+
+    #[inline(always)]
+    fn end_row(&mut self, dy: T) {
+        let [qa, qb, qc] = self.splat.conic;
+        let row = self.row.map(|r| lane_sum(&r));
+        // ∂σ/∂mean = (Q_xx dx + Q_xy dy, Q_xy dx + Q_yy dy), ∂σ/∂Q = (½dx², dx dy, ½dy²).
+        let half = T::of(0.5);
+        self.geo[0] += qa * row[1] + qb * dy * row[0];
+        self.geo[1] += qb * row[1] + qc * dy * row[0];
+        self.geo[2] += half * row[2];
+        self.geo[3] += dy * row[1];
+        self.geo[4] += half * dy * dy * row[0];
+    }
+
+    #[inline(always)]
+    fn end_pair(&mut self, k: usize) {
+        let p = self.pair.map(|v| lane_sum(&v));
+        let g = self.geo;
+        self.slots[k * SLOT..(k + 1) * SLOT]
+            .copy_from_slice(&[g[0], g[1], g[2], g[3], g[4], p[3], p[4], p[0], p[1], p[2]]);
+    }
 }
 
 /// Gaussians per chunk in per-Gaussian parallel loops whose partial sums are reduced in order.
@@ -259,29 +241,23 @@ pub fn backward<T: Real>(
     check_pixels("pixel_grads.opacity", pixel_grads.opacity.len(), n_pix)?;
     let gain_f64 = ctx.options.exposure[0].exp();
     let gain = T::of(gain_f64);
-    let bins = &ctx.bins;
-    let mut slots = vec![T::zero(); bins.pair_count() * SLOT];
-    {
-        let pieces = split_by_offsets(&mut slots, &bins.offsets, SLOT);
-        pieces
-            .into_par_iter()
-            .with_max_len(1)
-            .enumerate()
-            .for_each(|(t, piece)| {
-                let rect = bins.tile_rect(t, render.width, render.height);
-                backward_tile(
-                    &ctx.splats,
-                    bins.tile(t),
-                    rect,
-                    render.width,
-                    ctx,
-                    pixel_grads,
-                    gain,
-                    piece,
-                );
-            });
-    }
-    let per_gaussian: Vec<[T; SLOT]> = reduce_pairs(&bins.ids, &slots, gaussians.len());
+    let (slots, _) = walk_tiles(ctx, SLOT, |t, piece| {
+        let mut sink = BackwardSink {
+            pixel_grads,
+            final_transmittance: &ctx.final_transmittance,
+            gain,
+            g_col: [[T::zero(); PADDED]; 3],
+            g_dep: [T::zero(); PADDED],
+            g_t: [T::zero(); PADDED],
+            splat: Splat::default(),
+            row: [[T::zero(); LANES]; 3],
+            pair: [[T::zero(); LANES]; 5],
+            geo: [T::zero(); 5],
+            slots: piece,
+        };
+        walk_back(ctx, t, &mut sink);
+    });
+    let per_gaussian: Vec<[T; SLOT]> = reduce_slots(ctx, &slots, gaussians.len());
     let n = gaussians.len();
     let mut out = Gradients {
         means: vec![[T::zero(); 3]; n],

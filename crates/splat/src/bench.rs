@@ -1,6 +1,6 @@
 //! Benchmark of the renderer (`activemap bench splat`): forward, forward+backward and the
-//! Fisher pass at 200×200 and 800×800 with 10k and 100k Gaussians, (pixel, Gaussian) pairs
-//! per second, the share of a rough 2-core compute roofline the forward pass reaches, and the
+//! Fisher pass at 200×200 and 800×800 with 10k and 100k Gaussians plus the SLAM-tracking sizes
+//! 100×100/10k and 200×200/40k, (pixel, Gaussian) pairs per second, the share of a rough 2-core compute roofline the forward pass reaches, and the
 //! ratio to a CPU reference rasteriser written in JAX (`tools/splat_reference/`), run on the
 //! same scene (exported as PLY) with the same thread count in the same run.
 
@@ -22,6 +22,9 @@ pub struct BenchConfig {
     pub sizes: Vec<u32>,
     /// Gaussian counts.
     pub counts: Vec<usize>,
+    /// Further `(size, count)` cases run after the `sizes × counts` grid: the small images SLAM
+    /// tracking renders up to 100 times per frame (SPEC §4).
+    pub extra_cases: Vec<(u32, usize)>,
     /// Timed repetitions per case (the median is reported).
     pub repeats: usize,
     /// The reference script (`tools/splat_reference/reference.py`); `None` skips the comparison.
@@ -36,6 +39,7 @@ impl Default for BenchConfig {
         Self {
             sizes: vec![200, 800],
             counts: vec![10_000, 100_000],
+            extra_cases: vec![(100, 10_000), (200, 40_000)],
             repeats: 5,
             reference_script: None,
             peak_flops: 2.0 * 2.0e9 * 2.0 * 16.0 * 2.0,
@@ -183,12 +187,21 @@ fn run_reference(
 pub fn run(cfg: &BenchConfig) -> Vec<Row> {
     let mut rows = Vec::new();
     let dir = std::env::temp_dir().join(format!("activemap-splat-bench-{}", std::process::id()));
-    for &n in &cfg.counts {
+    let mut cases: Vec<(usize, Vec<u32>)> =
+        cfg.counts.iter().map(|&n| (n, cfg.sizes.clone())).collect();
+    for &(size, n) in &cfg.extra_cases {
+        match cases.iter_mut().find(|(count, _)| *count == n) {
+            Some((_, sizes)) if !sizes.contains(&size) => sizes.push(size),
+            Some(_) => {}
+            None => cases.push((n, vec![size])),
+        }
+    }
+    for (n, sizes) in cases {
         let g = scene(n);
         let ply = dir.join(format!("scene_{n}.ply"));
         let ply_ok =
             std::fs::create_dir_all(&dir).is_ok() && crate::ply::write_ply(&ply, &g).is_ok();
-        for &size in &cfg.sizes {
+        for size in sizes {
             let cam = camera(size);
             let opts = RenderOptions::default();
             let Ok(out) = render(&g, &cam, &opts) else {
@@ -319,6 +332,11 @@ mod tests {
                 .unwrap_or(3),
             sizes: list("SPLAT_BENCH_SIZES").unwrap_or(vec![200, 800]),
             counts: list("SPLAT_BENCH_COUNTS").unwrap_or(vec![10_000, 100_000]),
+            extra_cases: if std::env::var("SPLAT_BENCH_NO_EXTRA").is_ok() {
+                Vec::new()
+            } else {
+                BenchConfig::default().extra_cases
+            },
             ..Default::default()
         };
         for row in run(&cfg) {

@@ -16,12 +16,15 @@
 //! Gaussians in registers, then adds its outer product.
 
 use crate::SplatError;
-use crate::backward::{CHUNK, check_pixels, reduce_pairs};
+use crate::backward::{CHUNK, check_pixels};
 use crate::gaussians::{Gaussians, SH_C0, layout};
-use crate::project::{ALPHA_MAX, ALPHA_MIN, SigmaRow, Splat, chain, project_vjp};
-use crate::rasterize::{ForwardContext, Render, clip_box};
+use crate::project::{Splat, chain, project_vjp};
+use crate::rasterize::Render;
 use crate::real::Real;
-use crate::tiles::split_by_offsets;
+use crate::walk::{
+    BackSink, LANES, Lanes, PADDED, TILE_PIXELS, lane_sum, lanes_mut, reduce_slots, walk_back,
+    walk_tiles,
+};
 use nalgebra::Matrix6;
 use rayon::prelude::*;
 
@@ -71,15 +74,18 @@ const PACKED: usize = U * (U + 1) / 2;
 /// Slot per pair: colour moments, depth moments, depth cross moments, Σ weight², Σ (∂C/∂sh)².
 const SLOT: usize = 2 * MOMENTS + 6 + 2;
 
-/// Per-Gaussian Jacobians: `geo[k][p] = ∂u_k/∂w_p` (p over mean 3, quaternion 4, log-scale 3)
-/// and `pose[k][j] = ∂u_k/∂τ_j`, for the 6 geometric entries of `u`.
+/// Per-Gaussian Jacobian `geo[k][p] = ∂u_k/∂w_p` (p over mean 3, quaternion 4, log-scale 3)
+/// of the 6 geometric entries of `u`.
+type GeoJacobian<T> = [[T; 10]; 6];
+
+/// What the pixel walk needs of a Gaussian's pose Jacobian `pose[k][j] = ∂u_k/∂τ_j`.
 #[derive(Clone, Copy, Default)]
-struct Prep<T: Real> {
-    geo: [[T; 10]; 6],
-    pose: [[T; 6]; 6],
+struct PoseRows<T: Real> {
     /// `pose_l[m][j] = Σ_k L[k][m]·pose[k][j]`: the pose rows folded with [`l_matrix`], so
     /// that `(∂u/∂τ)ᵀ ∂α/∂u = α·Σ_m pose_l[m]·mono[m]`.
     pose_l: [[T; 6]; 6],
+    /// `∂z/∂τ`.
+    depth: [T; 6],
 }
 
 /// Number of monomials `dx^i·dy^j` with `i + j ≤ 4`.
@@ -167,7 +173,7 @@ fn moments_to_packed<T: Real>(
 }
 
 /// `diag(Jᵀ M J)` over the geometric parameters plus the logit entry `M_66`.
-fn project_diag<T: Real>(m: &[T; PACKED], prep: &Prep<T>) -> ([T; 10], T) {
+fn project_diag<T: Real>(m: &[T; PACKED], geo: &GeoJacobian<T>) -> ([T; 10], T) {
     let mut full = [[T::zero(); U]; U];
     let mut idx = 0;
     for k in 0..U {
@@ -181,10 +187,10 @@ fn project_diag<T: Real>(m: &[T; PACKED], prep: &Prep<T>) -> ([T; 10], T) {
     for (p, d) in diag.iter_mut().enumerate() {
         let mut acc = T::zero();
         for k in 0..6 {
-            let jk = prep.geo[k][p];
+            let jk = geo[k][p];
             let mut row = T::zero();
             for l in 0..6 {
-                row += full[k][l] * prep.geo[l][p];
+                row += full[k][l] * geo[l][p];
             }
             acc += jk * row;
         }
@@ -193,189 +199,225 @@ fn project_diag<T: Real>(m: &[T; PACKED], prep: &Prep<T>) -> ([T; 10], T) {
     (diag, full[6][6])
 }
 
-/// Per-pixel state of the Fisher walk.
-#[derive(Clone, Copy)]
-struct FisherPixel<T: Real> {
-    /// Transmittance behind the current Gaussian (starts at T_final).
-    t: T,
-    /// Number of composited list entries.
-    last: usize,
-    /// Colour and depth composited behind the current Gaussian.
-    s_col: [T; 3],
-    s_dep: T,
-    /// ∂(colour channel)/∂τ and ∂depth/∂τ of this pixel, summed over its Gaussians.
-    jt_col: [[T; 6]; 3],
-    jt_dep: [T; 6],
+/// What the Fisher pass accumulates along the shared back-to-front walk
+/// ([`crate::walk::walk_back`]): per pixel its pose Jacobians, per (tile, Gaussian) pair the
+/// [`SLOT`] moment sums.
+struct FisherSink<'a, T: Real> {
+    pose_rows: &'a [PoseRows<T>],
+    gain: T,
+    mode: FisherMode,
+    /// ∂(colour channel)/∂τ per tile-local pixel, `[channel][τ component][pixel]`, summed over
+    /// the Gaussians walked so far.
+    jt_col: [[[T; PADDED]; 6]; 3],
+    /// ∂depth/∂τ per pixel.
+    jt_dep: [[T; PADDED]; 6],
+    /// The current pair's splat and pose rows.
+    splat: Splat<T>,
+    rows: PoseRows<T>,
+    /// Row coefficients of `v = (∂u/∂τ)ᵀ ∂α/∂u / α = r + dx·q + dx²·pose_l[3]`.
+    r: [T; 6],
+    q: [T; 6],
+    /// Per-lane row sums `Σ e·dx^i` of the colour and depth streams and of the depth cross term.
+    row_col: [[T; LANES]; 5],
+    row_dep: [[T; LANES]; 5],
+    row_cross: [[T; LANES]; 3],
+    /// Per-lane pair sums of `weight²` and `(∂C/∂sh)²`.
+    weight_sq: [T; LANES],
+    colour_sq: [T; LANES],
+    /// The pair's moments (see [`moments_to_packed`]).
+    mom_col: [T; MOMENTS],
+    mom_dep: [T; MOMENTS],
+    cross: [T; 6],
+    /// This tile's pair slots.
+    slots: &'a mut [T],
+}
+
+impl<'a, T: Real> FisherSink<'a, T> {
+    fn new(pose_rows: &'a [PoseRows<T>], gain: T, mode: FisherMode, slots: &'a mut [T]) -> Self {
+        let z = T::zero();
+        Self {
+            pose_rows,
+            gain,
+            mode,
+            jt_col: [[[z; PADDED]; 6]; 3],
+            jt_dep: [[z; PADDED]; 6],
+            splat: Splat::default(),
+            rows: PoseRows::default(),
+            r: [z; 6],
+            q: [z; 6],
+            row_col: [[z; LANES]; 5],
+            row_dep: [[z; LANES]; 5],
+            row_cross: [[z; LANES]; 3],
+            weight_sq: [z; LANES],
+            colour_sq: [z; LANES],
+            mom_col: [z; MOMENTS],
+            mom_dep: [z; MOMENTS],
+            cross: [z; 6],
+            slots,
+        }
+    }
+
+    /// The two 6×6 pose matrices of the tile, `Σ_px Σ_ch J_chᵀ J_ch` and `Σ_px J_Dᵀ J_D`, packed
+    /// row-major; pixels are summed in a fixed order.
+    fn pose_part(&self) -> PosePart {
+        let mut pose_col = [0.0f64; 36];
+        let mut pose_dep = [0.0f64; 36];
+        for a in 0..6 {
+            for b in a..6 {
+                let mut c = T::zero();
+                let mut d = T::zero();
+                for p in 0..TILE_PIXELS {
+                    for ch in 0..3 {
+                        c += self.jt_col[ch][a][p] * self.jt_col[ch][b][p];
+                    }
+                    d += self.jt_dep[a][p] * self.jt_dep[b][p];
+                }
+                for (i, j) in [(a, b), (b, a)] {
+                    pose_col[i * 6 + j] = c.to_f64();
+                    pose_dep[i * 6 + j] = d.to_f64();
+                }
+            }
+        }
+        (pose_col, pose_dep)
+    }
+}
+
+impl<T: Real> BackSink<T> for FisherSink<'_, T> {
+    #[inline(always)]
+    fn init_pixel(&mut self, _local: usize, _pixel: usize) {}
+
+    #[inline(always)]
+    fn begin_pair(&mut self, id: usize, splat: &Splat<T>) {
+        self.splat = *splat;
+        self.rows = self.pose_rows[id];
+        self.weight_sq = [T::zero(); LANES];
+        self.colour_sq = [T::zero(); LANES];
+        self.mom_col = [T::zero(); MOMENTS];
+        self.mom_dep = [T::zero(); MOMENTS];
+        self.cross = [T::zero(); 6];
+    }
+
+    #[inline(always)]
+    fn begin_row(&mut self, dy: T) {
+        let pl = &self.rows.pose_l;
+        let dy2 = dy * dy;
+        self.r = std::array::from_fn(|j| pl[2][j] * dy + pl[5][j] * dy2);
+        self.q = std::array::from_fn(|j| pl[1][j] + pl[4][j] * dy);
+        self.row_col = [[T::zero(); LANES]; 5];
+        self.row_dep = [[T::zero(); LANES]; 5];
+        self.row_cross = [[T::zero(); LANES]; 3];
+    }
+
+    #[inline(always)]
+    fn step(&mut self, base: usize, ln: &Lanes<T>) {
+        let s = self.splat;
+        let (gain, colour_scale) = (self.gain, self.gain * T::of(SH_C0));
+        let per_channel = self.mode == FisherMode::PerChannel;
+        let mut w = [[T::zero(); LANES]; 3];
+        let mut w_d = [T::zero(); LANES];
+        let mut v = [[T::zero(); LANES]; 6];
+        // Local copies of the accumulators keep the lane loop free of aliasing, so it vectorises.
+        let (r, q, p3) = (self.r, self.q, self.rows.pose_l[3]);
+        let mut colour_sq = self.colour_sq;
+        let mut weight_sq = self.weight_sq;
+        let mut row_col = self.row_col;
+        let mut row_dep = self.row_dep;
+        let mut row_cross = self.row_cross;
+        for l in 0..LANES {
+            let (t_i, inv, weight) = (ln.t_i[l], ln.inv[l], ln.weight[l]);
+            for ch in 0..3 {
+                w[ch][l] = gain * s.colour[ch].mul_add(t_i, -(ln.s_col[ch][l] * inv));
+            }
+            w_d[l] = s.depth.mul_add(t_i, -(ln.s_dep[l] * inv));
+            let cw = colour_scale * weight;
+            colour_sq[l] = cw.mul_add(cw, colour_sq[l]);
+            weight_sq[l] = weight.mul_add(weight, weight_sq[l]);
+            let per_channel_weight =
+                w[0][l].mul_add(w[0][l], w[1][l].mul_add(w[1][l], w[2][l] * w[2][l]));
+            let sum = w[0][l] + w[1][l] + w[2][l];
+            let colour_weight = if per_channel {
+                per_channel_weight
+            } else {
+                sum * sum
+            };
+            // ∂α/∂u is zero where α is clamped or not composited: `grad` masks it.
+            let ag = ln.alpha[l] * ln.grad[l];
+            let a2 = ag * ag;
+            let e_col = colour_weight * a2;
+            let e_dep = w_d[l] * w_d[l] * a2;
+            let e_cross = w_d[l] * weight * ag;
+            let dx = ln.dx[l];
+            let dx2 = dx * dx;
+            let powers = [T::one(), dx, dx2, dx2 * dx, dx2 * dx2];
+            for i in 0..5 {
+                row_col[i][l] = e_col.mul_add(powers[i], row_col[i][l]);
+                row_dep[i][l] = e_dep.mul_add(powers[i], row_dep[i][l]);
+            }
+            for i in 0..3 {
+                row_cross[i][l] = e_cross.mul_add(powers[i], row_cross[i][l]);
+            }
+            // Pose: v = (∂u/∂τ)ᵀ ∂α/∂u = α·Σ_m pose_l[m]·mono[m].
+            for j in 0..6 {
+                v[j][l] = ag * dx2.mul_add(p3[j], dx.mul_add(q[j], r[j]));
+            }
+        }
+        self.colour_sq = colour_sq;
+        self.weight_sq = weight_sq;
+        self.row_col = row_col;
+        self.row_dep = row_dep;
+        self.row_cross = row_cross;
+        for ch in 0..3 {
+            for j in 0..6 {
+                let jt = lanes_mut(&mut self.jt_col[ch][j], base);
+                for l in 0..LANES {
+                    jt[l] = w[ch][l].mul_add(v[j][l], jt[l]);
+                }
+            }
+        }
+        for j in 0..6 {
+            let jt = lanes_mut(&mut self.jt_dep[j], base);
+            let dz = self.rows.depth[j];
+            for l in 0..LANES {
+                jt[l] = w_d[l].mul_add(v[j][l], ln.weight[l].mul_add(dz, jt[l]));
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn end_row(&mut self, dy: T) {
+        let row_col = self.row_col.map(|r| lane_sum(&r));
+        let row_dep = self.row_dep.map(|r| lane_sum(&r));
+        let row_cross = self.row_cross.map(|r| lane_sum(&r));
+        let dy2 = dy * dy;
+        let dy_pow = [T::one(), dy, dy2, dy2 * dy, dy2 * dy2];
+        for i in 0..5 {
+            for j in 0..5 - i {
+                self.mom_col[moment_index(i, j)] += row_col[i] * dy_pow[j];
+                self.mom_dep[moment_index(i, j)] += row_dep[i] * dy_pow[j];
+            }
+        }
+        // cross over m = (1, dx, dy, dx², dx·dy, dy²).
+        self.cross[0] += row_cross[0];
+        self.cross[1] += row_cross[1];
+        self.cross[2] += row_cross[0] * dy;
+        self.cross[3] += row_cross[2];
+        self.cross[4] += row_cross[1] * dy;
+        self.cross[5] += row_cross[0] * dy2;
+    }
+
+    #[inline(always)]
+    fn end_pair(&mut self, k: usize) {
+        let slot = &mut self.slots[k * SLOT..(k + 1) * SLOT];
+        slot[..MOMENTS].copy_from_slice(&self.mom_col);
+        slot[MOMENTS..2 * MOMENTS].copy_from_slice(&self.mom_dep);
+        slot[2 * MOMENTS..2 * MOMENTS + 6].copy_from_slice(&self.cross);
+        slot[SLOT - 2] = lane_sum(&self.weight_sq);
+        slot[SLOT - 1] = lane_sum(&self.colour_sq);
+    }
 }
 
 /// Per-tile result: the two packed 6×6 pose matrices.
 type PosePart = ([f64; 36], [f64; 36]);
-
-#[allow(clippy::too_many_arguments)]
-fn fisher_tile<T: Real>(
-    splats: &[Splat<T>],
-    preps: &[Prep<T>],
-    list: &[u32],
-    rect: [usize; 4],
-    width: usize,
-    ctx: &ForwardContext<T>,
-    gain: T,
-    mode: FisherMode,
-    slots: &mut [T],
-) -> PosePart {
-    let tw = rect[1] - rect[0];
-    let n = tw * (rect[3] - rect[2]);
-    let mut pixels = Vec::with_capacity(n);
-    for py in rect[2]..rect[3] {
-        for px in rect[0]..rect[1] {
-            pixels.push(FisherPixel {
-                t: ctx.final_transmittance[py * width + px],
-                last: ctx.contributors[py * width + px] as usize,
-                s_col: [T::zero(); 3],
-                s_dep: T::zero(),
-                jt_col: [[T::zero(); 6]; 3],
-                jt_dep: [T::zero(); 6],
-            });
-        }
-    }
-    let kmax = pixels.iter().map(|p| p.last).max().unwrap_or(0);
-    let (alpha_min, alpha_max) = (T::of(ALPHA_MIN), T::of(ALPHA_MAX));
-    let colour_scale = gain * T::of(SH_C0);
-    for k in (0..kmax).rev() {
-        let id = list[k] as usize;
-        let s = &splats[id];
-        let prep = &preps[id];
-        let Some([bx0, bx1, by0, by1]) = clip_box(s, &rect) else {
-            continue;
-        };
-        // Moments Σ e·dx^i·dy^j (i + j ≤ 4) per stream, see `moments_to_packed`.
-        let mut mom_col = [T::zero(); MOMENTS];
-        let mut mom_dep = [T::zero(); MOMENTS];
-        let mut cross = [T::zero(); 6];
-        let mut weight_sq = T::zero();
-        let mut colour_acc = T::zero();
-        let pl = &prep.pose_l;
-        for py in by0..=by1 {
-            let dy = s.mean[1] - T::of(py as f64);
-            let row_sigma = SigmaRow::new(s, dy);
-            let row = (py - rect[2]) * tw;
-            let dy2 = dy * dy;
-            // Per-row sums Σ_px e·dx^i; the dy powers are applied once per row below.
-            let mut row_col = [T::zero(); 5];
-            let mut row_dep = [T::zero(); 5];
-            let mut row_cross = [T::zero(); 3];
-            // v = Σ_m pl[m]·mono[m] = r + dx·q + dx²·pl[3] with per-row r, q.
-            let r: [T; 6] = std::array::from_fn(|j| pl[2][j] * dy + pl[5][j] * dy2);
-            let q: [T; 6] = std::array::from_fn(|j| pl[1][j] + pl[4][j] * dy);
-            let mut pxf = T::of(bx0 as f64);
-            for st in &mut pixels[row + bx0 - rect[0]..=row + bx1 - rect[0]] {
-                let dx = s.mean[0] - pxf;
-                pxf += T::one();
-                if k >= st.last {
-                    continue;
-                }
-                let sigma = row_sigma.sigma(dx);
-                if sigma < T::zero() {
-                    continue;
-                }
-                let raw = s.opacity * (-sigma).exp();
-                let alpha = raw.min(alpha_max);
-                if alpha < alpha_min {
-                    continue;
-                }
-                let inv_one_minus = T::one() / (T::one() - alpha);
-                let t_i = st.t * inv_one_minus;
-                let weight = alpha * t_i;
-                let mut w = [T::zero(); 3];
-                for ch in 0..3 {
-                    w[ch] = gain * (s.colour[ch] * t_i - st.s_col[ch] * inv_one_minus);
-                    st.s_col[ch] += s.colour[ch] * weight;
-                }
-                let w_d = s.depth * t_i - st.s_dep * inv_one_minus;
-                st.s_dep += s.depth * weight;
-                st.t = t_i;
-                let cw = colour_scale * weight;
-                colour_acc += cw * cw;
-                weight_sq += weight * weight;
-                if raw >= alpha_max {
-                    // Clamped alpha: only the depth value itself depends on the parameters.
-                    for j in 0..6 {
-                        st.jt_dep[j] += weight * prep.pose[5][j];
-                    }
-                    continue;
-                }
-                let colour_weight = match mode {
-                    FisherMode::PerChannel => w[0] * w[0] + w[1] * w[1] + w[2] * w[2],
-                    FisherMode::ChannelSum => {
-                        let sum = w[0] + w[1] + w[2];
-                        sum * sum
-                    }
-                };
-                let a2 = alpha * alpha;
-                let e_col = colour_weight * a2;
-                let e_dep = w_d * w_d * a2;
-                let e_cross = w_d * weight * alpha;
-                let dx2 = dx * dx;
-                let powers = [T::one(), dx, dx2, dx2 * dx, dx2 * dx2];
-                for i in 0..5 {
-                    row_col[i] += e_col * powers[i];
-                    row_dep[i] += e_dep * powers[i];
-                }
-                for i in 0..3 {
-                    row_cross[i] += e_cross * powers[i];
-                }
-                // Pose: v = (∂u/∂τ)ᵀ ∂α/∂u = α·Σ_m pl[m]·mono[m].
-                let mut v = [T::zero(); 6];
-                for j in 0..6 {
-                    v[j] = alpha * (r[j] + dx * q[j] + dx2 * pl[3][j]);
-                }
-                for ch in 0..3 {
-                    for j in 0..6 {
-                        st.jt_col[ch][j] += w[ch] * v[j];
-                    }
-                }
-                for j in 0..6 {
-                    st.jt_dep[j] += w_d * v[j] + weight * prep.pose[5][j];
-                }
-            }
-            let dy_pow = [T::one(), dy, dy2, dy2 * dy, dy2 * dy2];
-            for i in 0..5 {
-                for j in 0..5 - i {
-                    mom_col[moment_index(i, j)] += row_col[i] * dy_pow[j];
-                    mom_dep[moment_index(i, j)] += row_dep[i] * dy_pow[j];
-                }
-            }
-            // cross over m = (1, dx, dy, dx², dx·dy, dy²).
-            cross[0] += row_cross[0];
-            cross[1] += row_cross[1];
-            cross[2] += row_cross[0] * dy;
-            cross[3] += row_cross[2];
-            cross[4] += row_cross[1] * dy;
-            cross[5] += row_cross[0] * dy2;
-        }
-        let slot = &mut slots[k * SLOT..(k + 1) * SLOT];
-        slot[..MOMENTS].copy_from_slice(&mom_col);
-        slot[MOMENTS..2 * MOMENTS].copy_from_slice(&mom_dep);
-        slot[2 * MOMENTS..2 * MOMENTS + 6].copy_from_slice(&cross);
-        slot[SLOT - 2] = weight_sq;
-        slot[SLOT - 1] = colour_acc;
-    }
-    let mut pose_col = [T::zero(); 36];
-    let mut pose_dep = [T::zero(); 36];
-    for st in &pixels {
-        for a in 0..6 {
-            for b in 0..6 {
-                let mut c = T::zero();
-                for ch in 0..3 {
-                    c += st.jt_col[ch][a] * st.jt_col[ch][b];
-                }
-                pose_col[a * 6 + b] += c;
-                pose_dep[a * 6 + b] += st.jt_dep[a] * st.jt_dep[b];
-            }
-        }
-    }
-    (pose_col.map(|v| v.to_f64()), pose_dep.map(|v| v.to_f64()))
-}
 
 /// Fisher information of the view rendered in `render` (SPEC §5). `gaussians` must be the set
 /// `render` was computed from. Cost: a small multiple of one [`crate::backward`] pass.
@@ -391,12 +433,13 @@ pub fn fisher<T: Real>(
         ctx.splats.len(),
     )?;
     let n = gaussians.len();
-    let mut preps = vec![Prep::<T>::default(); n];
-    preps
-        .par_chunks_mut(CHUNK)
+    let mut geos = vec![GeoJacobian::<T>::default(); n];
+    let mut pose_rows = vec![PoseRows::<T>::default(); n];
+    geos.par_chunks_mut(CHUNK)
+        .zip(pose_rows.par_chunks_mut(CHUNK))
         .enumerate()
-        .for_each(|(chunk, part)| {
-            for (j, prep) in part.iter_mut().enumerate() {
+        .for_each(|(chunk, (geo_part, rows_part))| {
+            for (j, (geo, rows)) in geo_part.iter_mut().zip(rows_part).enumerate() {
                 let i = chunk * CHUNK + j;
                 if !ctx.visible[i] {
                     continue;
@@ -404,11 +447,12 @@ pub fn fisher<T: Real>(
                 let Some(c) = chain(&ctx.cam, gaussians, i) else {
                     continue;
                 };
+                let mut pose = [[T::zero(); 6]; 6];
                 for k in 0..6 {
                     let mut up = [T::zero(); 6];
                     up[k] = T::one();
                     let g = project_vjp(&c, &ctx.cam, &up);
-                    prep.geo[k] = [
+                    geo[k] = [
                         g.mean[0],
                         g.mean[1],
                         g.mean[2],
@@ -420,44 +464,26 @@ pub fn fisher<T: Real>(
                         g.log_scale[1],
                         g.log_scale[2],
                     ];
-                    prep.pose[k] = g.pose;
+                    pose[k] = g.pose;
                 }
                 let lmat = l_matrix(&ctx.splats[i]);
-                for (m, plm) in prep.pose_l.iter_mut().enumerate() {
+                for (m, plm) in rows.pose_l.iter_mut().enumerate() {
                     for (k, lrow) in lmat.iter().take(5).enumerate() {
                         for j in 0..6 {
-                            plm[j] += lrow[m] * prep.pose[k][j];
+                            plm[j] += lrow[m] * pose[k][j];
                         }
                     }
                 }
+                rows.depth = pose[5];
             }
         });
     let gain = T::of(ctx.options.exposure[0].exp());
-    let bins = &ctx.bins;
-    let mut slots = vec![T::zero(); bins.pair_count() * SLOT];
-    let parts: Vec<PosePart> = {
-        let pieces = split_by_offsets(&mut slots, &bins.offsets, SLOT);
-        pieces
-            .into_par_iter()
-            .with_max_len(1)
-            .enumerate()
-            .map(|(t, piece)| {
-                let rect = bins.tile_rect(t, render.width, render.height);
-                fisher_tile(
-                    &ctx.splats,
-                    &preps,
-                    bins.tile(t),
-                    rect,
-                    render.width,
-                    ctx,
-                    gain,
-                    mode,
-                    piece,
-                )
-            })
-            .collect()
-    };
-    let per_gaussian: Vec<[T; SLOT]> = reduce_pairs(&bins.ids, &slots, n);
+    let (slots, parts) = walk_tiles(ctx, SLOT, |t, piece| {
+        let mut sink = FisherSink::new(&pose_rows, gain, mode, piece);
+        walk_back(ctx, t, &mut sink);
+        sink.pose_part()
+    });
+    let per_gaussian: Vec<[T; SLOT]> = reduce_slots(ctx, &slots, n);
     let mut colour = vec![[T::zero(); 14]; n];
     let mut depth = vec![[T::zero(); 14]; n];
     colour
@@ -481,7 +507,7 @@ pub fn fisher<T: Real>(
                     (&mut col[j], &m_col, acc[SLOT - 1]),
                     (&mut dep[j], &m_dep, T::zero()),
                 ] {
-                    let (geo, logit_v) = project_diag(m, &preps[i]);
+                    let (geo, logit_v) = project_diag(m, &geos[i]);
                     out[layout::MEAN..layout::MEAN + 3].copy_from_slice(&geo[0..3]);
                     out[layout::COLOUR..layout::COLOUR + 3].fill(colour_v);
                     out[layout::ROTATION..layout::ROTATION + 4].copy_from_slice(&geo[3..7]);

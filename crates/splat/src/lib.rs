@@ -21,7 +21,9 @@
 //!
 //! Modules, one stage each (gsplat style): [`gaussians`] (the 14-parameter store and its
 //! conventions), [`camera`], [`project`] (EWA projection), [`tiles`] (16×16 binning and depth
-//! sort), [`rasterize`] (forward), [`backward`], [`fisher`], [`adam`], [`ply`], [`bench`].
+//! sort), [`rasterize`] (forward), [`backward`], [`fisher`], [`adam`], [`ply`], [`bench`], and
+//! the private `walk` (the vectorised per-pixel loops and the one back-to-front traversal that
+//! the backward and Fisher passes share).
 //! Everything is generic over [`Real`] (`f32` in production, `f64` for gradient checks).
 //! Results do not depend on the rayon thread count.
 //!
@@ -58,6 +60,7 @@ pub mod project;
 pub mod rasterize;
 pub mod real;
 pub mod tiles;
+mod walk;
 
 pub use adam::{AdamConfig, AdamState, GaussianAdam};
 pub use backward::{Gradients, PixelGrads, backward};

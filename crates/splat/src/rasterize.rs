@@ -7,9 +7,10 @@
 use crate::SplatError;
 use crate::camera::{Camera, CameraT};
 use crate::gaussians::Gaussians;
-use crate::project::{ALPHA_MAX, ALPHA_MIN, SigmaRow, Splat, T_MIN, project_one};
+use crate::project::{SigmaRow, Splat, T_MIN, project_one};
 use crate::real::Real;
-use crate::tiles::{TileBins, bin};
+use crate::tiles::{TILE, TileBins, bin};
+use crate::walk::{LANES, PADDED, TILE_PIXELS, alpha_at, lane_offsets, lanes_mut};
 use rayon::prelude::*;
 
 /// Options of one render.
@@ -42,6 +43,16 @@ pub struct ForwardContext<T: Real> {
     pub contributors: Vec<u32>,
     /// Colour before exposure, `Σ c α T`, per pixel.
     pub raw_colour: Vec<[T; 3]>,
+    /// Prefix sums over tiles of how many list entries any pixel of the tile composited: the
+    /// pairs the backward walks visit get slots `walked_offsets[t]..walked_offsets[t + 1]`.
+    pub(crate) walked_offsets: Vec<usize>,
+}
+
+impl<T: Real> ForwardContext<T> {
+    /// How many entries of tile `t`'s list the backward walk visits.
+    pub(crate) fn walked(&self, t: usize) -> usize {
+        self.walked_offsets[t + 1] - self.walked_offsets[t]
+    }
 }
 
 /// Output of [`render`]: images (row-major, `width × height`) and the context for backward.
@@ -61,14 +72,6 @@ pub struct Render<T: Real> {
     pub context: ForwardContext<T>,
 }
 
-/// Per-tile forward result.
-struct TileOut<T: Real> {
-    colour: Vec<[T; 3]>,
-    depth: Vec<T>,
-    transmittance: Vec<T>,
-    contributors: Vec<u32>,
-}
-
 /// Inclusive intersection of a splat's pixel box with a tile rectangle `[x0, x1) × [y0, y1)`.
 #[inline(always)]
 pub(crate) fn clip_box<T: Real>(s: &Splat<T>, rect: &[usize; 4]) -> Option<[usize; 4]> {
@@ -79,65 +82,115 @@ pub(crate) fn clip_box<T: Real>(s: &Splat<T>, rect: &[usize; 4]) -> Option<[usiz
     (bx0 <= bx1 && by0 <= by1).then_some([bx0, bx1, by0, by1])
 }
 
-/// Composites one tile front to back.
-fn raster_tile<T: Real>(splats: &[Splat<T>], list: &[u32], rect: [usize; 4]) -> TileOut<T> {
-    let tw = rect[1] - rect[0];
-    let n = tw * (rect[3] - rect[2]);
-    let mut out = TileOut {
-        colour: vec![[T::zero(); 3]; n],
-        depth: vec![T::zero(); n],
-        transmittance: vec![T::one(); n],
-        contributors: vec![0; n],
-    };
-    let mut done = vec![false; n];
-    let mut remaining = n;
-    let (alpha_min, alpha_max, t_min) = (T::of(ALPHA_MIN), T::of(ALPHA_MAX), T::of(T_MIN));
+/// One tile's forward result, tile-local pixel order (`TILE` pixels per row).
+struct TileOut<'a, T: Real> {
+    colour: &'a mut [[T; 3]],
+    depth: &'a mut [T],
+    transmittance: &'a mut [T],
+    contributors: &'a mut [u32],
+}
+
+/// Composites tile `rect` front to back (dispatches to an AVX2 build when the CPU has it; both
+/// builds give identical results, see [`crate::walk`]).
+fn raster_tile<T: Real>(splats: &[Splat<T>], list: &[u32], rect: [usize; 4], out: TileOut<'_, T>) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::walk::simd_allowed() && std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked just above.
+        unsafe { raster_tile_avx2(splats, list, rect, out) };
+        return;
+    }
+    raster_tile_impl(splats, list, rect, out);
+}
+
+/// [`raster_tile_impl`] compiled with AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn raster_tile_avx2<T: Real>(
+    splats: &[Splat<T>],
+    list: &[u32],
+    rect: [usize; 4],
+    out: TileOut<'_, T>,
+) {
+    raster_tile_impl(splats, list, rect, out);
+}
+
+#[inline(always)]
+fn raster_tile_impl<T: Real>(
+    splats: &[Splat<T>],
+    list: &[u32],
+    rect: [usize; 4],
+    out: TileOut<'_, T>,
+) {
+    let mut colour = [[T::zero(); PADDED]; 3];
+    let mut depth = [T::zero(); PADDED];
+    let mut t = [T::one(); PADDED];
+    let mut contributors = [0u32; PADDED];
+    // 1 once the pixel has stopped (its next Gaussian would drop T below 1e-4).
+    let mut done = [0u32; PADDED];
+    let mut remaining = (rect[1] - rect[0]) * (rect[3] - rect[2]);
+    let offsets = lane_offsets::<T>();
+    let t_min = T::of(T_MIN);
     for (k, &id) in list.iter().enumerate() {
         let s = &splats[id as usize];
         let Some([bx0, bx1, by0, by1]) = clip_box(s, &rect) else {
             continue;
         };
+        let k_next = k as u32 + 1;
         for py in by0..=by1 {
             let dy = s.mean[1] - T::of(py as f64);
-            let row_sigma = SigmaRow::new(s, dy);
-            let start = (py - rect[2]) * tw + bx0 - rect[0];
-            let len = bx1 - bx0 + 1;
-            let mut pxf = T::of(bx0 as f64);
-            for (p, is_done) in (start..start + len).zip(&mut done[start..start + len]) {
-                let dx = s.mean[0] - pxf;
-                pxf += T::one();
-                if *is_done {
+            let row = SigmaRow::new(s, dy);
+            let mut x = bx0;
+            while x <= bx1 {
+                let base = (py - rect[2]) * TILE + x - rect[0];
+                let valid = (bx1 + 1 - x).min(LANES);
+                let dx0 = s.mean[0] - T::of(x as f64);
+                let done_l = lanes_mut(&mut done, base);
+                if done_l.iter().fold(1, |all, &d| all & d) == 1 {
+                    // Every pixel of the chunk has stopped.
+                    x += LANES;
                     continue;
                 }
-                let sigma = row_sigma.sigma(dx);
-                if sigma < T::zero() {
-                    continue;
+                let t_l = lanes_mut(&mut t, base);
+                let contrib_l = lanes_mut(&mut contributors, base);
+                let mut weight = [T::zero(); LANES];
+                let mut stopped = 0u32;
+                for l in 0..LANES {
+                    let (_, _, alpha, composited) = alpha_at(&row, s.opacity, dx0 - offsets[l]);
+                    let on = composited && l < valid && done_l[l] == 0;
+                    let t_next = t_l[l] * (T::one() - alpha);
+                    let stop = on && t_next < t_min;
+                    let add = on && !stop;
+                    weight[l] = if add { alpha * t_l[l] } else { T::zero() };
+                    t_l[l] = if add { t_next } else { t_l[l] };
+                    contrib_l[l] = if add { k_next } else { contrib_l[l] };
+                    done_l[l] |= stop as u32;
+                    stopped += stop as u32;
                 }
-                let alpha = (s.opacity * (-sigma).exp()).min(alpha_max);
-                if alpha < alpha_min {
-                    continue;
-                }
-                let t = out.transmittance[p];
-                let t_next = t * (T::one() - alpha);
-                if t_next < t_min {
-                    *is_done = true;
-                    remaining -= 1;
-                    continue;
-                }
-                let weight = alpha * t;
                 for ch in 0..3 {
-                    out.colour[p][ch] += s.colour[ch] * weight;
+                    let c = lanes_mut(&mut colour[ch], base);
+                    for l in 0..LANES {
+                        c[l] += s.colour[ch] * weight[l];
+                    }
                 }
-                out.depth[p] += s.depth * weight;
-                out.transmittance[p] = t_next;
-                out.contributors[p] = k as u32 + 1;
+                let d = lanes_mut(&mut depth, base);
+                for l in 0..LANES {
+                    d[l] += s.depth * weight[l];
+                }
+                remaining -= stopped as usize;
+                x += LANES;
             }
         }
         if remaining == 0 {
             break;
         }
     }
-    out
+    for p in 0..TILE_PIXELS {
+        out.colour[p] = [colour[0][p], colour[1][p], colour[2][p]];
+    }
+    out.depth.copy_from_slice(&depth[..TILE_PIXELS]);
+    out.transmittance.copy_from_slice(&t[..TILE_PIXELS]);
+    out.contributors
+        .copy_from_slice(&contributors[..TILE_PIXELS]);
 }
 
 /// Renders colour, depth and opacity of `gaussians` seen by `camera` (SPEC §3).
@@ -167,26 +220,50 @@ pub fn render<T: Real>(
         .map(Option::unwrap_or_default)
         .collect();
     let bins = bin(&splats, &visible, width, height);
-    let tiles: Vec<TileOut<T>> = (0..bins.tile_count())
-        .into_par_iter()
+    // Tile-major staging buffers, one `TILE_PIXELS` chunk per tile.
+    let staged = bins.tile_count() * TILE_PIXELS;
+    let mut tile_colour = vec![[T::zero(); 3]; staged];
+    let mut tile_depth = vec![T::zero(); staged];
+    let mut tile_t = vec![T::one(); staged];
+    let mut tile_contrib = vec![0u32; staged];
+    tile_colour
+        .par_chunks_mut(TILE_PIXELS)
+        .zip(tile_depth.par_chunks_mut(TILE_PIXELS))
+        .zip(tile_t.par_chunks_mut(TILE_PIXELS))
+        .zip(tile_contrib.par_chunks_mut(TILE_PIXELS))
         .with_max_len(1)
-        .map(|t| raster_tile(&splats, bins.tile(t), bins.tile_rect(t, width, height)))
-        .collect();
+        .enumerate()
+        .for_each(|(t, (((colour, depth), transmittance), contributors))| {
+            let out = TileOut {
+                colour,
+                depth,
+                transmittance,
+                contributors,
+            };
+            raster_tile(&splats, bins.tile(t), bins.tile_rect(t, width, height), out);
+        });
+    let mut walked_offsets = Vec::with_capacity(bins.tile_count() + 1);
+    walked_offsets.push(0);
+    for (t, chunk) in tile_contrib.chunks(TILE_PIXELS).enumerate() {
+        let walked = chunk.iter().copied().max().unwrap_or(0) as usize;
+        walked_offsets.push(walked_offsets[t] + walked);
+    }
     let n = width * height;
     let mut raw_colour = vec![[T::zero(); 3]; n];
     let mut depth = vec![T::zero(); n];
     let mut final_transmittance = vec![T::one(); n];
     let mut contributors = vec![0u32; n];
-    for (t, tile) in tiles.iter().enumerate() {
+    for t in 0..bins.tile_count() {
         let rect = bins.tile_rect(t, width, height);
         let tw = rect[1] - rect[0];
         for py in rect[2]..rect[3] {
-            let src = (py - rect[2]) * tw..(py - rect[2] + 1) * tw;
+            let src = t * TILE_PIXELS + (py - rect[2]) * TILE;
+            let src = src..src + tw;
             let dst = py * width + rect[0]..py * width + rect[1];
-            raw_colour[dst.clone()].copy_from_slice(&tile.colour[src.clone()]);
-            depth[dst.clone()].copy_from_slice(&tile.depth[src.clone()]);
-            final_transmittance[dst.clone()].copy_from_slice(&tile.transmittance[src.clone()]);
-            contributors[dst].copy_from_slice(&tile.contributors[src]);
+            raw_colour[dst.clone()].copy_from_slice(&tile_colour[src.clone()]);
+            depth[dst.clone()].copy_from_slice(&tile_depth[src.clone()]);
+            final_transmittance[dst.clone()].copy_from_slice(&tile_t[src.clone()]);
+            contributors[dst].copy_from_slice(&tile_contrib[src]);
         }
     }
     let gain = T::of(options.exposure[0].exp());
@@ -212,6 +289,7 @@ pub fn render<T: Real>(
             final_transmittance,
             contributors,
             raw_colour,
+            walked_offsets,
         },
     })
 }

@@ -1,0 +1,337 @@
+//! The per-pixel loops of the rasteriser, shared by the forward pass, the backward pass and the
+//! Fisher pass (SPEC §3), written for speed:
+//!
+//! - a tile's per-pixel state lives in structure-of-arrays stack buffers (`TILE²` pixels plus
+//!   [`LANES`] of padding), rows of a Gaussian's box are processed [`LANES`] pixels at a time,
+//!   branch-free (masks and selects, [`Real::exp_fast`]), so the compiler vectorises them;
+//! - on x86-64 CPUs with AVX2 and FMA the same code is also compiled with those enabled and
+//!   picked at run time. Both builds do the same operations in the same order; the sinks'
+//!   accumulations use `mul_add`, which is correctly rounded everywhere (an FMA instruction,
+//!   or the library `fma` on CPUs without one, much slower but equal), and nothing else is
+//!   fused, so the results are identical; they do not depend on the thread count either.
+//!
+//! [`alpha_at`] is the one definition of `α = min(0.99, o·e^{−σ})` and of the compositing
+//! tests, so forward, backward and Fisher agree bit for bit. [`walk_back`] is the one
+//! back-to-front traversal; the backward and Fisher passes plug in what they accumulate through
+//! [`BackSink`].
+
+use crate::project::{ALPHA_MAX, ALPHA_MIN, SigmaRow, Splat};
+use crate::rasterize::{ForwardContext, clip_box};
+use crate::real::Real;
+use crate::tiles::{TILE, split_by_offsets};
+use rayon::prelude::*;
+
+/// Pixels processed together along a row (8 × f32 = one AVX2 register).
+pub(crate) const LANES: usize = 8;
+/// Pixels of a tile.
+pub(crate) const TILE_PIXELS: usize = TILE * TILE;
+/// Length of the per-tile state buffers: a chunk may start at any pixel of the tile.
+pub(crate) const PADDED: usize = TILE_PIXELS + LANES;
+
+/// The `LANES` entries of a per-tile buffer starting at tile-local pixel `base`.
+#[inline(always)]
+pub(crate) fn lanes_mut<V>(buffer: &mut [V; PADDED], base: usize) -> &mut [V; LANES] {
+    (&mut buffer[base..base + LANES])
+        .try_into()
+        .expect("chunk starts inside the tile")
+}
+
+/// Read-only version of [`lanes_mut`].
+#[inline(always)]
+pub(crate) fn lanes<V>(buffer: &[V; PADDED], base: usize) -> &[V; LANES] {
+    (&buffer[base..base + LANES])
+        .try_into()
+        .expect("chunk starts inside the tile")
+}
+
+/// `[0, 1, …, LANES − 1]` in `T`: pixel offsets of the lanes.
+#[inline(always)]
+pub(crate) fn lane_offsets<T: Real>() -> [T; LANES] {
+    std::array::from_fn(|l| T::of(l as f64))
+}
+
+/// Opacity of a splat at horizontal offset `dx = mean_x − pixel_x` of a row (SPEC §3):
+/// returns `(e^{−σ}, o·e^{−σ}, α = min(0.99, o·e^{−σ}), composited)` where `composited` is
+/// `σ ≥ 0 ∧ α ≥ 1/255`.
+#[inline(always)]
+pub(crate) fn alpha_at<T: Real>(row: &SigmaRow<T>, opacity: T, dx: T) -> (T, T, T, bool) {
+    let sigma = row.sigma(dx);
+    let gauss = (-sigma).exp_fast();
+    let raw = opacity * gauss;
+    let alpha = raw.min(T::of(ALPHA_MAX));
+    (
+        gauss,
+        raw,
+        alpha,
+        sigma >= T::zero() && alpha >= T::of(ALPHA_MIN),
+    )
+}
+
+/// Per-lane quantities of one Gaussian at `LANES` pixels of a row, back-to-front. Lanes the
+/// Gaussian does not composite into have `alpha = gauss = weight = grad = 0`, `inv = 1`, so
+/// that sinks can use them unmasked.
+#[derive(Clone, Copy)]
+pub(crate) struct Lanes<T: Real> {
+    /// `mean_x − pixel_x`.
+    pub dx: [T; LANES],
+    /// `α_i`.
+    pub alpha: [T; LANES],
+    /// `e^{−σ}`.
+    pub gauss: [T; LANES],
+    /// 1 where `α_i` is composited and below the 0.99 clamp (gradients flow through it), else 0.
+    pub grad: [T; LANES],
+    /// `1/(1 − α_i)`.
+    pub inv: [T; LANES],
+    /// Transmittance in front of the Gaussian, `T_i`.
+    pub t_i: [T; LANES],
+    /// `α_i T_i`.
+    pub weight: [T; LANES],
+    /// Colour composited behind the Gaussian.
+    pub s_col: [[T; LANES]; 3],
+    /// Depth composited behind the Gaussian.
+    pub s_dep: [T; LANES],
+}
+
+/// What a back-to-front walk accumulates (the backward pass, the Fisher pass).
+pub(crate) trait BackSink<T: Real> {
+    /// Initialises the sink's state of tile-local pixel `local` = image pixel `pixel`.
+    fn init_pixel(&mut self, local: usize, pixel: usize);
+    /// A new (tile, Gaussian) pair: Gaussian `id`, projected as `splat`.
+    fn begin_pair(&mut self, id: usize, splat: &Splat<T>);
+    /// A new pixel row at vertical offset `dy = mean_y − pixel_y`.
+    fn begin_row(&mut self, dy: T);
+    /// `LANES` pixels starting at tile-local pixel `base`.
+    fn step(&mut self, base: usize, lanes: &Lanes<T>);
+    /// End of the row begun with `dy`.
+    fn end_row(&mut self, dy: T);
+    /// End of the pair at position `k` of the tile's list.
+    fn end_pair(&mut self, k: usize);
+}
+
+/// Whether the AVX2 builds may be used: always, except in the test that compares them with the
+/// portable build.
+#[inline(always)]
+pub(crate) fn simd_allowed() -> bool {
+    #[cfg(test)]
+    {
+        !tests::PORTABLE_ONLY.load(std::sync::atomic::Ordering::Relaxed)
+    }
+    #[cfg(not(test))]
+    {
+        true
+    }
+}
+
+/// Walks tile `tile` of the render in `ctx` back to front (from each pixel's last composited
+/// Gaussian), feeding `sink`.
+pub(crate) fn walk_back<T: Real, S: BackSink<T>>(
+    ctx: &ForwardContext<T>,
+    tile: usize,
+    sink: &mut S,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
+        unsafe { walk_back_avx2(ctx, tile, sink) };
+        return;
+    }
+    walk_back_impl(ctx, tile, sink);
+}
+
+/// [`walk_back_impl`] compiled with AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn walk_back_avx2<T: Real, S: BackSink<T>>(
+    ctx: &ForwardContext<T>,
+    tile: usize,
+    sink: &mut S,
+) {
+    walk_back_impl(ctx, tile, sink);
+}
+
+#[inline(always)]
+fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize, sink: &mut S) {
+    let (width, height) = (ctx.cam.width, ctx.cam.height);
+    let rect = ctx.bins.tile_rect(tile, width, height);
+    let list = ctx.bins.tile(tile);
+    let mut t = [T::one(); PADDED];
+    let mut last = [0u32; PADDED];
+    let mut s_col = [[T::zero(); PADDED]; 3];
+    let mut s_dep = [T::zero(); PADDED];
+    for py in rect[2]..rect[3] {
+        for px in rect[0]..rect[1] {
+            let local = (py - rect[2]) * TILE + px - rect[0];
+            let pixel = py * width + px;
+            t[local] = ctx.final_transmittance[pixel];
+            last[local] = ctx.contributors[pixel];
+            sink.init_pixel(local, pixel);
+        }
+    }
+    let offsets = lane_offsets::<T>();
+    for k in (0..ctx.walked(tile)).rev() {
+        let id = list[k] as usize;
+        let s = &ctx.splats[id];
+        let Some([bx0, bx1, by0, by1]) = clip_box(s, &rect) else {
+            continue;
+        };
+        sink.begin_pair(id, s);
+        let k_u32 = k as u32;
+        for py in by0..=by1 {
+            let dy = s.mean[1] - T::of(py as f64);
+            let row = SigmaRow::new(s, dy);
+            sink.begin_row(dy);
+            let mut x = bx0;
+            while x <= bx1 {
+                let base = (py - rect[2]) * TILE + x - rect[0];
+                let valid = (bx1 + 1 - x).min(LANES);
+                let dx0 = s.mean[0] - T::of(x as f64);
+                let last_l = lanes(&last, base);
+                if last_l.iter().fold(0, |most, &c| most.max(c)) <= k_u32 {
+                    // The Gaussian is behind every pixel's last composited one.
+                    x += LANES;
+                    continue;
+                }
+                let t_l = lanes_mut(&mut t, base);
+                let mut ln = Lanes {
+                    dx: [T::zero(); LANES],
+                    alpha: [T::zero(); LANES],
+                    gauss: [T::zero(); LANES],
+                    grad: [T::zero(); LANES],
+                    inv: [T::one(); LANES],
+                    t_i: [T::zero(); LANES],
+                    weight: [T::zero(); LANES],
+                    s_col: [
+                        *lanes(&s_col[0], base),
+                        *lanes(&s_col[1], base),
+                        *lanes(&s_col[2], base),
+                    ],
+                    s_dep: *lanes(&s_dep, base),
+                };
+                for l in 0..LANES {
+                    let dx = dx0 - offsets[l];
+                    let (gauss, raw, alpha, composited) = alpha_at(&row, s.opacity, dx);
+                    let on = composited && l < valid && k_u32 < last_l[l];
+                    let alpha = if on { alpha } else { T::zero() };
+                    let inv = T::one() / (T::one() - alpha);
+                    let t_i = t_l[l] * inv;
+                    ln.dx[l] = dx;
+                    ln.alpha[l] = alpha;
+                    ln.gauss[l] = if on { gauss } else { T::zero() };
+                    ln.grad[l] = if on && raw < T::of(ALPHA_MAX) {
+                        T::one()
+                    } else {
+                        T::zero()
+                    };
+                    ln.inv[l] = inv;
+                    ln.t_i[l] = t_i;
+                    ln.weight[l] = alpha * t_i;
+                }
+                sink.step(base, &ln);
+                *t_l = ln.t_i;
+                for ch in 0..3 {
+                    let sc = lanes_mut(&mut s_col[ch], base);
+                    for l in 0..LANES {
+                        sc[l] += s.colour[ch] * ln.weight[l];
+                    }
+                }
+                let sd = lanes_mut(&mut s_dep, base);
+                for l in 0..LANES {
+                    sd[l] += s.depth * ln.weight[l];
+                }
+                x += LANES;
+            }
+            sink.end_row(dy);
+        }
+        sink.end_pair(k);
+    }
+}
+
+/// Sum of the lanes in a fixed order (deterministic).
+#[inline(always)]
+pub(crate) fn lane_sum<T: Real>(v: &[T; LANES]) -> T {
+    let mut acc = T::zero();
+    for x in v {
+        acc += *x;
+    }
+    acc
+}
+
+/// Walks every tile in parallel: `per_tile(tile, slots)` gets the tile's piece of a zeroed slot
+/// array with `slot` values per walked pair (the first [`ForwardContext::walked`] entries of
+/// the tile's list). Returns the slots and the per-tile results, in tile order.
+pub(crate) fn walk_tiles<T: Real, R: Send>(
+    ctx: &ForwardContext<T>,
+    slot: usize,
+    per_tile: impl Fn(usize, &mut [T]) -> R + Sync + Send,
+) -> (Vec<T>, Vec<R>) {
+    let mut slots = vec![T::zero(); ctx.walked_offsets.last().copied().unwrap_or(0) * slot];
+    let results = split_by_offsets(&mut slots, &ctx.walked_offsets, slot)
+        .into_par_iter()
+        .with_max_len(1)
+        .enumerate()
+        .map(|(t, piece)| per_tile(t, piece))
+        .collect();
+    (slots, results)
+}
+
+/// Sums the pair slots of [`walk_tiles`] per Gaussian, in pair order (deterministic).
+pub(crate) fn reduce_slots<T: Real, const N: usize>(
+    ctx: &ForwardContext<T>,
+    slots: &[T],
+    gaussians: usize,
+) -> Vec<[T; N]> {
+    let mut out = vec![[T::zero(); N]; gaussians];
+    for t in 0..ctx.bins.tile_count() {
+        let walked = ctx.walked_offsets[t + 1] - ctx.walked_offsets[t];
+        let ids = &ctx.bins.tile(t)[..walked];
+        let first = ctx.walked_offsets[t];
+        for (k, &id) in ids.iter().enumerate() {
+            let src = &slots[(first + k) * N..(first + k + 1) * N];
+            for (d, v) in out[id as usize].iter_mut().zip(src) {
+                *d += *v;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::bench::{camera, scene};
+    use crate::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    /// Set only by the test below: forces the portable build of the pixel loops.
+    pub(crate) static PORTABLE_ONLY: AtomicBool = AtomicBool::new(false);
+
+    #[test]
+    fn simd_and_portable_builds_agree_bit_for_bit() {
+        let g = scene(3000);
+        let cam = camera(72);
+        let opts = RenderOptions {
+            exposure: [0.2, 0.01],
+            exclude_flags: 0,
+        };
+        let run = || {
+            let out = render(&g, &cam, &opts).unwrap();
+            let mut dl = PixelGrads::zeros(out.colour.len());
+            for (i, c) in dl.colour.iter_mut().enumerate() {
+                *c = [((i % 7) as f32 - 3.0) * 0.01, 0.02, -0.01];
+                dl.depth[i] = ((i % 5) as f32 - 2.0) * 0.1;
+                dl.opacity[i] = 0.05;
+            }
+            let grads = backward(&g, &out, &dl).unwrap();
+            let info = fisher(&g, &out, FisherMode::PerChannel).unwrap();
+            (out.colour, out.depth, grads, info)
+        };
+        let simd = run();
+        PORTABLE_ONLY.store(true, Ordering::Relaxed);
+        let portable = run();
+        PORTABLE_ONLY.store(false, Ordering::Relaxed);
+        assert!(simd.2.pose.norm() > 0.0 && simd.3.pose_colour.trace() > 0.0);
+        assert_eq!(simd.0, portable.0);
+        assert_eq!(simd.1, portable.1);
+        assert_eq!(simd.2, portable.2);
+        assert_eq!(simd.3, portable.3);
+    }
+}
