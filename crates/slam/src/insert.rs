@@ -8,7 +8,8 @@
 //! the reading by more than `max(depth_tolerance, depth_tolerance_fraction·D)` (5 cm, 5 %):
 //! then the map shows a different surface there (new geometry in front, or a gap behind).
 //!
-//! Scale: as 3DGS, `s = √(mean of the squared distances to the 3 nearest new points)`, clamped
+//! Scale (default): the depth-based pixel footprint `z/f` times the expected sample spacing
+//! `1/√sample_fraction` pixels. Alternatively, as 3DGS, `s = √(mean of the squared distances to the 3 nearest new points)`, clamped
 //! to `[min_scale, max_scale]`. The neighbour search is brute force over the new points of the
 //! keyframe (at most a few thousand), which is simple and exact.
 
@@ -32,8 +33,13 @@ pub struct InsertConfig {
     pub depth_tolerance_fraction: f32,
     /// Initial opacity (0.5).
     pub opacity: f64,
-    /// Initial scale = `scale_factor ×` the nearest-neighbour distance (3DGS: 1).
+    /// Initial scale = `scale_factor ×` the nearest-neighbour distance (3DGS: 1), or with
+    /// `footprint_scale`, `scale_factor ×` the spacing of the samples on the surface.
     pub scale_factor: f64,
+    /// Scale from the depth-based pixel footprint `z / f / √sample_fraction` (the expected
+    /// spacing of the samples) instead of the nearest-neighbour search: O(n), and it does not
+    /// leave isolated samples with huge scales.
+    pub footprint_scale: bool,
     /// Smallest initial scale, metres.
     pub min_scale: f64,
     /// Largest initial scale, metres.
@@ -51,6 +57,7 @@ impl Default for InsertConfig {
             depth_tolerance_fraction: 0.05,
             opacity: 0.5,
             scale_factor: 1.0,
+            footprint_scale: true,
             min_scale: 0.002,
             max_scale: 0.2,
             max_per_keyframe: 8000,
@@ -112,7 +119,7 @@ pub fn sample_new_gaussians(
         let (u, v) = ((p % w) as f64, (p / w) as f64);
         let camera_point: Point3<f64> = k.unproject(u, v, frame.depth[p] as f64);
         let world = pose * camera_point;
-        points.push((world, frame.rgb[p].map(|c| c as f64)));
+        points.push((world, frame.rgb[p].map(|c| c as f64), frame.depth[p] as f64));
     }
     if points.len() > config.max_per_keyframe {
         // Uniform random subset (partial Fisher–Yates), so the cap does not favour any region.
@@ -122,12 +129,18 @@ pub fn sample_new_gaussians(
         }
         points.truncate(config.max_per_keyframe);
     }
-    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
-    let scales = nearest_neighbour_scales(&positions, 3);
+    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _, _)| [p.x, p.y, p.z]).collect();
+    let scales = if config.footprint_scale {
+        let focal = 0.5 * (k.fx.abs() + k.fy.abs());
+        let spacing = 1.0 / config.sample_fraction.sqrt();
+        points.iter().map(|(_, _, z)| z / focal * spacing).collect()
+    } else {
+        nearest_neighbour_scales(&positions, 3)
+    };
     points
         .iter()
         .zip(scales)
-        .map(|((p, rgb), s)| NewGaussian {
+        .map(|((p, rgb, _), s)| NewGaussian {
             mean: [p.x, p.y, p.z],
             rgb: *rgb,
             scale: if s.is_finite() {

@@ -30,6 +30,7 @@
 pub mod bench;
 pub mod error;
 pub mod frame;
+pub mod gauss_newton;
 pub mod insert;
 pub mod keyframe;
 pub mod loss;
@@ -44,5 +45,5 @@ pub use frame::{Frame, SkipReason};
 pub use keyframe::{KeyframeConfig, KeyframeDecision};
 pub use mapper::{Mapper, MapperConfig, MappingReport};
 pub use slam::{MotionPrior, Slam, SlamConfig, SlamOutput};
-pub use tracker::{TrackOutput, TrackerConfig, TrackingStatus, track};
+pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};
 pub use unknown::{FrontierCell, UnknownSpaceConfig};

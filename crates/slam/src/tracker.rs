@@ -10,6 +10,7 @@
 
 use crate::error::SlamError;
 use crate::frame::{Frame, SkipReason};
+use crate::gauss_newton::{GaussNewtonConfig, refine};
 use crate::loss::{Residuals, residuals, rgb_mask, tracking_loss};
 use activemap_geometry::Isometry3;
 use activemap_geometry::se3;
@@ -18,9 +19,22 @@ use activemap_splat::{
 };
 use nalgebra::Vector6;
 
-/// Tracker settings; defaults are SPEC §4's.
+/// How the pose is optimised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackerMethod {
+    /// SPEC §4 verbatim: Adam on τ and the exposure, L1 loss (slow on the CPU: ~100 renders).
+    Adam,
+    /// Coarse-to-fine Levenberg–Marquardt on τ ([`crate::gauss_newton`]): a handful of renders.
+    GaussNewton,
+}
+
+/// Tracker settings; defaults are SPEC §4's except the optimiser (see [`TrackerMethod`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerConfig {
+    /// Optimiser of the pose.
+    pub method: TrackerMethod,
+    /// Settings of [`TrackerMethod::GaussNewton`].
+    pub gauss_newton: GaussNewtonConfig,
     /// Adam learning rate of the translation part ρ (0.001).
     pub lr_translation: f64,
     /// Adam learning rate of the rotation part θ (0.003).
@@ -56,6 +70,8 @@ pub struct TrackerConfig {
 impl Default for TrackerConfig {
     fn default() -> Self {
         Self {
+            method: TrackerMethod::GaussNewton,
+            gauss_newton: GaussNewtonConfig::default(),
             lr_translation: 0.001,
             lr_rotation: 0.003,
             lr_exposure: 0.01,
@@ -99,6 +115,7 @@ impl TrackerConfig {
                 reason: "must be in [0, 1]",
             });
         }
+        self.gauss_newton.validate()?;
         if self.downscale == 0 {
             return Err(SlamError::Config {
                 field: "downscale",
@@ -193,71 +210,48 @@ pub fn track(
     }
     let mask = rgb_mask(frame, config.rgb_boundary, config.edge_factor);
     let median_depth = frame.median_depth().unwrap_or(1.0);
-    let lr_e = if config.optimise_exposure {
-        config.lr_exposure
-    } else {
-        0.0
-    };
-    let (lt, lr) = (config.lr_translation, config.lr_rotation);
-    let rates = [lt, lt, lt, lr, lr, lr, lr_e, lr_e];
-    let mut adam = AdamState::new();
-    let mut camera_from_world = predicted_pose.inverse();
-    let mut exposure = predicted_exposure;
-    let mut iterations = 0;
-    let mut converged = false;
     let options = |exposure| RenderOptions {
         exposure,
         exclude_flags: FLAG_UNKNOWN_SPACE,
     };
-    let mut last = None;
-    while iterations < config.max_iterations {
-        let camera = Camera::new(frame.intrinsics, camera_from_world);
-        let out = render(map, &camera, &options(exposure))?;
-        let loss = tracking_loss(&out, frame, &mask, config.alpha, config.normalise_depth);
-        let grads = backward(map, &out, &loss.grads)?;
-        iterations += 1;
-        let g = [
-            grads.pose[0],
-            grads.pose[1],
-            grads.pose[2],
-            grads.pose[3],
-            grads.pose[4],
-            grads.pose[5],
-            grads.exposure[0],
-            grads.exposure[1],
-        ];
-        // Adam on a zero vector: the result is the step Δ itself (τ is reset every iteration).
-        let mut delta = [0.0; 8];
-        adam.step(&mut delta, &g, |k| rates[k])?;
-        let tau = Vector6::new(delta[0], delta[1], delta[2], delta[3], delta[4], delta[5]);
-        last = Some((out, loss.value));
-        if !tau.iter().all(|v| v.is_finite()) {
-            break;
+    let (camera_from_world, exposure, iterations, converged) = match config.method {
+        TrackerMethod::Adam => adam_refine(
+            config,
+            map,
+            frame,
+            &mask,
+            predicted_pose,
+            predicted_exposure,
+        )?,
+        TrackerMethod::GaussNewton => {
+            let r = refine(
+                &config.gauss_newton,
+                map,
+                frame,
+                predicted_pose.inverse(),
+                predicted_exposure,
+                config.rgb_boundary,
+                config.edge_factor,
+            )?;
+            (
+                r.camera_from_world,
+                predicted_exposure,
+                r.iterations,
+                r.converged,
+            )
         }
-        camera_from_world = se3::left_update(&camera_from_world, &tau);
-        if config.optimise_exposure {
-            exposure = [exposure[0] + delta[6], exposure[1] + delta[7]];
-        }
-        if tau.norm() < config.convergence {
-            converged = true;
-            break;
-        }
-    }
+    };
     // Residuals at the final pose (one extra forward pass, no backward).
     let camera = Camera::new(frame.intrinsics, camera_from_world);
     let final_render = render(map, &camera, &options(exposure))?;
-    let loss = if iterations > 0 {
-        tracking_loss(
-            &final_render,
-            frame,
-            &mask,
-            config.alpha,
-            config.normalise_depth,
-        )
-        .value
-    } else {
-        last.map_or(f64::NAN, |(_, l)| l)
-    };
+    let loss = tracking_loss(
+        &final_render,
+        frame,
+        &mask,
+        config.alpha,
+        config.normalise_depth,
+    )
+    .value;
     let res = residuals(&final_render, frame);
     let pose = camera_from_world.inverse();
     let finite = pose
@@ -281,4 +275,64 @@ pub fn track(
         loss,
         visible: final_render.context.visible,
     })
+}
+
+/// SPEC §4's Adam loop; returns (T_camera_world, exposure, iterations, converged).
+fn adam_refine(
+    config: &TrackerConfig,
+    map: &Gaussians<f32>,
+    frame: &Frame,
+    mask: &[bool],
+    predicted_pose: &Isometry3<f64>,
+    predicted_exposure: [f64; 2],
+) -> Result<(Isometry3<f64>, [f64; 2], usize, bool), SlamError> {
+    let lr_e = if config.optimise_exposure {
+        config.lr_exposure
+    } else {
+        0.0
+    };
+    let (lt, lr) = (config.lr_translation, config.lr_rotation);
+    let rates = [lt, lt, lt, lr, lr, lr, lr_e, lr_e];
+    let mut adam = AdamState::new();
+    let mut camera_from_world = predicted_pose.inverse();
+    let mut exposure = predicted_exposure;
+    let mut iterations = 0;
+    let mut converged = false;
+    let options = |exposure| RenderOptions {
+        exposure,
+        exclude_flags: FLAG_UNKNOWN_SPACE,
+    };
+    while iterations < config.max_iterations {
+        let camera = Camera::new(frame.intrinsics, camera_from_world);
+        let out = render(map, &camera, &options(exposure))?;
+        let loss = tracking_loss(&out, frame, mask, config.alpha, config.normalise_depth);
+        let grads = backward(map, &out, &loss.grads)?;
+        iterations += 1;
+        let g = [
+            grads.pose[0],
+            grads.pose[1],
+            grads.pose[2],
+            grads.pose[3],
+            grads.pose[4],
+            grads.pose[5],
+            grads.exposure[0],
+            grads.exposure[1],
+        ];
+        // Adam on a zero vector: the result is the step Δ itself (τ is reset every iteration).
+        let mut delta = [0.0; 8];
+        adam.step(&mut delta, &g, |k| rates[k])?;
+        let tau = Vector6::new(delta[0], delta[1], delta[2], delta[3], delta[4], delta[5]);
+        if !tau.iter().all(|v| v.is_finite()) {
+            break;
+        }
+        camera_from_world = se3::left_update(&camera_from_world, &tau);
+        if config.optimise_exposure {
+            exposure = [exposure[0] + delta[6], exposure[1] + delta[7]];
+        }
+        if tau.norm() < config.convergence {
+            converged = true;
+            break;
+        }
+    }
+    Ok((camera_from_world, exposure, iterations, converged))
 }

@@ -168,10 +168,10 @@ fn icl_tracker_recovers_a_5cm_3deg_offset() {
     let start = truth * offset;
     let (t0, r0) = pose_error(&start, &truth);
     assert!((t0 - 0.05).abs() < 1e-9 && (r0.to_degrees() - 3.0).abs() < 1e-9);
-    let config = TrackerConfig {
-        max_iterations: 200,
-        ..TrackerConfig::default()
-    };
+    let mut config = TrackerConfig::default();
+    // No motion prior: the start is a deliberate perturbation, not a prediction.
+    config.gauss_newton.prior_translation_sigma = 0.0;
+    config.gauss_newton.prior_rotation_sigma = 0.0;
     let out = track(&config, mapper.map(), &frames[4], &start, [0.0, 0.0]).unwrap();
     let (t, r) = pose_error(&out.pose, &truth);
     eprintln!(
@@ -182,10 +182,12 @@ fn icl_tracker_recovers_a_5cm_3deg_offset() {
         out.residuals
     );
     // Issue 5 asks for 1 cm and 0.5°; this CPU map (4 frames at 160×120, 30 joint mapping
-    // iterations) gets to ≈2.2 cm / 1.2° (see the crate report): assert the halving that is
-    // achieved, so a regression fails, and keep the target in view.
+    // iterations) gets the Levenberg–Marquardt tracker to 2.30 cm / 1.07° (session-1 Adam on the
+    // nearest-neighbour-scaled map: 2.24 cm / 1.23°). The SPEC loss at that pose is lower than at the given pose (0.0141 vs 0.0171),
+    // so the map, not the optimiser, limits it. Assert what is achieved, so a regression
+    // fails, and keep the target in view.
     assert!(
-        t < 0.025 && r.to_degrees() < 1.5,
+        t < 0.025 && r.to_degrees() < 1.25,
         "error {t} m, {}°",
         r.to_degrees()
     );
@@ -214,10 +216,13 @@ fn tum_real_depth_tracking_converges_and_stays_sane() {
     mapper
         .add_keyframe(f1.clone(), Isometry3::identity(), [0.0, 0.0])
         .unwrap();
-    let config = TrackerConfig {
+    let mut config = TrackerConfig {
         alpha: 0.9,
         ..TrackerConfig::default()
     };
+    // No motion prior: the starts below are deliberate perturbations, not predictions.
+    config.gauss_newton.prior_translation_sigma = 0.0;
+    config.gauss_newton.prior_rotation_sigma = 0.0;
     // Tracking frame 1 against its own map from a perturbed start comes back (real depth:
     // holes, noise) ...
     let start = Isometry3::from_parts(

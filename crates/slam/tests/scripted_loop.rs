@@ -17,6 +17,15 @@ fn scripted_loop_driver() {
     c.slam.mapper.insert.scale_factor = env("SCALE", c.slam.mapper.insert.scale_factor);
     c.slam.mapper.iterations = env("MITS", c.slam.mapper.iterations);
     c.slam.tracker.downscale = env("TDOWN", c.slam.tracker.downscale);
+    c.slam.tracker.gauss_newton.prior_translation_sigma = env(
+        "PRIOR_T",
+        c.slam.tracker.gauss_newton.prior_translation_sigma,
+    );
+    c.slam.tracker.gauss_newton.prior_rotation_sigma =
+        env("PRIOR_R", c.slam.tracker.gauss_newton.prior_rotation_sigma);
+    if env("SINGLE_LEVEL", 0) == 1 {
+        c.slam.tracker.gauss_newton.pyramid = vec![1];
+    }
     let r = run_loop(&c).unwrap();
     eprintln!("{r:?}");
 }
