@@ -7,5 +7,6 @@ mod integration {
     mod explore;
     pub mod harness;
     mod processes;
+    mod python_bridge;
     mod validate;
 }

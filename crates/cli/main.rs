@@ -16,7 +16,10 @@ use activemap_runtime::{bench, record};
 use anyhow::{Context as _, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 
+mod bench_explore;
+mod bench_results;
 mod benches;
+mod daemons;
 mod evaluate;
 
 #[derive(Parser)]
@@ -78,53 +81,98 @@ enum Command {
         /// Run folder.
         run_dir: PathBuf,
     },
-    /// Distributed run: start this machine's share of a flow (the nodes whose `deploy.machine` is
-    /// MACHINE) behind a Zenoh router on the machine's endpoints; runs until they finish or stop.
+    /// Distributed runs. With `--listen`: start this machine's long-lived daemon, which runs the
+    /// share of every flow submitted with `activemap start` (the nodes whose `deploy.machine` is
+    /// MACHINE), until Ctrl-C or `activemap down`. With a FILE: run this machine's share of that
+    /// one flow in the foreground (every machine is given the same FILE and --run-id).
     Up {
-        /// Dataflow file (the same on every machine).
-        file: PathBuf,
-        /// This machine's id in the file.
+        /// One-shot mode: the dataflow file (the same on every machine).
+        file: Option<PathBuf>,
+        /// This machine's id in the flows' `machines:` sections.
         #[arg(long)]
         machine: String,
-        /// Run id shared by all machines of the run.
-        #[arg(long)]
-        run_id: String,
-        /// Run folder (logs, recording of this machine's topics).
-        #[arg(long)]
+        /// Daemon mode: control endpoints to listen on, e.g. tcp/127.0.0.1:7400.
+        #[arg(long, conflicts_with = "file")]
+        listen: Vec<String>,
+        /// Daemon mode: control endpoints of other daemons to join.
+        #[arg(long, requires = "listen")]
+        connect: Vec<String>,
+        /// Daemon mode: folder of the run folders.
+        #[arg(long, default_value = "runs", requires = "listen")]
+        runs: PathBuf,
+        /// One-shot mode: run id shared by all machines of the run.
+        #[arg(long, requires = "file")]
+        run_id: Option<String>,
+        /// One-shot mode: run folder (logs, recording of this machine's topics).
+        #[arg(long, requires = "file")]
         out: Option<PathBuf>,
+        /// One-shot mode: step budget passed to the operators.
+        #[arg(long, requires = "file")]
+        max_steps: Option<u64>,
+        /// One-shot mode: do not write recording.mcap.
+        #[arg(long, requires = "file")]
+        no_record: bool,
+    },
+    /// Submit a dataflow to the machine daemons (`activemap up --listen`): each runs the nodes
+    /// deployed on its machine.
+    Start {
+        /// Dataflow file.
+        file: PathBuf,
+        #[command(flatten)]
+        daemons: daemons::Connect,
+        /// Run id (default: a fresh one).
+        #[arg(long)]
+        run_id: Option<String>,
         /// Step budget passed to the operators.
         #[arg(long)]
         max_steps: Option<u64>,
         /// Do not write recording.mcap.
         #[arg(long)]
         no_record: bool,
+        /// Wait for the run to end; exit non-zero when a machine reports a failure.
+        #[arg(long)]
+        wait: bool,
     },
-    /// Stop a run on every machine (alias: down).
-    #[command(alias = "down")]
+    /// Stop a run on every machine.
     Stop {
         /// Run id.
         #[arg(long)]
         run_id: String,
-        /// Zenoh endpoint of any machine's router, e.g. tcp/127.0.0.2:7447.
-        #[arg(long, required = true)]
-        connect: Vec<String>,
+        #[command(flatten)]
+        daemons: daemons::Connect,
     },
-    /// List run folders.
+    /// Shut the machine daemons down (their runs are stopped first).
+    Down {
+        #[command(flatten)]
+        daemons: daemons::Connect,
+    },
+    /// List run folders; with --connect, the runs the machine daemons know and their state.
     List {
         /// Folder holding run folders.
         #[arg(long, default_value = "runs")]
         dir: PathBuf,
+        /// Control endpoint of any daemon.
+        #[arg(long)]
+        connect: Vec<String>,
     },
-    /// Print the last lines of a run's node logs.
+    /// Print the last lines of a run's node logs: a local run folder, or a distributed run's
+    /// logs from every machine (--run-id with --connect).
     Logs {
         /// Run folder.
-        run_dir: PathBuf,
+        #[arg(required_unless_present = "run_id")]
+        run_dir: Option<PathBuf>,
         /// Only this node.
         #[arg(long)]
         node: Option<String>,
         /// Lines per log.
         #[arg(long, default_value_t = 40)]
         lines: usize,
+        /// A distributed run's id (with --connect).
+        #[arg(long, requires = "connect")]
+        run_id: Option<String>,
+        /// Control endpoint of any daemon.
+        #[arg(long)]
+        connect: Vec<String>,
     },
     /// Run one operator alone on its recorded inputs and compare its outputs with the recording.
     Replay {
@@ -168,6 +216,11 @@ enum BenchCommand {
     Planning(benches::PlanningArgs),
     /// Evaluation metrics: time per metric.
     Metrics(benches::MetricsArgs),
+    /// Methods × houses × seeds of exploration episodes, evaluated: results.md/.csv in the
+    /// layout of the paper's Table 1 (resumes after an interruption).
+    Results(bench_results::ResultsArgs),
+    /// The whole exploration loop on procedural houses: coverage, ATE, steps/s, time per node.
+    Explore(bench_explore::ExploreArgs),
 }
 
 #[derive(clap::Args)]
@@ -262,25 +315,55 @@ fn real_main() -> anyhow::Result<ExitCode> {
         Command::Up {
             file,
             machine,
+            listen,
+            connect,
+            runs,
             run_id,
             out,
             max_steps,
             no_record,
+        } => match file {
+            Some(file) => {
+                let run_id = run_id.context("one-shot `up FILE` needs --run-id")?;
+                return run(
+                    &file,
+                    out,
+                    max_steps,
+                    !no_record,
+                    Some((machine, run_id)),
+                    None,
+                );
+            }
+            None if listen.is_empty() => {
+                bail!("`up` needs --listen ENDPOINT (daemon mode) or a dataflow FILE (one-shot)")
+            }
+            None => daemons::up(machine, listen, connect, runs)?,
+        },
+        Command::Start {
+            file,
+            daemons: connect,
+            run_id,
+            max_steps,
+            no_record,
+            wait,
         } => {
-            return run(
-                &file,
-                out,
-                max_steps,
-                !no_record,
-                Some((machine, run_id)),
-                None,
-            );
+            let flow = load(&file)?;
+            if !daemons::start(&flow, &connect, run_id, max_steps, !no_record, wait)? {
+                return Ok(ExitCode::FAILURE);
+            }
         }
-        Command::Stop { run_id, connect } => {
-            activemap_runtime::launch::stop_run(&run_id, &connect)?;
-            println!("stop sent to run {run_id}");
+        Command::Stop {
+            run_id,
+            daemons: connect,
+        } => daemons::stop(&connect, &run_id)?,
+        Command::Down { daemons: connect } => daemons::down(&connect)?,
+        Command::List { connect, .. } if !connect.is_empty() => {
+            daemons::list(&daemons::Connect {
+                connect,
+                timeout: 5.0,
+            })?;
         }
-        Command::List { dir } => {
+        Command::List { dir, .. } => {
             let mut runs: Vec<_> = std::fs::read_dir(&dir)
                 .with_context(|| format!("reading {}", dir.display()))?
                 .flatten()
@@ -303,25 +386,35 @@ fn real_main() -> anyhow::Result<ExitCode> {
             run_dir,
             node,
             lines,
-        } => {
-            let logs = activemap_runtime::node::logs_dir(&run_dir);
-            let mut files: Vec<_> = std::fs::read_dir(&logs)
-                .with_context(|| format!("reading {}", logs.display()))?
-                .flatten()
-                .map(|e| e.path())
-                .filter(|p| {
-                    node.as_ref().is_none_or(|n| {
-                        p.file_name()
-                            .is_some_and(|f| f.to_string_lossy().starts_with(&format!("{n}.")))
-                    })
-                })
-                .collect();
-            files.sort();
-            for f in files {
-                println!("==> {} <==", f.display());
-                println!("{}", activemap_runtime::launch::tail(&f, lines));
+            run_id,
+            connect,
+        } => match (run_id, run_dir) {
+            (Some(run_id), _) => daemons::logs(
+                &daemons::Connect {
+                    connect,
+                    timeout: 5.0,
+                },
+                &run_id,
+                node,
+                lines,
+            )?,
+            (None, Some(run_dir)) => {
+                let tails = activemap_runtime::daemon::log_tails(
+                    "local",
+                    &run_dir,
+                    node.as_deref(),
+                    lines,
+                )?;
+                for t in tails {
+                    println!(
+                        "==> {} <==\n{}",
+                        run_dir.join("logs").join(&t.file).display(),
+                        t.text
+                    );
+                }
             }
-        }
+            (None, None) => bail!("give a run folder, or --run-id with --connect"),
+        },
         Command::Node { run_dir, node } => run_node(&run_dir, &node)?,
         Command::Replay { recording, node } => return replay(&recording, &node),
         Command::Bench { which } => match which {
@@ -331,6 +424,8 @@ fn real_main() -> anyhow::Result<ExitCode> {
             BenchCommand::Slam(args) => benches::slam(&args)?,
             BenchCommand::Planning(args) => benches::planning(&args)?,
             BenchCommand::Metrics(args) => benches::metrics(&args)?,
+            BenchCommand::Results(args) => return bench_results::run(&args),
+            BenchCommand::Explore(args) => bench_explore::run(&args)?,
         },
     }
     Ok(ExitCode::SUCCESS)

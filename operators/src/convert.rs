@@ -112,13 +112,15 @@ pub fn cell_to_wire(c: PlanCell) -> u8 {
 }
 
 /// `grid` as a wire occupancy grid (small enough to encode and copy into the shared-memory
-/// sample: 1 byte per 5 cm cell).
+/// sample: 1 byte per 5 cm cell). The wire origin is the CENTRE of cell (0, 0) (the schema's
+/// convention); the planning grid keeps its corner origin internally.
 pub fn grid_to_wire(grid: &PlanGrid, frame_id: u64, stamp: f64) -> WireGrid {
     let g = &grid.geometry;
+    let centre = g.center_origin();
     WireGrid {
         stamp,
         frame_id,
-        origin: [g.origin_x, g.origin_y],
+        origin: [centre.x, centre.y],
         resolution: g.resolution,
         width: g.width as u32,
         height: g.height as u32,
@@ -126,11 +128,12 @@ pub fn grid_to_wire(grid: &PlanGrid, frame_id: u64, stamp: f64) -> WireGrid {
     }
 }
 
-/// Reads a wire grid into a planning grid; fails on a bad cell byte.
+/// Reads a wire grid (origin = centre of cell (0, 0)) into a planning grid; fails on a bad
+/// cell byte.
 pub fn read_grid(bytes: &[u8]) -> anyhow::Result<(u64, PlanGrid)> {
     let v = OccupancyGridView::parse(bytes)?;
     let h = v.header;
-    let geometry = GridGeometry::new(
+    let geometry = GridGeometry::from_center_origin(
         h.origin_x,
         h.origin_y,
         h.resolution,
@@ -174,4 +177,33 @@ pub fn slam_frame(v: &RgbdFrameView<'_>) -> anyhow::Result<activemap_slam::Frame
         v.depth().into_owned(),
         v.header.stamp,
     )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use activemap_planning::grid::Cell;
+    use activemap_schemas::Payload;
+
+    /// The wire grid's origin is the centre of cell (0, 0) (schema convention), the planning
+    /// grid's the corner; the round trip keeps every cell and its world position.
+    #[test]
+    fn grid_origin_is_the_cell_centre_on_the_wire_and_round_trips() {
+        let geometry = GridGeometry::new(-2.0, 1.0, 0.05, 4, 3).unwrap();
+        let mut data = vec![PlanCell::Unknown; 12];
+        data[5] = PlanCell::Free;
+        data[11] = PlanCell::Occupied;
+        let grid = PlanGrid::from_data(geometry, data).unwrap();
+        let wire = grid_to_wire(&grid, 7, 1.5);
+        assert!((wire.origin[0] - -1.975).abs() < 1e-12, "{:?}", wire.origin);
+        assert!((wire.origin[1] - 1.025).abs() < 1e-12, "{:?}", wire.origin);
+        let bytes = wire.to_bytes().unwrap();
+        let (k, back) = read_grid(&bytes).unwrap();
+        assert_eq!(k, 7);
+        assert_eq!(back.data, grid.data);
+        for c in [Cell::new(0, 0), Cell::new(3, 2), Cell::new(1, 1)] {
+            let (a, b) = (grid.geometry.center(c), back.geometry.center(c));
+            assert!((a - b).norm() < 1e-12, "{c:?}: {a} vs {b}");
+        }
+    }
 }

@@ -1,9 +1,10 @@
 //! `evaluator` (evaluation only: the one node that reads ground truth): writes the run
 //! folder's results — `trajectory_est.tum` and `trajectory_true.tum` (TUM), `map.ply` (3DGS
-//! PLY of the last map), `bev.png` (bird's-eye view of the last occupancy grid with the
-//! estimated path in green, the true path in blue and the frontier centroids in red),
-//! `coverage.csv` (2D coverage per step, SPEC §8: seen floor / reachable navigable floor) and
-//! `summary.json` (steps, coverage, ATE, path length, whether `recording.mcap` is present).
+//! PLY of the last map without its unknown-space Gaussians, which only stand for unobserved
+//! volume and would read as surfaces in any PLY viewer), `bev.png` (bird's-eye view of the
+//! last occupancy grid with the estimated path in green, the true path in blue and the
+//! frontier centroids in red), `coverage.csv` (2D coverage per step, SPEC §8: seen floor /
+//! reachable navigable floor) and `summary.json` (steps, coverage, ATE, path length, whether `recording.mcap` is present).
 //!
 //! The loop's world is anchored at the robot's start pose; coverage maps each reachable
 //! navigable cell of the scene (ground truth) into that frame with the true start pose.
@@ -21,7 +22,7 @@ use activemap_runtime::{
 };
 use activemap_schemas::{EpisodeStatus, Frontiers, MessageKind as K, PoseEstimate, TruePose};
 use activemap_sim::NavigableMap;
-use activemap_splat::Gaussians;
+use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
 use nalgebra::Point2;
 
 use crate::Registered;
@@ -160,7 +161,7 @@ impl Evaluator {
         }
         std::fs::write(self.out.join("coverage.csv"), csv)?;
         if let Some(map) = &self.map {
-            activemap_splat::ply::write_ply(&self.out.join("map.ply"), map)?;
+            activemap_splat::ply::write_ply(&self.out.join("map.ply"), &observed_only(map)?)?;
         }
         if let (Some(grid), Some((_, _, anchor))) = (&self.grid, &self.truth) {
             write_bev(
@@ -210,6 +211,19 @@ impl Evaluator {
         );
         Ok(summary)
     }
+}
+
+/// The map without the Gaussians flagged [`FLAG_UNKNOWN_SPACE`] (what `map.ply` holds: the PLY
+/// layout stores no flags, so they could not be told apart after writing).
+pub fn observed_only(map: &Gaussians<f32>) -> anyhow::Result<Gaussians<f32>> {
+    let keep: Vec<bool> = map
+        .flags
+        .iter()
+        .map(|f| f & FLAG_UNKNOWN_SPACE == 0)
+        .collect();
+    let mut out = map.clone();
+    out.retain(&keep)?;
+    Ok(out)
 }
 
 /// Draws the bird's-eye PNG: grid (free white, occupied black, unknown grey), true path (blue,
@@ -404,5 +418,37 @@ pub fn registered() -> Registered {
             check_config: check_config_as::<Config>,
         },
         implementation: Some(OperatorImpl::of::<Evaluator>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn map_ply_keeps_exactly_the_observed_gaussians() {
+        let mut map = Gaussians::<f32>::new();
+        for i in 0..6 {
+            map.push(
+                [i as f64, 0.0, 1.0],
+                [0.5, 0.5, 0.5],
+                [1.0, 0.0, 0.0, 0.0],
+                0.9,
+                [0.05, 0.05, 0.05],
+            );
+        }
+        map.flags[1] = FLAG_UNKNOWN_SPACE;
+        map.flags[4] = FLAG_UNKNOWN_SPACE | 0x80;
+        map.flags[5] = 0x80;
+        let kept = observed_only(&map).unwrap();
+        let xs: Vec<f32> = kept.means.iter().map(|m| m[0]).collect();
+        assert_eq!(xs, [0.0, 2.0, 3.0, 5.0]);
+        // Through the file the operator writes.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("map.ply");
+        activemap_splat::ply::write_ply(&path, &kept).unwrap();
+        let back = activemap_splat::ply::read_ply::<f32>(&path).unwrap();
+        assert_eq!(back.len(), 4);
+        assert_eq!(back.means[3][0], 5.0);
     }
 }

@@ -3,10 +3,10 @@
 //! turning to face the frontier it came for), when the map shows an obstacle on the remaining
 //! path or close ahead, when the goal turns occupied, when no path was found, and when the
 //! robot is stuck (no progress along the path over `stuck_window` steps: the goal then counts
-//! as failed). Wraps `activemap_planning::{follower, replan, stuck}`. When the planner ends the
-//! episode (its goal stream, hence the path stream, closes) it sends `Stop`.
-
-use std::collections::BTreeMap;
+//! as failed). Wraps `activemap_planning::{follower, replan, stuck}`. The episode starts with a
+//! 360° look-around; while the tracker reports the pose lost the robot only turns on the spot,
+//! and asks for a new plan once tracking is back. When the planner ends the episode (its goal
+//! stream, hence the path stream, closes) it sends `Stop`.
 
 use activemap_geometry::PlanarPose;
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -21,11 +21,13 @@ use activemap_runtime::{
 };
 use activemap_schemas::{
     Action, ActionKind, MessageKind as K, Path, PoseEstimate, ReplanReason, ReplanRequest,
+    TrackingStatus,
 };
 use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid};
+use crate::join::FrameJoin;
 
 /// Config.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
@@ -40,6 +42,11 @@ pub struct Config {
     /// Replan requests allowed within one step before the follower turns in place instead.
     #[serde(default = "default_replans")]
     pub max_replans_per_step: usize,
+    /// Turns of the look-around at the start of the episode (72 × 5° = 360°): the camera
+    /// sees nothing closer than ~0.9 m ahead, so the robot maps its surroundings before the
+    /// first plan. 0 disables it.
+    #[serde(default = "default_spin")]
+    pub initial_spin_steps: usize,
 }
 
 fn default_window() -> usize {
@@ -51,6 +58,9 @@ fn default_improvement() -> f64 {
 fn default_replans() -> usize {
     6
 }
+fn default_spin() -> usize {
+    72
+}
 
 impl Default for Config {
     fn default() -> Self {
@@ -58,6 +68,7 @@ impl Default for Config {
             stuck_window: default_window(),
             stuck_min_improvement: default_improvement(),
             max_replans_per_step: default_replans(),
+            initial_spin_steps: default_spin(),
         }
     }
 }
@@ -72,6 +83,11 @@ pub enum Decision {
 }
 
 enum Phase {
+    /// Turning left on the spot for this many more steps, then asking for a plan.
+    Spin(usize),
+    /// Tracking is lost: turn on the spot (no translation, so no collision on a wrong pose)
+    /// until it recovers, then ask for a new plan.
+    Lost,
     Idle(ReplanReason),
     Follow {
         follower: GreedyFollower,
@@ -94,6 +110,8 @@ pub struct Counters {
     pub stuck: usize,
     /// Empty paths received.
     pub no_path: usize,
+    /// Steps taken while tracking was lost.
+    pub lost_steps: usize,
 }
 
 /// The follower's state machine, without transport.
@@ -129,7 +147,11 @@ impl FollowerCore {
             },
             plan_grid: None,
             monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement)?,
-            phase: Phase::Idle(ReplanReason::Startup),
+            phase: if config.initial_spin_steps > 0 {
+                Phase::Spin(config.initial_spin_steps)
+            } else {
+                Phase::Idle(ReplanReason::Startup)
+            },
             counters: Counters::default(),
         })
     }
@@ -157,12 +179,34 @@ impl FollowerCore {
         Ok(())
     }
 
-    /// The decision for the robot at `pose` with the current `grid`.
-    pub fn decide(&mut self, pose: &PlanarPose, grid: &PlanGrid) -> anyhow::Result<Decision> {
+    /// The decision for the robot at `pose` (tracked, or a prediction when `tracking_lost`)
+    /// with the current `grid`.
+    pub fn decide(
+        &mut self,
+        pose: &PlanarPose,
+        grid: &PlanGrid,
+        tracking_lost: bool,
+    ) -> anyhow::Result<Decision> {
         let here = Point2::new(pose.x, pose.y);
         let threshold = self.config.turn_threshold_rad;
+        if tracking_lost {
+            self.counters.lost_steps += 1;
+            if !matches!(self.phase, Phase::Spin(_)) {
+                self.phase = Phase::Lost;
+            }
+        } else if matches!(self.phase, Phase::Lost) {
+            self.phase = Phase::Idle(ReplanReason::TrackingLost);
+        }
         for _ in 0..4 {
             match &mut self.phase {
+                Phase::Spin(left) => {
+                    if *left > 0 {
+                        *left -= 1;
+                        return Ok(Decision::Act(ActionKind::TurnLeft));
+                    }
+                    self.phase = Phase::Idle(ReplanReason::Startup);
+                }
+                Phase::Lost => return Ok(Decision::Act(ActionKind::TurnLeft)),
                 Phase::Idle(reason) => return Ok(Decision::Replan(*reason)),
                 Phase::Look { yaw } => {
                     let target = here + nalgebra::Vector2::new(yaw.cos(), yaw.sin());
@@ -202,7 +246,7 @@ impl FollowerCore {
                     }
                     if self.monitor.observe(left) {
                         self.counters.stuck += 1;
-                        self.phase = Phase::Idle(ReplanReason::NoPath);
+                        self.phase = Phase::Idle(ReplanReason::Stuck);
                         continue;
                     }
                     let yaw = *look_yaw;
@@ -229,6 +273,13 @@ impl FollowerCore {
     }
 }
 
+/// The inputs of one step.
+#[derive(Default)]
+struct Slot {
+    grid: Option<PlanGrid>,
+    pose: Option<(PlanarPose, bool)>,
+}
+
 /// The operator.
 pub struct Follower {
     core: FollowerCore,
@@ -236,8 +287,7 @@ pub struct Follower {
     step: u64,
     replans_this_step: usize,
     awaiting_path: bool,
-    grids: BTreeMap<u64, PlanGrid>,
-    poses: BTreeMap<u64, PlanarPose>,
+    join: FrameJoin<Slot>,
     paths: Vec<Path>,
 }
 
@@ -246,7 +296,11 @@ impl Follower {
     fn run(&mut self, ctx: &mut Context<'_>) -> anyhow::Result<()> {
         loop {
             let k = self.step;
-            let (Some(grid), Some(pose)) = (self.grids.get(&k), self.poses.get(&k)) else {
+            let Some(Slot {
+                grid: Some(grid),
+                pose: Some((pose, lost)),
+            }) = self.join.get(k)
+            else {
                 return Ok(());
             };
             if self.awaiting_path {
@@ -257,7 +311,7 @@ impl Follower {
                 self.core.set_path(&path)?;
                 self.awaiting_path = false;
             }
-            let action = match self.core.decide(pose, grid)? {
+            let action = match self.core.decide(pose, grid, *lost)? {
                 Decision::Act(a) => a,
                 Decision::Replan(reason) if self.replans_this_step < self.max_replans => {
                     self.replans_this_step += 1;
@@ -274,8 +328,7 @@ impl Follower {
                 Decision::Replan(_) => ActionKind::TurnLeft,
             };
             ctx.send("action", &Action { step: k, action })?;
-            self.grids.remove(&k);
-            self.poses.remove(&k);
+            self.join.take(k);
             self.step += 1;
             self.replans_this_step = 0;
         }
@@ -296,8 +349,7 @@ impl Operator for Follower {
             step: 0,
             replans_this_step: 0,
             awaiting_path: false,
-            grids: BTreeMap::new(),
-            poses: BTreeMap::new(),
+            join: FrameJoin::new(),
             paths: Vec::new(),
         })
     }
@@ -307,14 +359,13 @@ impl Operator for Follower {
             Event::Input(input) => match input.port {
                 "grid" => {
                     let (k, g) = read_grid(input.bytes)?;
-                    self.grids.insert(k, g);
+                    self.join.slot(k).grid = Some(g);
                 }
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
-                    self.poses.insert(
-                        e.frame_id,
-                        planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?),
-                    );
+                    let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
+                    self.join.slot(e.frame_id).pose =
+                        Some((pose, e.status == TrackingStatus::Lost));
                 }
                 "path" => self.paths.push(input.decode()?),
                 other => anyhow::bail!("follower: unexpected input `{other}`"),
@@ -374,5 +425,214 @@ pub fn registered() -> Registered {
             check_config: check_config_as::<Config>,
         },
         implementation: Some(OperatorImpl::of::<Follower>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use activemap_planning::frontier::path_distances;
+    use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
+    use activemap_sim::{
+        Action as SimAction, Material, Scene, SimConfig, Simulator, Triangle, Vertex,
+    };
+
+    /// Adds a closed box [lo, hi] (world metres) to `scene` in one flat colour.
+    fn add_box(scene: &mut Scene, lo: [f32; 3], hi: [f32; 3]) {
+        scene.materials.push(Material {
+            name: "obstacle".into(),
+            base_color: [0.8, 0.2, 0.1],
+            texture: None,
+        });
+        let material = (scene.materials.len() - 1) as u32;
+        let base = scene.vertices.len() as u32;
+        for i in 0..8u32 {
+            let pick = |bit: u32, a: usize| if i & bit == 0 { lo[a] } else { hi[a] };
+            scene.vertices.push(Vertex {
+                position: [pick(1, 0), pick(2, 1), pick(4, 2)],
+                uv: [0.0, 0.0],
+                color: [1.0; 3],
+            });
+        }
+        // Corner index = x + 2y + 4z; two triangles per face.
+        let faces = [
+            [0, 2, 6, 4],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 3, 7, 6],
+            [0, 1, 3, 2],
+            [4, 5, 7, 6],
+        ];
+        for f in faces {
+            for t in [[f[0], f[1], f[2]], [f[0], f[2], f[3]]] {
+                scene.triangles.push(Triangle {
+                    vertices: t.map(|v| base + v),
+                    material,
+                });
+            }
+        }
+    }
+
+    fn plan_action(kind: ActionKind) -> SimAction {
+        match kind {
+            ActionKind::Forward => SimAction::Forward,
+            ActionKind::TurnLeft => SimAction::TurnLeft,
+            ActionKind::TurnRight | ActionKind::Stop => SimAction::TurnRight,
+        }
+    }
+
+    /// In the simulator (a procedural house, true poses so only the follower is tested): the
+    /// robot maps its room with the start-up look-around, gets a path to the farthest reachable
+    /// cell, and once it drives along it a box appears on the path 1 m ahead. The follower
+    /// must ask for a replan (obstacle ahead) before touching the box.
+    #[test]
+    fn a_replan_happens_when_an_obstacle_appears_on_the_path() {
+        let scene = activemap_sim::house::generate(3, &{
+            let mut hc = activemap_sim::house::HouseConfig::default();
+            hc.max_rooms = 2;
+            hc.min_rooms = hc.min_rooms.min(2);
+            hc.max_area = 30.0;
+            hc.min_area = hc.min_area.min(30.0);
+            hc
+        })
+        .unwrap()
+        .scene;
+        let config = SimConfig::with_resolution(64, 64);
+        let mut sim = Simulator::new(scene.clone(), config.clone()).unwrap();
+        let start = sim.true_planar_pose();
+        let mut occupancy = OccupancyMapper::new(
+            OccupancyConfig::default(),
+            Point2::new(start.x - 2.0, start.y - 2.0),
+            Point2::new(start.x + 2.0, start.y + 2.0),
+        )
+        .unwrap();
+        let observe = |sim: &mut Simulator, occupancy: &mut OccupancyMapper| {
+            let frame = sim.render();
+            let cam = sim.true_pose();
+            occupancy
+                .integrate_depth(&frame.depth, &frame.intrinsics, &cam)
+                .unwrap();
+            let p = sim.true_planar_pose();
+            occupancy
+                .mark_free_disc(Point2::new(p.x, p.y), 0.15)
+                .unwrap();
+            (p, occupancy.grid())
+        };
+        let mut core = FollowerCore::new(&Config {
+            initial_spin_steps: 72,
+            ..Config::default()
+        })
+        .unwrap();
+        // The look-around: 72 left turns, then a plan request.
+        let (mut pose, mut grid) = observe(&mut sim, &mut occupancy);
+        let mut turns = 0;
+        loop {
+            match core.decide(&pose, &grid, false).unwrap() {
+                Decision::Act(a) => {
+                    assert_eq!(a, ActionKind::TurnLeft, "only turns during the look-around");
+                    turns += 1;
+                    sim.step(plan_action(a));
+                    (pose, grid) = observe(&mut sim, &mut occupancy);
+                }
+                Decision::Replan(reason) => {
+                    assert_eq!(reason, ReplanReason::Startup);
+                    break;
+                }
+            }
+        }
+        assert_eq!(turns, 72);
+        // A path to the farthest reachable cell of the mapped area (re-made whenever the
+        // follower asks before the box appears: the map grows as the robot drives).
+        let replan_far = |core: &mut FollowerCore, pose: &PlanarPose, grid: &PlanGrid| -> f64 {
+            let map = ClearanceMap::new(grid, &ClearanceConfig::default()).unwrap();
+            let here = Point2::new(pose.x, pose.y);
+            let distances = path_distances(&map, grid.geometry.cell_of(here));
+            let (far, d) = distances
+                .data
+                .iter()
+                .enumerate()
+                .filter(|(i, d)| d.is_finite() && map.is_clear(grid.geometry.cell_at(*i)))
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, d)| (grid.geometry.cell_at(i), *d))
+                .unwrap();
+            let look_at = grid.geometry.center(far);
+            let (waypoints, _) = crate::scorer::shortest_path(grid, here, far, look_at)
+                .unwrap()
+                .unwrap();
+            core.set_path(&Path {
+                frame_id: 0,
+                waypoints,
+                objective: 0.0,
+            })
+            .unwrap();
+            d
+        };
+        let d = replan_far(&mut core, &pose, &grid);
+        assert!(d > 1.8, "the room is too small for the test: {d} m");
+        let mut replans_before = core.counters.obstacle_replans;
+        let mut forward = 0;
+        let mut placed: Option<Point2<f64>> = None;
+        for _ in 0..400 {
+            let a = match core.decide(&pose, &grid, false).unwrap() {
+                Decision::Act(a) => a,
+                Decision::Replan(_) if placed.is_none() => {
+                    replan_far(&mut core, &pose, &grid);
+                    replans_before = core.counters.obstacle_replans;
+                    forward = 0;
+                    continue;
+                }
+                Decision::Replan(reason) => {
+                    assert_eq!(reason, ReplanReason::ObstacleAhead);
+                    break;
+                }
+            };
+            if a == ActionKind::Forward {
+                forward += 1;
+            }
+            // After 6 forward steps (0.3 m) a 0.3 m box appears on the path 1 m ahead.
+            if placed.is_none() && forward == 6 {
+                let Phase::Follow { follower, .. } = &core.phase else {
+                    panic!("not following a path");
+                };
+                let mut left = 1.0;
+                let mut previous = Point2::new(pose.x, pose.y);
+                let mut at = None;
+                for w in follower.remaining() {
+                    let l = (w - previous).norm();
+                    if l >= left {
+                        at = Some(previous + (w - previous) * (left / l));
+                        break;
+                    }
+                    left -= l;
+                    previous = *w;
+                }
+                let c = at.expect("the path is longer than 1.3 m");
+                let mut with_box = scene.clone();
+                let floor = sim.true_pose().translation.z as f32 - 0.88;
+                add_box(
+                    &mut with_box,
+                    [c.x as f32 - 0.15, c.y as f32 - 0.15, floor],
+                    [c.x as f32 + 0.15, c.y as f32 + 0.15, floor + 0.6],
+                );
+                let here = sim.true_planar_pose();
+                sim = Simulator::new(with_box, config.clone()).unwrap();
+                sim.set_planar_pose(here).unwrap();
+                placed = Some(c);
+            }
+            let result = sim.step(plan_action(a));
+            assert!(!result.collided, "drove into something at {pose:?}");
+            (pose, grid) = observe(&mut sim, &mut occupancy);
+            if let Some(c) = placed {
+                assert!(
+                    (Point2::new(pose.x, pose.y) - c).norm() > 0.25,
+                    "the robot reached the box without replanning"
+                );
+            }
+        }
+        assert!(
+            placed.is_some(),
+            "the robot never drove 0.3 m along the path"
+        );
+        assert_eq!(core.counters.obstacle_replans, replans_before + 1);
     }
 }

@@ -4,8 +4,6 @@
 //! centroid and the closest cell the robot can reach. Only reachable regions are published,
 //! largest first, with ids 0..N−1. One message per grid.
 
-use std::collections::BTreeMap;
-
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
@@ -18,6 +16,7 @@ use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid};
+use crate::join::FrameJoin;
 
 /// Config.
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
@@ -65,6 +64,7 @@ pub fn frontier_regions(
                 size_cells: r.size() as u32,
                 centroid: [r.centroid.x, r.centroid.y],
                 closest_reachable_cell: [a.cell.x, a.cell.y],
+                path_distance_m: a.path_distance_m,
             })
         })
         .collect();
@@ -75,11 +75,17 @@ pub fn frontier_regions(
     Ok(regions)
 }
 
+/// The inputs of one frame.
+#[derive(Default)]
+struct Slot {
+    grid: Option<(f64, PlanGrid)>,
+    robot: Option<Point2<f64>>,
+}
+
 /// The operator's state.
 pub struct Frontier {
     config: Config,
-    grids: BTreeMap<u64, (f64, PlanGrid)>,
-    poses: BTreeMap<u64, Point2<f64>>,
+    join: FrameJoin<Slot>,
 }
 
 impl Operator for Frontier {
@@ -88,8 +94,7 @@ impl Operator for Frontier {
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
         Ok(Self {
             config,
-            grids: BTreeMap::new(),
-            poses: BTreeMap::new(),
+            join: FrameJoin::new(),
         })
     }
 
@@ -100,21 +105,21 @@ impl Operator for Frontier {
                     .header
                     .stamp;
                 let (k, grid) = read_grid(input.bytes)?;
-                self.grids.insert(k, (stamp, grid));
+                self.join.slot(k).grid = Some((stamp, grid));
             }
             Event::Input(input) if input.port == "pose" => {
                 let e: PoseEstimate = input.decode()?;
                 let p = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                self.poses.insert(e.frame_id, Point2::new(p.x, p.y));
+                self.join.slot(e.frame_id).robot = Some(Point2::new(p.x, p.y));
             }
             Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
-        while let Some((&k, _)) = self.grids.first_key_value() {
-            let Some(robot) = self.poses.remove(&k) else {
-                break;
-            };
-            let (stamp, grid) = self.grids.remove(&k).expect("present");
+        while let Some((k, slot)) = self
+            .join
+            .pop_ready(|s| s.grid.is_some() && s.robot.is_some())
+        {
+            let ((stamp, grid), robot) = (slot.grid.expect("ready"), slot.robot.expect("ready"));
             let regions = frontier_regions(&grid, robot, &self.config)?;
             ctx.send(
                 "regions",
@@ -192,6 +197,19 @@ mod tests {
         assert!(
             (r.centroid[0] - c.x).abs() < 1e-9 && (r.centroid[1] - c.y).abs() < 1e-9,
             "{r:?}"
+        );
+        // The approach cell is within the approach radius of the frontier, and its path
+        // distance is at least the straight line from the robot (and, in this open room, at
+        // most the 8-connected path length bound √2 × straight line).
+        let a = grid.geometry.center(activemap_planning::Cell::new(
+            r.closest_reachable_cell[0],
+            r.closest_reachable_cell[1],
+        ));
+        let straight = (a - robot).norm();
+        assert!(
+            r.path_distance_m >= straight - 1e-9
+                && r.path_distance_m <= std::f64::consts::SQRT_2 * straight + 1e-9,
+            "{r:?} straight {straight}"
         );
         // Closing the doorway with a wall leaves nothing to explore.
         let closed: Vec<String> = rows

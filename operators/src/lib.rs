@@ -15,6 +15,7 @@ pub mod convert;
 pub mod evaluator;
 pub mod follower;
 pub mod frontier;
+pub mod join;
 pub mod mapper;
 pub mod occupancy;
 pub mod planned;

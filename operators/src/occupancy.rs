@@ -1,9 +1,8 @@
 //! `occupancy`: the 2D grid on the motion plane (SPEC §6) from the Gaussian map and the depth
 //! rays of each frame at its ESTIMATED pose, wrapping `activemap_planning::occupancy`. The
 //! robot's own footprint is marked free. One grid per frame, once the frame, its pose estimate
-//! and the map snapshot of that frame have all arrived (lockstep order).
-
-use std::collections::BTreeMap;
+//! and the map snapshot of that frame have all arrived (lockstep order, [`FrameJoin`]). Frames
+//! the tracker reports lost cast no depth rays.
 
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::{Intrinsics, Isometry3};
@@ -11,12 +10,15 @@ use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
-use activemap_schemas::{MessageKind as K, PoseEstimate, RgbdFrameView};
+use activemap_schemas::{
+    GaussianMapView, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
+};
 use activemap_splat::gaussians::sigmoid;
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{frame_intrinsics, grid_to_wire, pose_from_wire, read_map};
+use crate::convert::{frame_intrinsics, grid_to_wire, pose_from_wire};
+use crate::join::FrameJoin;
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -49,19 +51,28 @@ fn default_stride() -> usize {
     1
 }
 
-struct Pending {
-    depth: Vec<f32>,
-    intrinsics: Intrinsics,
-    stamp: f64,
+/// The inputs of one frame.
+#[derive(Default)]
+struct Slot {
+    depth: Option<(Vec<f32>, Intrinsics, f64)>,
+    pose: Option<(Isometry3<f64>, TrackingStatus)>,
+    /// Map points in the height band (means, opacities after the sigmoid).
+    map: Option<(Vec<[f32; 3]>, Vec<f32>)>,
+}
+
+impl Slot {
+    fn complete(&self) -> bool {
+        self.depth.is_some() && self.pose.is_some() && self.map.is_some()
+    }
 }
 
 /// The operator's state.
 pub struct Occupancy {
     mapper: OccupancyMapper,
     footprint: f64,
-    frames: BTreeMap<u64, Pending>,
-    poses: BTreeMap<u64, Isometry3<f64>>,
-    maps: BTreeMap<u64, (Vec<[f32; 3]>, Vec<f32>)>,
+    join: FrameJoin<Slot>,
+    /// Frames whose depth was not integrated because tracking was lost.
+    pub skipped_lost: usize,
 }
 
 impl Occupancy {
@@ -81,32 +92,68 @@ impl Occupancy {
         Ok(Self {
             mapper: OccupancyMapper::new(occ, Point2::new(-2.0, -2.0), Point2::new(2.0, 2.0))?,
             footprint: config.footprint_radius,
-            frames: BTreeMap::new(),
-            poses: BTreeMap::new(),
-            maps: BTreeMap::new(),
+            join: FrameJoin::new(),
+            skipped_lost: 0,
         })
     }
 
-    /// Integrates every frame whose depth, pose and map have arrived; returns the grids.
+    /// Stores the depth image of frame `k`.
+    pub fn add_depth(&mut self, k: u64, depth: Vec<f32>, intrinsics: Intrinsics, stamp: f64) {
+        self.join.slot(k).depth = Some((depth, intrinsics, stamp));
+    }
+
+    /// Stores the pose estimate of frame `k` and the tracker's status for it.
+    pub fn add_pose(&mut self, k: u64, pose: Isometry3<f64>, status: TrackingStatus) {
+        self.join.slot(k).pose = Some((pose, status));
+    }
+
+    /// Stores the map snapshot of frame `k` as Gaussian means and opacities (post-sigmoid).
+    pub fn add_map(&mut self, k: u64, means: Vec<[f32; 3]>, opacities: Vec<f32>) {
+        self.join.slot(k).map = Some((means, opacities));
+    }
+
+    /// Integrates every frame whose depth, pose and map have arrived, in frame order; returns
+    /// the grids. A frame whose tracking was lost keeps the map points but casts no depth rays
+    /// (its pose is only a prediction, and rays from a wrong pose would free walls).
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<activemap_schemas::OccupancyGrid>> {
         let mut out = Vec::new();
-        while let Some((&k, _)) = self.frames.first_key_value() {
-            if !self.poses.contains_key(&k) || !self.maps.contains_key(&k) {
-                break;
-            }
-            let frame = self.frames.remove(&k).expect("present");
-            let pose = self.poses.remove(&k).expect("present");
-            let (means, opacities) = self.maps.remove(&k).expect("present");
+        while let Some((k, slot)) = self.join.pop_ready(Slot::complete) {
+            let (depth, intrinsics, stamp) = slot.depth.expect("complete");
+            let (pose, status) = slot.pose.expect("complete");
+            let (means, opacities) = slot.map.expect("complete");
             self.mapper.set_map_points(&means, &opacities)?;
-            self.mapper
-                .integrate_depth(&frame.depth, &frame.intrinsics, &pose)?;
+            if status == TrackingStatus::Lost {
+                self.skipped_lost += 1;
+            } else {
+                self.mapper.integrate_depth(&depth, &intrinsics, &pose)?;
+            }
             let planar = planar_from_camera_pose(&pose);
             self.mapper
                 .mark_free_disc(Point2::new(planar.x, planar.y), self.footprint)?;
-            out.push(grid_to_wire(&self.mapper.grid(), k, frame.stamp));
+            out.push(grid_to_wire(&self.mapper.grid(), k, stamp));
         }
         Ok(out)
     }
+}
+
+/// The means and opacities (after the sigmoid) of a wire map, the only fields the occupancy
+/// grid uses (SPEC §6), without converting the rest of the map.
+pub fn map_points(bytes: &[u8]) -> anyhow::Result<(u64, Vec<[f32; 3]>, Vec<f32>)> {
+    let view = GaussianMapView::parse(bytes)?;
+    let means: Vec<[f32; 3]> = view
+        .means()
+        .chunks_exact(3)
+        .map(|m| [m[0], m[1], m[2]])
+        .collect();
+    let opacities: Vec<f32> = view.opacities().iter().map(|l| sigmoid(*l)).collect();
+    anyhow::ensure!(
+        means.len() == opacities.len(),
+        "map of frame {}: {} means but {} opacities",
+        view.header.frame_id,
+        means.len(),
+        opacities.len()
+    );
+    Ok((view.header.frame_id, means, opacities))
 }
 
 impl Operator for Occupancy {
@@ -121,22 +168,20 @@ impl Operator for Occupancy {
             Event::Input(input) => match input.port {
                 "rgbd" => {
                     let view = RgbdFrameView::parse(input.bytes)?;
-                    let pending = Pending {
-                        depth: view.depth().into_owned(),
-                        intrinsics: frame_intrinsics(&view),
-                        stamp: view.header.stamp,
-                    };
-                    self.frames.insert(view.header.frame_id, pending);
+                    self.add_depth(
+                        view.header.frame_id,
+                        view.depth().into_owned(),
+                        frame_intrinsics(&view),
+                        view.header.stamp,
+                    );
                 }
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
-                    self.poses
-                        .insert(e.frame_id, pose_from_wire(&e.t_world_camera)?);
+                    self.add_pose(e.frame_id, pose_from_wire(&e.t_world_camera)?, e.status);
                 }
                 "map" => {
-                    let (header, g) = read_map(input.bytes)?;
-                    let opacities = g.opacity_logits.iter().map(|l| sigmoid(*l)).collect();
-                    self.maps.insert(header.frame_id, (g.means, opacities));
+                    let (k, means, opacities) = map_points(input.bytes)?;
+                    self.add_map(k, means, opacities);
                 }
                 other => anyhow::bail!("occupancy: unexpected input `{other}`"),
             },

@@ -3,26 +3,25 @@
 //! nearest reachable region by path length, or the largest. The LLM policy (SPEC §7) is a later
 //! issue: any other `policy` is a config error. Goals visited count one strike, goals that
 //! failed (no path, stuck) two; a region whose approach cell has two strikes nearby is skipped.
-//! With no reachable frontier left the planner ends the episode (end of its `goal` stream).
+//! The path distances come with the regions (`FrontierRegion::path_distance_m`), so a replan
+//! costs no search here. With no reachable frontier left (after forgiving the strikes once per
+//! growth of the map) the planner ends the episode (end of its `goal` stream).
 
-use std::collections::BTreeMap;
-
-use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
 use activemap_planning::fbe::{FbePolicy, choose_frontier};
-use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion, path_distances};
-use activemap_planning::grid::Cell;
+use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
+use activemap_planning::grid::{Cell, CellState};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{
-    Frontiers, Goal, MessageKind as K, PoseEstimate, ReplanReason, ReplanRequest,
+    Frontiers, Goal, MessageKind as K, OccupancyGridView, ReplanReason, ReplanRequest,
 };
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{pose_from_wire, read_grid};
+use crate::convert::read_grid;
+use crate::join::FrameJoin;
 
 /// Which frontier FBE picks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -83,6 +82,10 @@ pub struct FbePlanner {
     /// Struck goals, world (x, y), one entry per strike.
     pub strikes: Vec<Point2<f64>>,
     last_goal: Option<Point2<f64>>,
+    /// Free cells of the grid when the strikes were last forgiven.
+    free_at_last_amnesty: usize,
+    /// Times every reachable frontier was banned and the strikes were forgiven.
+    pub amnesties: usize,
 }
 
 impl FbePlanner {
@@ -96,31 +99,34 @@ impl FbePlanner {
             exclusion_radius_cells,
             strikes: Vec::new(),
             last_goal: None,
+            free_at_last_amnesty: 0,
+            amnesties: 0,
         }
     }
 
-    /// Records the outcome of the last goal from the follower's replan reason.
+    /// Records the outcome of the last goal from the follower's replan reason: reached counts
+    /// one strike (a frontier still there after a second visit cannot be seen from its
+    /// approach cell), failed (no path, stuck) two.
     pub fn record(&mut self, reason: ReplanReason) {
         let Some(goal) = self.last_goal.take() else {
             return;
         };
         match reason {
             ReplanReason::PathDone => self.strikes.push(goal),
-            ReplanReason::NoPath => self.strikes.extend([goal, goal]),
-            ReplanReason::ObstacleAhead | ReplanReason::Startup => {}
+            ReplanReason::NoPath | ReplanReason::Stuck => self.strikes.extend([goal, goal]),
+            ReplanReason::ObstacleAhead | ReplanReason::Startup | ReplanReason::TrackingLost => {}
         }
     }
 
-    /// Chooses among `regions` of `grid` for a robot at `robot`: the region id and its centroid.
+    /// Chooses among the reachable `frontiers` of `grid`: the region id and its centroid;
+    /// `None` when no reachable region is left. When every reachable region is banned but the
+    /// map grew since the last time that happened, the strikes are forgiven once (estimated
+    /// poses shift the map, so a goal that failed may work now).
     pub fn choose(
         &mut self,
         grid: &PlanGrid,
-        robot: Point2<f64>,
         frontiers: &Frontiers,
     ) -> anyhow::Result<Option<(u32, Point2<f64>)>> {
-        let map = ClearanceMap::new(grid, &ClearanceConfig::default())?;
-        let start = grid.geometry.require_cell(robot, "robot position")?;
-        let distances = path_distances(&map, start);
         // Library regions from the wire summaries (the FBE ranking only reads the size and the
         // approach cell with its path distance).
         let regions: Vec<PlanRegion> = frontiers
@@ -128,48 +134,69 @@ impl FbePlanner {
             .iter()
             .map(|r| {
                 let cell = Cell::new(r.closest_reachable_cell[0], r.closest_reachable_cell[1]);
-                let d = distances.get(cell).copied().unwrap_or(f64::INFINITY);
                 PlanRegion {
                     cells: vec![cell; r.size_cells as usize],
                     centroid: Point2::new(r.centroid[0], r.centroid[1]),
                     anchor: cell,
-                    approach: d.is_finite().then_some(Approach {
+                    approach: r.path_distance_m.is_finite().then_some(Approach {
                         cell,
-                        path_distance_m: d,
+                        path_distance_m: r.path_distance_m,
                     }),
                 }
             })
             .collect();
-        let excluded: Vec<Cell> = self
-            .strikes
-            .iter()
-            .map(|p| grid.geometry.cell_of(*p))
-            .collect();
-        let Some(choice) = choose_frontier(
-            &regions,
-            self.policy,
-            &excluded,
-            self.exclusion_radius_cells,
-            2,
-        ) else {
+        let mut choice = self.choose_among(grid, &regions);
+        if choice.is_none() && !self.strikes.is_empty() {
+            let free = grid.count(CellState::Free);
+            if free > self.free_at_last_amnesty {
+                self.free_at_last_amnesty = free;
+                self.strikes.clear();
+                self.amnesties += 1;
+                choice = self.choose_among(grid, &regions);
+            }
+        }
+        let Some(choice) = choice else {
             return Ok(None);
         };
-        let goal = grid.geometry.center(choice.cell);
-        self.last_goal = Some(goal);
+        self.last_goal = Some(grid.geometry.center(choice.cell));
         let region = &frontiers.regions[choice.region];
         Ok(Some((
             region.id,
             Point2::new(region.centroid[0], region.centroid[1]),
         )))
     }
+
+    fn choose_among(
+        &self,
+        grid: &PlanGrid,
+        regions: &[PlanRegion],
+    ) -> Option<activemap_planning::fbe::FbeGoal> {
+        let excluded: Vec<Cell> = self
+            .strikes
+            .iter()
+            .map(|p| grid.geometry.cell_of(*p))
+            .collect();
+        choose_frontier(
+            regions,
+            self.policy,
+            &excluded,
+            self.exclusion_radius_cells,
+            2,
+        )
+    }
+}
+
+/// The inputs of one frame (the grid stays encoded until a replan request needs it).
+#[derive(Default)]
+struct Slot {
+    grid: Option<Vec<u8>>,
+    regions: Option<Frontiers>,
 }
 
 /// The operator.
 pub struct Planner {
     fbe: FbePlanner,
-    grids: BTreeMap<u64, PlanGrid>,
-    poses: BTreeMap<u64, Point2<f64>>,
-    regions: BTreeMap<u64, Frontiers>,
+    join: FrameJoin<Slot>,
     requests: Vec<ReplanRequest>,
 }
 
@@ -184,9 +211,7 @@ impl Operator for Planner {
         );
         Ok(Self {
             fbe: FbePlanner::new(config.frontier, config.exclusion_radius_cells),
-            grids: BTreeMap::new(),
-            poses: BTreeMap::new(),
-            regions: BTreeMap::new(),
+            join: FrameJoin::new(),
             requests: Vec::new(),
         })
     }
@@ -195,20 +220,16 @@ impl Operator for Planner {
         match event {
             Event::Input(input) => match input.port {
                 "grid" => {
-                    let (k, g) = read_grid(input.bytes)?;
-                    self.grids.insert(k, g);
-                }
-                "pose" => {
-                    let e: PoseEstimate = input.decode()?;
-                    let p = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                    self.poses.insert(e.frame_id, Point2::new(p.x, p.y));
+                    let k = OccupancyGridView::parse(input.bytes)?.header.frame_id;
+                    self.join.slot(k).grid = Some(input.bytes.to_vec());
                 }
                 "regions" => {
                     let f: Frontiers = input.decode()?;
-                    self.regions.insert(f.frame_id, f);
+                    let frame = f.frame_id;
+                    self.join.slot(frame).regions = Some(f);
                 }
                 "replan" => self.requests.push(input.decode()?),
-                "map" => {}
+                "pose" | "map" => {}
                 other => anyhow::bail!("planner: unexpected input `{other}`"),
             },
             Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
@@ -216,14 +237,17 @@ impl Operator for Planner {
         }
         while let Some(request) = self.requests.first().copied() {
             let k = request.frame_id;
-            let (Some(grid), Some(robot), Some(frontiers)) =
-                (self.grids.get(&k), self.poses.get(&k), self.regions.get(&k))
+            let Some(Slot {
+                grid: Some(grid),
+                regions: Some(frontiers),
+            }) = self.join.get(k)
             else {
                 break;
             };
+            let (_, grid) = read_grid(grid)?;
             self.requests.remove(0);
             self.fbe.record(request.reason);
-            match self.fbe.choose(grid, *robot, frontiers)? {
+            match self.fbe.choose(&grid, frontiers)? {
                 Some((target, focus)) => ctx.send(
                     "goal",
                     &Goal {
@@ -237,10 +261,8 @@ impl Operator for Planner {
                     return Ok(Flow::Stop);
                 }
             }
-            // Older frames are no longer needed.
-            self.grids = self.grids.split_off(&k);
-            self.poses = self.poses.split_off(&k);
-            self.regions = self.regions.split_off(&k);
+            // Older frames are no longer needed (requests come in frame order).
+            self.join.discard_before(k);
         }
         Ok(Flow::Continue)
     }

@@ -4,8 +4,6 @@
 //! cell; the last waypoint faces the frontier centroid. The Fisher mode (SPEC §5) is a later
 //! issue: any other `mode` is a config error. No path → an empty path (the follower reports it).
 
-use std::collections::BTreeMap;
-
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::astar::{AstarConfig, plan};
@@ -15,11 +13,14 @@ use activemap_planning::shortcut::shortcut;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
-use activemap_schemas::{Frontiers, Goal, MessageKind as K, Path, PlanarPose2, PoseEstimate};
+use activemap_schemas::{
+    Frontiers, Goal, MessageKind as K, OccupancyGridView, Path, PlanarPose2, PoseEstimate,
+};
 use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid};
+use crate::join::FrameJoin;
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -82,11 +83,17 @@ pub fn shortest_path(
     Ok(Some((waypoints, path.cost)))
 }
 
+/// The inputs of one frame (the grid stays encoded until a goal needs it).
+#[derive(Default)]
+struct Slot {
+    grid: Option<Vec<u8>>,
+    robot: Option<Point2<f64>>,
+    regions: Option<Frontiers>,
+}
+
 /// The operator.
 pub struct Scorer {
-    grids: BTreeMap<u64, PlanGrid>,
-    poses: BTreeMap<u64, Point2<f64>>,
-    regions: BTreeMap<u64, Frontiers>,
+    join: FrameJoin<Slot>,
     goals: Vec<Goal>,
 }
 
@@ -100,9 +107,7 @@ impl Operator for Scorer {
             config.mode
         );
         Ok(Self {
-            grids: BTreeMap::new(),
-            poses: BTreeMap::new(),
-            regions: BTreeMap::new(),
+            join: FrameJoin::new(),
             goals: Vec::new(),
         })
     }
@@ -111,17 +116,18 @@ impl Operator for Scorer {
         match event {
             Event::Input(input) => match input.port {
                 "grid" => {
-                    let (k, g) = read_grid(input.bytes)?;
-                    self.grids.insert(k, g);
+                    let k = OccupancyGridView::parse(input.bytes)?.header.frame_id;
+                    self.join.slot(k).grid = Some(input.bytes.to_vec());
                 }
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
                     let p = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                    self.poses.insert(e.frame_id, Point2::new(p.x, p.y));
+                    self.join.slot(e.frame_id).robot = Some(Point2::new(p.x, p.y));
                 }
                 "regions" => {
                     let f: Frontiers = input.decode()?;
-                    self.regions.insert(f.frame_id, f);
+                    let frame = f.frame_id;
+                    self.join.slot(frame).regions = Some(f);
                 }
                 "goal" => self.goals.push(input.decode()?),
                 "map" => {}
@@ -135,11 +141,15 @@ impl Operator for Scorer {
         }
         while let Some(goal) = self.goals.first().cloned() {
             let k = goal.frame_id;
-            let (Some(grid), Some(robot), Some(frontiers)) =
-                (self.grids.get(&k), self.poses.get(&k), self.regions.get(&k))
+            let Some(Slot {
+                grid: Some(grid),
+                robot: Some(robot),
+                regions: Some(frontiers),
+            }) = self.join.get(k)
             else {
                 break;
             };
+            let (_, grid) = read_grid(grid)?;
             self.goals.remove(0);
             let region = frontiers
                 .regions
@@ -157,7 +167,7 @@ impl Operator for Scorer {
             );
             let look_at = Point2::new(goal.focus[0], goal.focus[1]);
             let (waypoints, objective) =
-                shortest_path(grid, *robot, cell, look_at)?.unwrap_or((Vec::new(), f64::INFINITY));
+                shortest_path(&grid, *robot, cell, look_at)?.unwrap_or((Vec::new(), f64::INFINITY));
             ctx.send(
                 "path",
                 &Path {
@@ -166,9 +176,7 @@ impl Operator for Scorer {
                     objective,
                 },
             )?;
-            self.grids = self.grids.split_off(&k);
-            self.poses = self.poses.split_off(&k);
-            self.regions = self.regions.split_off(&k);
+            self.join.discard_before(k);
         }
         Ok(Flow::Continue)
     }

@@ -16,6 +16,7 @@ use activemap_schemas::{
     Action, ActionKind, EpisodeState, EpisodeStatus, MessageKind as K, RgbdFrameHeader,
     RgbdFrameMut, TruePose,
 };
+use activemap_sim::load::{LoadOptions, UpAxis, load_scene};
 use activemap_sim::{Action as SimAction, SimConfig, Simulator, house};
 
 use crate::Registered;
@@ -39,6 +40,18 @@ fn default_scene() -> String {
 impl SceneConfig {
     /// Builds the simulator for this scene at `width`×`height` pixels and `hfov_deg`.
     pub fn simulator(&self, width: u32, height: u32, hfov_deg: f64) -> anyhow::Result<Simulator> {
+        self.simulator_with_up_axis(width, height, hfov_deg, None)
+    }
+
+    /// As [`SceneConfig::simulator`], reading a scene file with the given up axis (`None` = the
+    /// format's default: y for glTF and OBJ, z for PLY). Refused for procedural houses.
+    pub fn simulator_with_up_axis(
+        &self,
+        width: u32,
+        height: u32,
+        hfov_deg: f64,
+        up_axis: Option<UpAxis>,
+    ) -> anyhow::Result<Simulator> {
         anyhow::ensure!(
             width > 0 && height > 0 && width <= 4096 && height <= 4096,
             "sim: width/height must be in 1..=4096, got {width}×{height}"
@@ -51,6 +64,11 @@ impl SceneConfig {
         config.intrinsics =
             activemap_geometry::Intrinsics::from_hfov(width, height, hfov_deg.to_radians());
         let scene = if let Some(seed) = self.scene.strip_prefix("house:") {
+            anyhow::ensure!(
+                up_axis.is_none(),
+                "sim: up_axis applies to scene files, not to the procedural house `{}`",
+                self.scene
+            );
             let seed: u64 = seed
                 .trim()
                 .parse()
@@ -68,7 +86,12 @@ impl SceneConfig {
             }
             house::generate(seed, &hc)?.scene
         } else {
-            activemap_sim::Scene::load(std::path::Path::new(&self.scene))?
+            let path = std::path::Path::new(&self.scene);
+            let loaded = load_scene(path, &LoadOptions { up_axis })?;
+            for w in &loaded.warnings {
+                eprintln!("{w}");
+            }
+            loaded.scene
         };
         Ok(Simulator::new(scene, config)?)
     }
@@ -87,6 +110,9 @@ pub struct Config {
     /// Largest floor area of a procedural house, m².
     #[serde(default)]
     pub max_area: Option<f64>,
+    /// Up axis of a scene file: `y` (glTF/OBJ default) or `z` (PLY default; z-up glTF exports).
+    #[serde(default, deserialize_with = "up_axis_from_name")]
+    pub up_axis: Option<UpAxis>,
     /// Image width, pixels.
     #[serde(default = "default_size")]
     pub width: u32,
@@ -113,6 +139,20 @@ impl Config {
             max_area: self.max_area,
         }
     }
+}
+
+/// Reads `up_axis: y | z`; anything else is a config error naming the accepted values.
+pub(crate) fn up_axis_from_name<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Option<UpAxis>, D::Error> {
+    use serde::Deserialize as _;
+    let name: Option<String> = Option::deserialize(d)?;
+    name.map(|n| {
+        UpAxis::from_name(&n).ok_or_else(|| {
+            serde::de::Error::custom(format!("up_axis must be `y` or `z`, got \"{n}\""))
+        })
+    })
+    .transpose()
 }
 
 fn default_size() -> u32 {
@@ -152,14 +192,14 @@ impl Sim {
     ) -> anyhow::Result<()> {
         let frame_id = self.published;
         let stamp = frame_id as f64 * STEP_SECONDS;
-        let frame = self.sim.render();
-        let k = frame.intrinsics;
+        let k = self.sim.config().intrinsics;
         let header =
             RgbdFrameHeader::new(frame_id, stamp, [k.fx, k.fy, k.cx, k.cy], k.width, k.height);
+        let sim = &mut self.sim;
+        // Rendered straight into the loaned shared-memory sample: no intermediate frame.
         ctx.loan("rgbd", header.payload_len()?, |buf| {
             let out = RgbdFrameMut::init(buf, header)?;
-            out.rgb.copy_from_slice(&frame.rgb);
-            out.depth.copy_from_slice(&frame.depth);
+            sim.render_into(out.rgb, out.depth)?;
             Ok(())
         })?;
         let truth: Isometry3<f64> = self.sim.true_pose();
@@ -227,9 +267,12 @@ impl Operator for Sim {
     type Config = Config;
 
     fn new(config: Config, ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        let sim = config
-            .scene_config()
-            .simulator(config.width, config.height, config.hfov_deg)?;
+        let sim = config.scene_config().simulator_with_up_axis(
+            config.width,
+            config.height,
+            config.hfov_deg,
+            config.up_axis,
+        )?;
         let max_steps = ctx.max_steps().unwrap_or(config.max_steps);
         anyhow::ensure!(max_steps >= 1, "sim: max_steps must be ≥ 1");
         Ok(Self {
@@ -319,5 +362,44 @@ pub fn registered() -> Registered {
             check_config: check_config_as::<Config>,
         },
         implementation: Some(OperatorImpl::of::<Sim>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check(config: serde_json::Value) -> Result<(), String> {
+        check_config_as::<Config>(&config)
+    }
+
+    #[test]
+    fn up_axis_accepts_y_and_z_and_names_bad_values() {
+        check(serde_json::json!({ "scene": "room.glb", "up_axis": "z" })).unwrap();
+        check(serde_json::json!({ "scene": "room.glb", "up_axis": "Y" })).unwrap();
+        let err = check(serde_json::json!({ "scene": "room.glb", "up_axis": "x" })).unwrap_err();
+        assert!(
+            err.contains("up_axis must be `y` or `z`") && err.contains("\"x\""),
+            "{err}"
+        );
+        let config: Config =
+            serde_json::from_value(serde_json::json!({ "up_axis": "z-up" })).unwrap();
+        assert_eq!(config.up_axis, Some(UpAxis::Z));
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.up_axis, None);
+    }
+
+    #[test]
+    fn up_axis_is_refused_for_procedural_houses() {
+        let scene = SceneConfig {
+            scene: "house:1".into(),
+            max_rooms: None,
+            max_area: None,
+        };
+        let err = scene
+            .simulator_with_up_axis(8, 8, 90.0, Some(UpAxis::Z))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("up_axis applies to scene files"), "{err}");
     }
 }

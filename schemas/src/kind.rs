@@ -70,7 +70,7 @@ kinds! {
     TruePose: Small, true, <TruePose as SmallMessage>::VERSION as u32,
         "TruePose { frame_id, stamp, t_world_camera } ground truth, evaluation only (u16 version + postcard)";
     Frontiers: Small, false, <Frontiers as SmallMessage>::VERSION as u32,
-        "Frontiers { frame_id, stamp, regions: [{ id, size_cells, centroid, closest_reachable_cell }] } (u16 version + postcard)";
+        "Frontiers { frame_id, stamp, regions: [{ id, size_cells, centroid, closest_reachable_cell, path_distance_m }] } (u16 version + postcard)";
     Goal: Small, false, <Goal as SmallMessage>::VERSION as u32,
         "Goal { frame_id, target: i32 (-1 = refine), focus: [x, y] } (u16 version + postcard)";
     Path: Small, false, <Path as SmallMessage>::VERSION as u32,

@@ -118,6 +118,9 @@ pub struct FrontierRegion {
     pub centroid: [f64; 2],
     /// Grid cell (ix, iy) of the region closest to the robot that is reachable.
     pub closest_reachable_cell: [i32; 2],
+    /// Path length (metres) from the robot to `closest_reachable_cell` over cells the robot
+    /// fits in (what FBE "nearest" ranks by, SPEC §6).
+    pub path_distance_m: f64,
 }
 
 /// The frontier regions of one occupancy grid.
@@ -130,7 +133,7 @@ pub struct Frontiers {
     /// The regions, largest first.
     pub regions: Vec<FrontierRegion>,
 }
-small_message!(Frontiers, 1);
+small_message!(Frontiers, 2);
 
 /// The planner's choice: a frontier to explore (or −1: refine the existing map, SPEC §7).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -167,6 +170,12 @@ pub enum ReplanReason {
     ObstacleAhead,
     /// The planner found no path.
     NoPath,
+    /// The robot made no progress along its path for too many steps (a collision, a slide,
+    /// or an estimate that disagrees with the world): the goal counts as failed.
+    Stuck,
+    /// Tracking was lost and has recovered: the old path was planned on a pose that may be
+    /// wrong.
+    TrackingLost,
 }
 
 /// Request from the follower to plan again.
@@ -177,7 +186,7 @@ pub struct ReplanRequest {
     /// Why.
     pub reason: ReplanReason,
 }
-small_message!(ReplanRequest, 1);
+small_message!(ReplanRequest, 2);
 
 /// Episode state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -63,6 +63,22 @@ pub enum SimError {
         /// World y of the start.
         y: f64,
     },
+    /// An output buffer handed to the renderer has the wrong length for the image size.
+    #[error(
+        "render target {what} holds {len} elements, the {width}x{height} image needs {expected}"
+    )]
+    RenderTarget {
+        /// Which buffer ("rgb" or "depth").
+        what: &'static str,
+        /// Its length.
+        len: usize,
+        /// The length the image needs.
+        expected: usize,
+        /// Image width, pixels.
+        width: u32,
+        /// Image height, pixels.
+        height: u32,
+    },
     /// Writing a scene file failed.
     #[error("cannot write {path}: {reason}")]
     Write {

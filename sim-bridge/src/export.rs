@@ -25,7 +25,7 @@ struct Bin {
 
 impl Bin {
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.data.len() % 4 != 0 {
+        while !self.data.len().is_multiple_of(4) {
             self.data.push(0);
         }
         let mut v = json!({"buffer": 0, "byteOffset": self.data.len(), "byteLength": bytes.len()});
@@ -158,7 +158,7 @@ pub fn to_glb(scene: &Scene) -> Result<Vec<u8>> {
             "indices": i, "material": mi, "mode": 4}),
         );
     }
-    while bin.data.len() % 4 != 0 {
+    while !bin.data.len().is_multiple_of(4) {
         bin.data.push(0);
     }
     let mut root = json!({

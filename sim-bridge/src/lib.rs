@@ -7,15 +7,19 @@
 //!   to the z-up world frame; glTF is y-up); [`house::generate`] builds seeded multi-room houses
 //!   and [`export::write_glb`] saves any scene as GLB.
 //! - Rendering: [`render::Renderer`] rasterises RGB8 colour and z-depth (metres, f32, 0 = no
-//!   reading) for any [`Intrinsics`] and pose `T_world_camera` (OpenCV optical frame).
+//!   reading) for any [`Intrinsics`] and pose `T_world_camera` (OpenCV optical frame);
+//!   [`Simulator::render_into`] / [`Renderer::render_into`] write straight into caller buffers
+//!   (the `sim` operator's loaned shared-memory frame) without allocating.
 //! - Motion: [`Simulator::step`] applies [`Action::Forward`] (0.05 m), [`Action::TurnLeft`] /
 //!   [`Action::TurnRight`] (5°); a cylinder agent (radius 0.1 m, camera 0.88 m above the floor)
 //!   stops at or slides along obstacles ([`navigation`]).
 //! - Ground truth, for evaluation only: [`Simulator::true_pose`], [`ground_truth`]
 //!   (surface samples, test poses, navigable map).
 //! - [`bench::run`]: frames per second (`activemap bench sim`).
-//! - `BRIDGE.md` and `python/activemap_bridge.py`: how an external simulator takes the `sim`
-//!   node's place (topics, byte layouts, Python codecs tested against the schemas).
+//! - `BRIDGE.md`, `python/activemap_bridge.py` and `python/activemap_sim_client.py`: how an
+//!   external simulator takes the `sim` node's place (topics, byte layouts, the launcher's
+//!   environment), and a Python client that does so over Zenoh (box-room ray caster for CI, a
+//!   habitat-sim adapter).
 //!
 //! ```no_run
 //! use activemap_sim::{Action, SimConfig, Simulator, house};

@@ -49,12 +49,18 @@ impl SensorNoise {
 
     /// Adds noise to a frame in place, drawing from `rng` in pixel order (deterministic).
     pub fn apply(&self, frame: &mut RgbdFrame, rng: &mut ChaCha8Rng) {
+        self.apply_to(&mut frame.rgb, &mut frame.depth, rng);
+    }
+
+    /// Adds noise in place to RGB8 and depth buffers (e.g. a loaned shared-memory frame), with
+    /// the same draws as [`SensorNoise::apply`].
+    pub fn apply_to(&self, rgb: &mut [u8], depth: &mut [f32], rng: &mut ChaCha8Rng) {
         if !self.is_active() {
             return;
         }
         let std = Normal::new(0.0f64, 1.0).expect("unit normal is valid");
         if self.depth_sigma_per_metre > 0.0 || self.depth_dropout > 0.0 {
-            for d in frame.depth.iter_mut().filter(|d| **d > 0.0) {
+            for d in depth.iter_mut().filter(|d| **d > 0.0) {
                 if self.depth_dropout > 0.0 && rng.random::<f64>() < self.depth_dropout {
                     *d = 0.0;
                     continue;
@@ -66,7 +72,7 @@ impl SensorNoise {
             }
         }
         if self.rgb_sigma > 0.0 {
-            for c in frame.rgb.iter_mut() {
+            for c in rgb.iter_mut() {
                 let v = *c as f64 + self.rgb_sigma * std.sample(rng);
                 *c = v.round().clamp(0.0, 255.0) as u8;
             }

@@ -181,7 +181,11 @@ pub fn generate(kind: TextureKind, size: u32, seed: u32) -> Texture {
                 }
                 TextureKind::Wallpaper => {
                     let stripe = (u * 8.0).floor() as u32;
-                    let band = if stripe % 2 == 0 { base } else { accent };
+                    let band = if stripe.is_multiple_of(2) {
+                        base
+                    } else {
+                        accent
+                    };
                     let cu = u * 8.0 - stripe as f32 - 0.5;
                     let cv = v * 8.0 - (v * 8.0).floor() - 0.5;
                     let dot = cu * cu + cv * cv < 0.06;

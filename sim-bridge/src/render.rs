@@ -9,7 +9,7 @@
 //! triangle with perspective-correct barycentrics. Triangles are double-sided and unlit.
 //! Depth is z-depth in metres; 0 means no surface, or one beyond `max_depth`.
 
-use crate::scene::Scene;
+use crate::scene::{RepeatPow2Sampler, Scene};
 use activemap_geometry::Intrinsics;
 use nalgebra::Isometry3;
 use rayon::prelude::*;
@@ -88,11 +88,19 @@ struct ScreenTri {
     texture: u32,
 }
 
-/// A rasteriser holding reusable per-frame buffers.
+/// A rasteriser holding reusable per-frame buffers (no allocation per frame once warm).
 #[derive(Debug, Default)]
 pub struct Renderer {
     camera_vertices: Vec<[f64; 3]>,
+    /// Screen triangles of each setup chunk (kept for their capacity).
+    chunk_tris: Vec<Vec<ScreenTri>>,
+    /// All screen triangles of the frame, in scene order.
+    tris: Vec<ScreenTri>,
     bins: Vec<Vec<u32>>,
+    /// Per-pixel 1/z of the nearest surface so far.
+    zbuf: Vec<f64>,
+    /// Per-pixel index of the winning screen triangle (`u32::MAX` = none).
+    ids: Vec<u32>,
 }
 
 /// A polygon vertex during near clipping: camera-frame position and original barycentrics.
@@ -187,7 +195,7 @@ impl Renderer {
         Self::default()
     }
 
-    /// Renders `scene` seen by a camera with intrinsics `k` at `t_world_camera`.
+    /// Renders `scene` seen by a camera with intrinsics `k` at `t_world_camera` into a new frame.
     pub fn render(
         &mut self,
         scene: &Scene,
@@ -195,7 +203,48 @@ impl Renderer {
         t_world_camera: &Isometry3<f64>,
         range: DepthRange,
     ) -> RgbdFrame {
+        let n = k.width as usize * k.height as usize;
+        let mut rgb = vec![0u8; 3 * n];
+        let mut depth = vec![0f32; n];
+        self.render_into(scene, k, t_world_camera, range, &mut rgb, &mut depth)
+            .expect("buffers sized for the image");
+        RgbdFrame {
+            intrinsics: *k,
+            rgb,
+            depth,
+        }
+    }
+
+    /// Renders into caller-owned buffers, e.g. a loaned shared-memory frame: `rgb` holds
+    /// `3 × width × height` bytes (RGB8, row-major), `depth` `width × height` z-depths in metres
+    /// (0 = no reading). Every element is written, whatever the buffers held before.
+    pub fn render_into(
+        &mut self,
+        scene: &Scene,
+        k: &Intrinsics,
+        t_world_camera: &Isometry3<f64>,
+        range: DepthRange,
+        rgb: &mut [u8],
+        depth: &mut [f32],
+    ) -> crate::Result<()> {
         let (width, height) = (k.width as usize, k.height as usize);
+        for (what, len, expected) in [
+            ("rgb", rgb.len(), 3 * width * height),
+            ("depth", depth.len(), width * height),
+        ] {
+            if len != expected {
+                return Err(crate::SimError::RenderTarget {
+                    what,
+                    len,
+                    expected,
+                    width: k.width,
+                    height: k.height,
+                });
+            }
+        }
+        if width == 0 || height == 0 {
+            return Ok(());
+        }
         let t_cw = t_world_camera.inverse();
         let (rot, tr) = (t_cw.rotation.to_rotation_matrix(), t_cw.translation.vector);
         let m = rot.matrix();
@@ -221,11 +270,14 @@ impl Renderer {
         let near = range.near;
         let identity: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
-        let tris: Vec<ScreenTri> = scene
+        let n_chunks = scene.triangles.len().div_ceil(SETUP_CHUNK);
+        self.chunk_tris.resize_with(n_chunks, Vec::new);
+        scene
             .triangles
             .par_chunks(SETUP_CHUNK)
-            .flat_map_iter(|chunk| {
-                let mut out = Vec::new();
+            .zip(self.chunk_tris.par_iter_mut())
+            .for_each(|(chunk, out)| {
+                out.clear();
                 let mut poly = Vec::with_capacity(4);
                 let mut clipped = Vec::with_capacity(4);
                 for t in chunk {
@@ -287,9 +339,12 @@ impl Renderer {
                         }
                     }
                 }
-                out
-            })
-            .collect();
+            });
+        self.tris.clear();
+        for chunk in &self.chunk_tris[..n_chunks] {
+            self.tris.extend_from_slice(chunk);
+        }
+        let tris = &self.tris;
 
         let n_bands = height.div_ceil(BAND_ROWS);
         self.bins.resize_with(n_bands, Vec::new);
@@ -302,27 +357,21 @@ impl Renderer {
             }
         }
 
-        let mut rgb = vec![0u8; 3 * width * height];
-        let mut depth = vec![0f32; width * height];
+        self.zbuf.resize(width * height, 0.0);
+        self.ids.resize(width * height, u32::MAX);
         let bins = &self.bins;
         rgb.par_chunks_mut(3 * width * BAND_ROWS)
             .zip(depth.par_chunks_mut(width * BAND_ROWS))
+            .zip(self.zbuf.par_chunks_mut(width * BAND_ROWS))
+            .zip(self.ids.par_chunks_mut(width * BAND_ROWS))
             .enumerate()
-            .for_each(|(band, (rgb_band, depth_band))| {
+            .for_each(|(band, (((rgb_band, depth_band), zbuf), ids))| {
                 let y_start = band * BAND_ROWS;
                 let rows = depth_band.len() / width;
-                let mut zbuf = vec![0f64; rows * width];
-                let mut ids = vec![u32::MAX; rows * width];
+                zbuf.fill(0.0);
+                ids.fill(u32::MAX);
                 for &ti in &bins[band] {
-                    rasterise(
-                        &tris[ti as usize],
-                        ti,
-                        y_start,
-                        rows,
-                        width,
-                        &mut zbuf,
-                        &mut ids,
-                    );
+                    rasterise(&tris[ti as usize], ti, y_start, rows, width, zbuf, ids);
                 }
                 for r in 0..rows {
                     let row = r * width;
@@ -331,6 +380,9 @@ impl Renderer {
                     while x < width {
                         let id = ids[row + x];
                         if id == u32::MAX {
+                            // No surface: black, no depth reading.
+                            rgb_band[3 * (row + x)..3 * (row + x) + 3].fill(0);
+                            depth_band[row + x] = 0.0;
                             x += 1;
                             continue;
                         }
@@ -356,11 +408,7 @@ impl Renderer {
                     }
                 }
             });
-        RgbdFrame {
-            intrinsics: *k,
-            rgb,
-            depth,
-        }
+        Ok(())
     }
 }
 
@@ -412,7 +460,7 @@ fn rasterise(
 
 /// Shades the pixels `x0, x0 + 1, …` of row `py` (as many as `depth.len()`), all covered by
 /// `st`: colour and z-depth from the screen-affine planes of 1/z and attribute/z, stepped by
-/// their x-gradients.
+/// their x-gradients. The texture path is chosen once per run, not per pixel.
 #[inline]
 fn shade_run(
     textures: &[crate::scene::Texture],
@@ -422,6 +470,30 @@ fn shade_run(
     max_depth: f64,
     rgb: &mut [u8],
     depth: &mut [f32],
+) {
+    match (st.texture > 0).then(|| &textures[st.texture as usize - 1]) {
+        None => shade_span::<false>(st, x0, py, max_depth, rgb, depth, |_, _| [1.0; 3]),
+        Some(t) => match RepeatPow2Sampler::of(t) {
+            Some(fast) => {
+                shade_span::<true>(st, x0, py, max_depth, rgb, depth, |u, v| fast.sample(u, v))
+            }
+            None => shade_span::<true>(st, x0, py, max_depth, rgb, depth, |u, v| {
+                t.sample_bilinear(u, v)
+            }),
+        },
+    }
+}
+
+/// The per-pixel loop of [`shade_run`], specialised for textured or flat triangles.
+#[inline(always)]
+fn shade_span<const TEXTURED: bool>(
+    st: &ScreenTri,
+    x0: f64,
+    py: f64,
+    max_depth: f64,
+    rgb: &mut [u8],
+    depth: &mut [f32],
+    sample: impl Fn(f32, f32) -> [f32; 3],
 ) {
     let plane = |p: &[f64; 3]| p[0] * x0 + p[1] * py + p[2];
     let a = &st.attr_planes;
@@ -435,21 +507,20 @@ fn shade_run(
     ];
     let d_inv_z = st.inv_z_plane[0];
     let d_attr = [a[0][0], a[1][0], a[2][0], a[3][0], a[4][0]];
-    let texture = (st.texture > 0).then(|| &textures[st.texture as usize - 1]);
-    for (k, d) in depth.iter_mut().enumerate() {
+    for (px, d) in rgb.chunks_exact_mut(3).zip(depth.iter_mut()) {
         let z = 1.0 / inv_z;
         let mut c = [
             (attr[2] * z) as f32,
             (attr[3] * z) as f32,
             (attr[4] * z) as f32,
         ];
-        if let Some(t) = texture {
-            let s = t.sample_bilinear((attr[0] * z) as f32, (attr[1] * z) as f32);
+        if TEXTURED {
+            let s = sample((attr[0] * z) as f32, (attr[1] * z) as f32);
             c = [c[0] * s[0], c[1] * s[1], c[2] * s[2]];
         }
-        rgb[3 * k] = (c[0] + 0.5).clamp(0.0, 255.0) as u8;
-        rgb[3 * k + 1] = (c[1] + 0.5).clamp(0.0, 255.0) as u8;
-        rgb[3 * k + 2] = (c[2] + 0.5).clamp(0.0, 255.0) as u8;
+        px[0] = (c[0] + 0.5).clamp(0.0, 255.0) as u8;
+        px[1] = (c[1] + 0.5).clamp(0.0, 255.0) as u8;
+        px[2] = (c[2] + 0.5).clamp(0.0, 255.0) as u8;
         *d = if z <= max_depth { z as f32 } else { 0.0 };
         inv_z += d_inv_z;
         for (v, dv) in attr.iter_mut().zip(d_attr) {

@@ -128,6 +128,83 @@ impl Texture {
     }
 }
 
+/// Bilinear sampling of a power-of-two texture that repeats along both axes: wrapping is a
+/// bit mask and the texel index is in range by construction, so the hot shading loop needs no
+/// wrap branches and no bounds checks. Same arithmetic, hence the same bits, as
+/// [`Texture::sample_bilinear`].
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RepeatPow2Sampler<'a> {
+    texels: &'a [[u8; 3]],
+    width: f32,
+    height: f32,
+    mask_x: i32,
+    mask_y: i32,
+    row_shift: u32,
+}
+
+impl<'a> RepeatPow2Sampler<'a> {
+    /// The fast sampler of `t`, when it is a repeating power-of-two texture of consistent size.
+    pub(crate) fn of(t: &'a Texture) -> Option<Self> {
+        let pow2 = |n: u32| n > 0 && n.is_power_of_two() && n <= 1 << 15;
+        (t.wrap_u == Wrap::Repeat
+            && t.wrap_v == Wrap::Repeat
+            && pow2(t.width)
+            && pow2(t.height)
+            && t.texels.len() == (t.width as usize) * (t.height as usize))
+            .then(|| Self {
+                texels: &t.texels,
+                width: t.width as f32,
+                height: t.height as f32,
+                mask_x: t.width as i32 - 1,
+                mask_y: t.height as i32 - 1,
+                row_shift: t.width.trailing_zeros(),
+            })
+    }
+
+    /// As [`Texture::sample_bilinear`]: RGB in [0, 255] at (u, v).
+    #[inline(always)]
+    pub(crate) fn sample(&self, u: f32, v: f32) -> [f32; 3] {
+        let x = u * self.width - 0.5;
+        let y = v * self.height - 0.5;
+        let x = if x.is_finite() {
+            x.clamp(-1.0e6, 1.0e6)
+        } else {
+            0.0
+        };
+        let y = if y.is_finite() {
+            y.clamp(-1.0e6, 1.0e6)
+        } else {
+            0.0
+        };
+        let xf = fast_floor(x);
+        let yf = fast_floor(y);
+        let (fx, fy) = (x - xf, y - yf);
+        let (x0, y0) = (xf as i32, yf as i32);
+        let xa = (x0 & self.mask_x) as usize;
+        let xb = ((x0 + 1) & self.mask_x) as usize;
+        let ya = ((y0 & self.mask_y) as usize) << self.row_shift;
+        let yb = (((y0 + 1) & self.mask_y) as usize) << self.row_shift;
+        // SAFETY: x indices are masked below `width` and y indices below `height`, and `of`
+        // checked `texels.len() == width × height` with width = 1 << row_shift, so every index
+        // y·width + x is below the length.
+        let (t00, t10, t01, t11) = unsafe {
+            (
+                *self.texels.get_unchecked(ya + xa),
+                *self.texels.get_unchecked(ya + xb),
+                *self.texels.get_unchecked(yb + xa),
+                *self.texels.get_unchecked(yb + xb),
+            )
+        };
+        let mut out = [0.0f32; 3];
+        for c in 0..3 {
+            let top = t00[c] as f32 + (t10[c] as f32 - t00[c] as f32) * fx;
+            let bottom = t01[c] as f32 + (t11[c] as f32 - t01[c] as f32) * fx;
+            out[c] = top + (bottom - top) * fy;
+        }
+        out
+    }
+}
+
 /// `x.floor()` without a libm call (x within ±1e6).
 #[inline]
 fn fast_floor(x: f32) -> f32 {
@@ -240,13 +317,13 @@ impl Scene {
             }
         }
         for m in &self.materials {
-            if let Some(ti) = m.texture {
-                if ti as usize >= self.textures.len() {
-                    return Err(bad(format!(
-                        "material {} references missing texture {ti}",
-                        m.name
-                    )));
-                }
+            if let Some(ti) = m.texture
+                && ti as usize >= self.textures.len()
+            {
+                return Err(bad(format!(
+                    "material {} references missing texture {ti}",
+                    m.name
+                )));
             }
         }
         for t in &self.textures {
@@ -377,6 +454,31 @@ mod tests {
         assert_eq!(t.sample_bilinear(1.75, 0.25), [200.0, 0.0, 0.0]);
         // Clamp along v: far below the image stays on the last row.
         assert_eq!(t.sample_bilinear(0.25, 9.0), [0.0, 100.0, 0.0]);
+    }
+
+    #[test]
+    fn pow2_sampler_matches_the_general_sampler_bit_for_bit() {
+        let mut t = checker();
+        t.wrap_v = Wrap::Repeat;
+        t.width = 4;
+        t.height = 2;
+        t.texels = (0..8u8).map(|i| [i * 30, 255 - i * 20, i * i]).collect();
+        let fast = RepeatPow2Sampler::of(&t).expect("4×2 repeating texture");
+        for i in -40..40 {
+            for j in -13..17 {
+                let (u, v) = (i as f32 * 0.071 + 0.003, j as f32 * 0.113 - 0.02);
+                assert_eq!(fast.sample(u, v), t.sample_bilinear(u, v), "at ({u}, {v})");
+            }
+        }
+        assert_eq!(fast.sample(f32::NAN, 0.3), t.sample_bilinear(f32::NAN, 0.3));
+        assert_eq!(fast.sample(1e30, -1e30), t.sample_bilinear(1e30, -1e30));
+        // Not applicable: clamped wrap, non-power-of-two size, inconsistent texel count.
+        assert!(RepeatPow2Sampler::of(&checker()).is_none());
+        t.width = 3;
+        assert!(RepeatPow2Sampler::of(&t).is_none());
+        t.width = 4;
+        t.texels.pop();
+        assert!(RepeatPow2Sampler::of(&t).is_none());
     }
 
     #[test]

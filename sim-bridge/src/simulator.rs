@@ -231,6 +231,23 @@ impl Simulator {
         frame
     }
 
+    /// Renders RGB-D at the agent's true pose (with sensor noise, if configured) straight into
+    /// caller-owned buffers, e.g. a loaned shared-memory frame: `rgb` holds `3 × w × h` bytes,
+    /// `depth` `w × h` metres. Same pixels as [`Simulator::render`]; no allocation once warm.
+    pub fn render_into(&mut self, rgb: &mut [u8], depth: &mut [f32]) -> Result<()> {
+        let pose = self.true_pose();
+        self.renderer.render_into(
+            &self.scene,
+            &self.config.intrinsics,
+            &pose,
+            self.config.depth_range,
+            rgb,
+            depth,
+        )?;
+        self.config.noise.apply_to(rgb, depth, &mut self.noise_rng);
+        Ok(())
+    }
+
     /// Renders RGB-D (noise-free) from any camera pose `T_world_camera`, e.g. evaluation poses.
     pub fn render_at(&mut self, t_world_camera: &Isometry3<f64>) -> RgbdFrame {
         self.renderer.render(

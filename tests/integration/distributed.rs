@@ -1,12 +1,14 @@
-//! Two daemons (`activemap up`) on two loopback addresses, multicast off, run a two-machine flow:
-//! small messages and a shared-memory topic bridged over Zenoh between machines.
+//! Two machines on two loopback addresses, multicast off, run a two-machine flow: small messages
+//! and a shared-memory topic bridged over Zenoh between machines. Once with one-shot `up FILE`
+//! per machine, once with long-lived daemons (`up --listen`) that accept `start`, answer `list`
+//! and `logs`, and go `down`.
 
 use std::time::Duration;
 
 use activemap_runtime::record::read_recording;
 use activemap_schemas::{Counter, SmallMessage};
 
-use super::harness::{root, spawn, wait};
+use super::harness::{root, run, spawn, wait};
 
 fn free_port(ip: &str) -> u16 {
     std::net::TcpListener::bind((ip, 0))
@@ -16,11 +18,9 @@ fn free_port(ip: &str) -> u16 {
         .port()
 }
 
-#[test]
-fn two_daemons_on_two_loopback_addresses_run_a_two_machine_flow() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
-    let flow = format!(
+/// A two-machine flow: machine a produces counters and frames, machine b doubles and checks them.
+fn two_machine_flow(pa: u16, pb: u16) -> String {
+    format!(
         "machines:
   - id: a
     listen: [tcp/127.0.0.2:{pa}]
@@ -49,7 +49,34 @@ nodes:
       frame: {{ source: camera/frame, queue_size: 8, drop: block }}
     deploy: {{ machine: b }}
 "
+    )
+}
+
+/// What machine b's recording must hold: the doubled counters and three bit-exact frames.
+fn check_machine_b(dir_b: &std::path::Path) {
+    let rec = read_recording(&dir_b.join("recording.mcap")).unwrap();
+    let values = |topic: &str| -> Vec<Counter> {
+        rec.messages
+            .iter()
+            .filter(|m| m.topic == topic && !m.bytes.is_empty())
+            .map(|m| Counter::decode(&m.bytes).unwrap())
+            .collect()
+    };
+    let doubled: Vec<i64> = values("double/doubled").iter().map(|c| c.value).collect();
+    assert_eq!(doubled, (1..=10).map(|v| 2 * v).collect::<Vec<_>>());
+    let reports = values("checker/report");
+    assert_eq!(reports.len(), 3, "{reports:?}");
+    assert!(
+        reports.iter().all(|r| r.value == 1),
+        "a bridged frame differed: {reports:?}"
     );
+}
+
+#[test]
+fn two_daemons_on_two_loopback_addresses_run_a_two_machine_flow() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let flow = two_machine_flow(pa, pb);
     let file = tmp.path().join("two.yaml");
     std::fs::write(&file, flow).unwrap();
     let file = file.to_str().unwrap();
@@ -87,24 +114,211 @@ nodes:
     assert!(out_a.status.success(), "daemon a:\n{}", out_a.stderr);
     assert!(out_b.status.success(), "daemon b:\n{}", out_b.stderr);
     // Machine b's recording holds what its nodes produced from machine a's data.
-    let rec = read_recording(&dir_b.join("recording.mcap")).unwrap();
-    let values = |topic: &str| -> Vec<Counter> {
-        rec.messages
-            .iter()
-            .filter(|m| m.topic == topic && !m.bytes.is_empty())
-            .map(|m| Counter::decode(&m.bytes).unwrap())
-            .collect()
-    };
-    let doubled: Vec<i64> = values("double/doubled").iter().map(|c| c.value).collect();
-    assert_eq!(doubled, (1..=10).map(|v| 2 * v).collect::<Vec<_>>());
-    let reports = values("checker/report");
-    assert_eq!(reports.len(), 3, "{reports:?}");
-    assert!(
-        reports.iter().all(|r| r.value == 1),
-        "a bridged frame differed: {reports:?}"
-    );
+    check_machine_b(&dir_b);
     // Nodes ran where deploy.machine says.
     assert!(dir_a.join("logs/source.stderr.log").exists());
     assert!(!dir_a.join("logs/double.stderr.log").exists());
     assert!(dir_b.join("logs/double.stderr.log").exists());
+}
+
+#[test]
+fn long_lived_daemons_accept_a_flow_list_it_show_logs_and_go_down() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let (ca, cb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let file = tmp.path().join("two.yaml");
+    std::fs::write(&file, two_machine_flow(pa, pb)).unwrap();
+    let file = file.to_str().unwrap();
+    let (runs_a, runs_b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let control_a = format!("tcp/127.0.0.2:{ca}");
+    let control_b = format!("tcp/127.0.0.3:{cb}");
+    let daemon_a = spawn(
+        &[
+            "up",
+            "--machine",
+            "a",
+            "--listen",
+            &control_a,
+            "--runs",
+            runs_a.to_str().unwrap(),
+        ],
+        &root(),
+    );
+    let daemon_b = spawn(
+        &[
+            "up",
+            "--machine",
+            "b",
+            "--listen",
+            &control_b,
+            "--connect",
+            &control_a,
+            "--runs",
+            runs_b.to_str().unwrap(),
+        ],
+        &root(),
+    );
+    // A client reaches both daemons through a's endpoint; retry while they come up.
+    let run_id = format!("d{}", std::process::id());
+    let mut started = None;
+    for _ in 0..40 {
+        let out = run(
+            &[
+                "start",
+                file,
+                "--connect",
+                &control_a,
+                "--run-id",
+                &run_id,
+                "--wait",
+            ],
+            &root(),
+            Duration::from_secs(120),
+        );
+        if out.status.success() {
+            started = Some(out);
+            break;
+        }
+        assert!(
+            out.stderr.contains("no daemon answered"),
+            "start failed for another reason:\n{}",
+            out.stderr
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let started = started.expect("the daemons never accepted the flow");
+    assert!(
+        started.stdout.contains(&format!("run {run_id} started")),
+        "{}",
+        started.stdout
+    );
+    check_machine_b(&runs_b.join(&run_id));
+    assert!(runs_a.join(&run_id).join("logs/source.stderr.log").exists());
+    assert!(!runs_a.join(&run_id).join("logs/double.stderr.log").exists());
+
+    // Both machines list the run as finished.
+    let list = run(
+        &["list", "--connect", &control_a],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(list.status.success(), "{}", list.stderr);
+    let lines: Vec<&str> = list
+        .stdout
+        .lines()
+        .filter(|l| l.contains(&run_id))
+        .collect();
+    assert_eq!(lines.len(), 2, "{}", list.stdout);
+    assert!(
+        lines.iter().all(|l| l.contains("finished")),
+        "{}",
+        list.stdout
+    );
+
+    // Logs come from the machine that ran the node.
+    let logs = run(
+        &[
+            "logs",
+            "--run-id",
+            &run_id,
+            "--node",
+            "double",
+            "--connect",
+            &control_a,
+        ],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(logs.status.success(), "{}", logs.stderr);
+    assert!(
+        logs.stdout.contains("==> b: double.stderr.log <=="),
+        "{}",
+        logs.stdout
+    );
+    assert!(!logs.stdout.contains("==> a:"), "{}", logs.stdout);
+
+    // A second submission under the same id is refused with the machine named.
+    let again = run(
+        &["start", file, "--connect", &control_a, "--run-id", &run_id],
+        &root(),
+        Duration::from_secs(60),
+    );
+    assert!(!again.status.success());
+    assert!(
+        again.stderr.contains("already exists on machine"),
+        "{}",
+        again.stderr
+    );
+
+    // `down` stops both daemons.
+    let down = run(
+        &["down", "--connect", &control_a],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(down.status.success(), "{}", down.stderr);
+    assert!(down.stdout.contains("a, b"), "{}", down.stdout);
+    let out_a = wait(daemon_a, Duration::from_secs(60), "daemon a");
+    let out_b = wait(daemon_b, Duration::from_secs(60), "daemon b");
+    assert!(out_a.status.success(), "daemon a:\n{}", out_a.stderr);
+    assert!(out_b.status.success(), "daemon b:\n{}", out_b.stderr);
+}
+
+#[test]
+fn start_names_the_machine_whose_daemon_is_missing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let ca = free_port("127.0.0.2");
+    let file = tmp.path().join("two.yaml");
+    std::fs::write(&file, two_machine_flow(pa, pb)).unwrap();
+    let control_a = format!("tcp/127.0.0.2:{ca}");
+    let runs_a = tmp.path().join("a");
+    let daemon_a = spawn(
+        &[
+            "up",
+            "--machine",
+            "a",
+            "--listen",
+            &control_a,
+            "--runs",
+            runs_a.to_str().unwrap(),
+        ],
+        &root(),
+    );
+    let mut out = None;
+    for _ in 0..40 {
+        let o = run(
+            &[
+                "start",
+                file.to_str().unwrap(),
+                "--connect",
+                &control_a,
+                "--timeout",
+                "2",
+            ],
+            &root(),
+            Duration::from_secs(60),
+        );
+        if !o.stderr.contains("machine `a`: no daemon answered") {
+            out = Some(o);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let out = out.expect("daemon a never answered");
+    assert!(!out.status.success());
+    assert!(
+        out.stderr.contains("machine `b`: no daemon answered"),
+        "{}",
+        out.stderr
+    );
+    // What machine a started was stopped again, and the daemon still serves.
+    let down = run(
+        &["down", "--connect", &control_a],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(down.status.success(), "{}", down.stderr);
+    let out_a = wait(daemon_a, Duration::from_secs(60), "daemon a");
+    assert!(out_a.status.success(), "daemon a:\n{}", out_a.stderr);
 }

@@ -124,11 +124,11 @@ fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
         let log = std::fs::read(out_dir.join("recording.mcap"))
             .map(|b| b.len())
             .unwrap_or(0);
-        if let Some(pid) = pids.first() {
-            if log > 4096 {
-                victim = Some(*pid);
-                break;
-            }
+        if let Some(pid) = pids.first()
+            && log > 4096
+        {
+            victim = Some(*pid);
+            break;
         }
         std::thread::sleep(Duration::from_millis(50));
     }

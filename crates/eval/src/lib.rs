@@ -10,6 +10,7 @@
 //! - [`test_poses`]: the seeded test poses on the navigable plane;
 //! - [`views`]: all image metrics of one test view and their means over the views;
 //! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
+//! - [`results`]: `activemap bench results` (methods × scenes × seeds, Table 1 layout);
 //! - [`bench`](mod@bench): timings of every metric (`bench::run`);
 //! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder
 //!   ([`run_folder`]);
@@ -29,6 +30,7 @@ pub mod image;
 pub mod lpips;
 pub mod psnr;
 pub mod report;
+pub mod results;
 pub mod run_eval;
 pub mod run_folder;
 pub mod ssim;

@@ -67,6 +67,10 @@ pub enum RunError {
     /// The scene of the run is unknown or cannot be built.
     #[error("scene: {0}")]
     Scene(String),
+    /// A benchmark setting is invalid (e.g. a method given as something other than
+    /// `NAME=DATAFLOW`).
+    #[error("{0}")]
+    Settings(String),
     /// A metric failed.
     #[error(transparent)]
     Metric(#[from] crate::EvalError),

@@ -174,11 +174,12 @@ pub fn extract_frontiers(
     while let Some(c) = queue.pop_front() {
         for (dx, dy) in NEIGHBOURS8 {
             let n = c.offset(dx, dy);
-            if let Some(j) = g.index(n) {
-                if !reachable.data[j] && grid.data[j] == CellState::Free {
-                    reachable.data[j] = true;
-                    queue.push_back(n);
-                }
+            if let Some(j) = g.index(n)
+                && !reachable.data[j]
+                && grid.data[j] == CellState::Free
+            {
+                reachable.data[j] = true;
+                queue.push_back(n);
             }
         }
     }
@@ -208,11 +209,12 @@ pub fn extract_frontiers(
             cells.push(c);
             for (dx, dy) in NEIGHBOURS8 {
                 let n = c.offset(dx, dy);
-                if let Some(j) = g.index(n) {
-                    if is_frontier.data[j] && !visited.data[j] {
-                        visited.data[j] = true;
-                        queue.push_back(n);
-                    }
+                if let Some(j) = g.index(n)
+                    && is_frontier.data[j]
+                    && !visited.data[j]
+                {
+                    visited.data[j] = true;
+                    queue.push_back(n);
                 }
             }
         }

@@ -529,11 +529,11 @@ impl OccupancyMapper {
         for y in a.y..=b.y {
             for x in a.x..=b.x {
                 let c = Cell::new(x, y);
-                if let Some(i) = g.index(c) {
-                    if (g.center(c) - center).norm() <= radius || c == g.cell_of(center) {
-                        self.log_odds.data[i] = value;
-                        self.seen.data[i] = true;
-                    }
+                if let Some(i) = g.index(c)
+                    && ((g.center(c) - center).norm() <= radius || c == g.cell_of(center))
+                {
+                    self.log_odds.data[i] = value;
+                    self.seen.data[i] = true;
                 }
             }
         }

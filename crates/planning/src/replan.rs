@@ -111,10 +111,10 @@ pub fn obstacle_within(
             if c == own || grid.get(c) != Some(&CellState::Occupied) {
                 continue;
             }
-            if let Some(k) = known {
-                if k.get(k.geometry.cell_of(g.center(c))) == Some(&CellState::Occupied) {
-                    continue;
-                }
+            if let Some(k) = known
+                && k.get(k.geometry.cell_of(g.center(c))) == Some(&CellState::Occupied)
+            {
+                continue;
             }
             let d = g.center(c) - here;
             let ahead = d.dot(&fwd);
@@ -152,10 +152,10 @@ pub fn check_replan(
         return Ok(Some(ReplanReason::PathDone));
     };
     let g = grid.geometry;
-    if let Some(goal) = goal {
-        if grid.get(g.cell_of(goal)) == Some(&CellState::Occupied) {
-            return Ok(Some(ReplanReason::GoalOccupied));
-        }
+    if let Some(goal) = goal
+        && grid.get(g.cell_of(goal)) == Some(&CellState::Occupied)
+    {
+        return Ok(Some(ReplanReason::GoalOccupied));
     }
     let robot = g.cell_of(Point2::new(pose.x, pose.y));
     let mut prev = robot;

@@ -119,10 +119,10 @@ mod tests {
             let mut path: Vec<Cell> = (0..n)
                 .map(|_| Cell::new(rng.random_range(0..w as i32), rng.random_range(0..h as i32)))
                 .collect();
-            if trial % 2 == 1 {
-                if let Ok(Some(p)) = plan(&map, path[0], path[n - 1], &AstarConfig::default()) {
-                    path = p.cells;
-                }
+            if trial % 2 == 1
+                && let Ok(Some(p)) = plan(&map, path[0], path[n - 1], &AstarConfig::default())
+            {
+                path = p.cells;
             }
             let out = shortcut(&map, &path);
             assert_eq!(out.first(), path.first());

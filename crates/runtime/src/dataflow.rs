@@ -672,19 +672,19 @@ impl Validator {
         if let Some(c) = config_node {
             raw.config = c.to_json();
         }
-        if let Some(d) = raw.descriptor {
-            if let Err(e) = (d.check_config)(&raw.config) {
-                let loc = config_node
-                    .map(|c| self.config_error_loc(c, &e))
-                    .unwrap_or(raw.loc);
-                self.err(
-                    loc,
-                    format!(
-                        "bad config for operator `{}` of node `{}`: {e}",
-                        d.name, raw.id
-                    ),
-                );
-            }
+        if let Some(d) = raw.descriptor
+            && let Err(e) = (d.check_config)(&raw.config)
+        {
+            let loc = config_node
+                .map(|c| self.config_error_loc(c, &e))
+                .unwrap_or(raw.loc);
+            self.err(
+                loc,
+                format!(
+                    "bad config for operator `{}` of node `{}`: {e}",
+                    d.name, raw.id
+                ),
+            );
         }
         Some(raw)
     }
@@ -724,10 +724,10 @@ impl Validator {
                 Node::Seq { items, .. } => items.iter().find_map(|i| find_value(i, value)),
             }
         }
-        if let Some(field) = quoted_after(message, "unknown field ", '`', '`') {
-            if let Some(loc) = find_key(config, field) {
-                return loc;
-            }
+        if let Some(field) = quoted_after(message, "unknown field ", '`', '`')
+            && let Some(loc) = find_key(config, field)
+        {
+            return loc;
         }
         for (marker, open, close) in [
             ("string ", '"', '"'),
@@ -735,10 +735,10 @@ impl Validator {
             ("floating point ", '`', '`'),
             ("boolean ", '`', '`'),
         ] {
-            if let Some(value) = quoted_after(message, marker, open, close) {
-                if let Some(loc) = find_value(config, value) {
-                    return loc;
-                }
+            if let Some(value) = quoted_after(message, marker, open, close)
+                && let Some(loc) = find_value(config, value)
+            {
+                return loc;
             }
         }
         config.loc()
@@ -907,14 +907,14 @@ impl Validator {
                     ));
                     continue;
                 };
-                if let Some(expected) = expected {
-                    if expected != out.kind {
-                        self.err(*source_loc, format!(
+                if let Some(expected) = expected
+                    && expected != out.kind
+                {
+                    self.err(*source_loc, format!(
                             "type mismatch: input `{name}` of node `{}` expects {}, but `{source}` carries {}",
                             n.id, expected.name(), out.kind.name()
                         ));
-                        continue;
-                    }
+                    continue;
                 }
                 if out.kind.evaluation_only() && !n.evaluation {
                     self.err(*source_loc, format!(

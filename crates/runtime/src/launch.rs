@@ -13,7 +13,7 @@ use crate::RuntimeError;
 use crate::dataflow::{Dataflow, NodeImpl, RestartPolicy};
 use crate::node::{RunInfo, control_key, logs_dir};
 use crate::record::{Recorder, RecorderStats};
-use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh};
+use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh, topic_key};
 
 /// Options of [`run_local`].
 #[derive(Debug, Clone)]
@@ -134,8 +134,77 @@ struct Running {
     exit: Option<NodeExit>,
 }
 
+/// Environment of an external (`path:`) node: everything it needs to join the run over Zenoh
+/// without parsing the dataflow (see `sim-bridge/BRIDGE.md`). Values are plain strings or JSON.
+///
+/// - `ACTIVEMAP_RUN_DIR`, `ACTIVEMAP_NODE_ID`: the run folder and this node's id (every node);
+/// - `ACTIVEMAP_RUN_ID`: the run id, which prefixes every key;
+/// - `ACTIVEMAP_ZENOH_CONNECT`: JSON list of the Zenoh router endpoints to connect to (client mode);
+/// - `ACTIVEMAP_INPUTS` / `ACTIVEMAP_OUTPUTS`: JSON objects, port name → Zenoh key;
+/// - `ACTIVEMAP_CONTROL`: key prefix of the control topics (`<prefix>/ready/<id>`,
+///   `<prefix>/start`, `<prefix>/stop`);
+/// - `ACTIVEMAP_CONFIG`: the node's `config:` as JSON (`null` when absent);
+/// - `ACTIVEMAP_MAX_STEPS`: the `--max-steps` budget, when given.
+pub fn external_node_env(
+    dataflow: &Dataflow,
+    run: &RunInfo,
+    id: &str,
+) -> Result<Vec<(String, String)>, RuntimeError> {
+    let spec = dataflow
+        .node(id)
+        .ok_or_else(|| RuntimeError::UnknownNode(id.into()))?;
+    let inputs: serde_json::Map<String, serde_json::Value> = spec
+        .inputs
+        .iter()
+        .map(|i| {
+            (
+                i.name.clone(),
+                topic_key(&run.run_id, &i.source_node, &i.source_output).into(),
+            )
+        })
+        .collect();
+    let outputs: serde_json::Map<String, serde_json::Value> = spec
+        .outputs
+        .iter()
+        .map(|o| (o.name.clone(), topic_key(&run.run_id, id, &o.name).into()))
+        .collect();
+    let connect = run.client_settings(&spec.machine).connect;
+    let json = |v: &serde_json::Value| serde_json::to_string(v).expect("JSON values serialise");
+    let mut env = vec![
+        ("ACTIVEMAP_RUN_ID".to_string(), run.run_id.clone()),
+        (
+            "ACTIVEMAP_ZENOH_CONNECT".to_string(),
+            json(&serde_json::json!(connect)),
+        ),
+        (
+            "ACTIVEMAP_INPUTS".to_string(),
+            json(&serde_json::Value::Object(inputs)),
+        ),
+        (
+            "ACTIVEMAP_OUTPUTS".to_string(),
+            json(&serde_json::Value::Object(outputs)),
+        ),
+        (
+            "ACTIVEMAP_CONTROL".to_string(),
+            control_key(&run.run_id, "")
+                .trim_end_matches('/')
+                .to_string(),
+        ),
+        ("ACTIVEMAP_CONFIG".to_string(), json(&spec.config)),
+    ];
+    if let Some(n) = run.max_steps {
+        env.push(("ACTIVEMAP_MAX_STEPS".to_string(), n.to_string()));
+    }
+    Ok(env)
+}
+
 /// Start the node `id`'s process with logs under the run folder.
-fn spawn_node(dataflow: &Dataflow, id: &str, opts: &LaunchOptions) -> Result<Child, RuntimeError> {
+fn spawn_node(
+    dataflow: &Dataflow,
+    run: &RunInfo,
+    id: &str,
+    opts: &LaunchOptions,
+) -> Result<Child, RuntimeError> {
     let spec = dataflow
         .node(id)
         .ok_or_else(|| RuntimeError::UnknownNode(id.into()))?;
@@ -167,7 +236,7 @@ fn spawn_node(dataflow: &Dataflow, id: &str, opts: &LaunchOptions) -> Result<Chi
                 dataflow.base_dir.join(p)
             };
             let mut c = Command::new(exe);
-            c.args(args);
+            c.args(args).envs(external_node_env(dataflow, run, id)?);
             c
         }
     };
@@ -256,6 +325,7 @@ pub fn run_local(
             dataflow,
             &run,
             session.clone(),
+            opts.machine.as_deref(),
         )?)
     } else {
         None
@@ -308,7 +378,7 @@ fn supervise(
         .iter()
         .filter(|n| opts.machine.as_ref().is_none_or(|m| *m == n.machine))
     {
-        let child = spawn_node(dataflow, &n.id, opts);
+        let child = spawn_node(dataflow, run, &n.id, opts);
         let child = match child {
             Ok(c) => c,
             Err(e) => {
@@ -409,7 +479,7 @@ fn supervise(
                     r.restarts += 1;
                     ready.remove(id);
                     eprintln!("activemap: restarting `{id}` ({}/{max})", r.restarts);
-                    r.child = Some(spawn_node(dataflow, id, opts)?);
+                    r.child = Some(spawn_node(dataflow, run, id, opts)?);
                 }
                 _ => {
                     r.exit = Some(NodeExit::Crashed(what));
@@ -498,4 +568,131 @@ pub fn stop_run(run_id: &str, connect: &[String]) -> Result<(), RuntimeError> {
     }
     let _ = zenoh::Wait::wait(session.close());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::catalog::{OperatorDescriptor, PortSpec};
+    use crate::node::{output_needs_zenoh, readable_from_shm};
+    use activemap_schemas::MessageKind;
+
+    fn accept_any(_: &serde_json::Value) -> Result<(), String> {
+        Ok(())
+    }
+
+    /// A built-in camera and viewer around an external simulator (`path:`).
+    fn flow() -> Dataflow {
+        let catalog = [
+            OperatorDescriptor {
+                name: "viewer",
+                summary: "test",
+                inputs: &[PortSpec {
+                    name: "frame",
+                    kind: MessageKind::RgbdFrame,
+                }],
+                outputs: &[PortSpec {
+                    name: "action",
+                    kind: MessageKind::Action,
+                }],
+                evaluation: false,
+                check_config: accept_any,
+            },
+            OperatorDescriptor {
+                name: "camera",
+                summary: "test",
+                inputs: &[],
+                outputs: &[PortSpec {
+                    name: "frame",
+                    kind: MessageKind::RgbdFrame,
+                }],
+                evaluation: false,
+                check_config: accept_any,
+            },
+        ];
+        let src = "nodes:
+  - id: ext
+    path: ./sim.py
+    args: [--fast]
+    config: { scene: box }
+    outputs: [{ id: rgbd, type: RgbdFrame }]
+    inputs:
+      action: view/action
+      frame: cam/frame
+  - id: view
+    operator: viewer
+    inputs:
+      frame: ext/rgbd
+  - id: cam
+    operator: camera
+  - id: view2
+    operator: viewer
+    inputs:
+      frame: cam/frame
+";
+        Dataflow::parse("t.yaml", src, PathBuf::new(), &catalog).unwrap()
+    }
+
+    #[test]
+    fn external_nodes_exchange_large_topics_over_zenoh() {
+        let flow = flow();
+        // An external producer publishes on Zenoh only: its consumers may not read iceoryx2.
+        assert!(!readable_from_shm(
+            &flow,
+            "ext",
+            crate::dataflow::DEFAULT_MACHINE
+        ));
+        // A built-in producer on the same machine is read from shared memory ...
+        assert!(readable_from_shm(
+            &flow,
+            "cam",
+            crate::dataflow::DEFAULT_MACHINE
+        ));
+        // ... and also bridged to Zenoh because an external node consumes it.
+        assert!(output_needs_zenoh(&flow, "cam", "frame"));
+        // Small messages to an external consumer are on Zenoh anyway; an output nobody
+        // external or remote reads gets no Zenoh copy.
+        assert!(output_needs_zenoh(&flow, "view", "action"));
+        assert!(!output_needs_zenoh(&flow, "view2", "action"));
+    }
+
+    #[test]
+    fn external_node_environment_names_every_key() {
+        let flow = flow();
+        let run = RunInfo {
+            run_id: "r1".into(),
+            routers: [(
+                crate::dataflow::DEFAULT_MACHINE.to_string(),
+                vec!["tcp/127.0.0.1:7447".to_string()],
+            )]
+            .into(),
+            tls: BTreeMap::new(),
+            max_steps: Some(20),
+        };
+        let env: BTreeMap<String, String> = external_node_env(&flow, &run, "ext")
+            .unwrap()
+            .into_iter()
+            .collect();
+        let json = |k: &str| serde_json::from_str::<serde_json::Value>(&env[k]).unwrap();
+        assert_eq!(env["ACTIVEMAP_RUN_ID"], "r1");
+        assert_eq!(
+            json("ACTIVEMAP_ZENOH_CONNECT"),
+            serde_json::json!(["tcp/127.0.0.1:7447"])
+        );
+        assert_eq!(
+            json("ACTIVEMAP_INPUTS"),
+            serde_json::json!({"action": "activemap/r1/view/action", "frame": "activemap/r1/cam/frame"})
+        );
+        assert_eq!(
+            json("ACTIVEMAP_OUTPUTS"),
+            serde_json::json!({"rgbd": "activemap/r1/ext/rgbd"})
+        );
+        assert_eq!(env["ACTIVEMAP_CONTROL"], "activemap/r1/_ctl");
+        assert_eq!(
+            json("ACTIVEMAP_CONFIG"),
+            serde_json::json!({"scene": "box"})
+        );
+        assert_eq!(env["ACTIVEMAP_MAX_STEPS"], "20");
+        assert!(external_node_env(&flow, &run, "nobody").is_err());
+    }
 }

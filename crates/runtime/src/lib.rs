@@ -79,6 +79,7 @@
 
 pub mod bench;
 pub mod catalog;
+pub mod daemon;
 pub mod dataflow;
 mod error;
 pub mod graph;

@@ -11,7 +11,7 @@ use activemap_schemas::{MessageKind, TransportClass};
 
 use crate::RuntimeError;
 use crate::catalog::config_from_value;
-use crate::dataflow::{Dataflow, NodeSpec};
+use crate::dataflow::{Dataflow, NodeImpl, NodeSpec};
 use crate::operator::{
     Context, Event, Flow, IDLE_SLEEP_MAX, IDLE_SLEEP_MIN, Input, Operator, OutputSink,
 };
@@ -152,10 +152,50 @@ fn dispatch<O: Operator>(
     sink: &mut dyn OutputSink,
     max_steps: Option<u64>,
     event: Event<'_>,
+    timing: &mut StageTiming,
 ) -> Result<Flow, RuntimeError> {
     let mut ctx = Context::new(&spec.id, outputs, sink, max_steps);
-    op.on_event(event, &mut ctx)
-        .map_err(|e| RuntimeError::Operator(format!("{}: {e:#}", spec.id)))
+    let started = Instant::now();
+    let flow = op.on_event(event, &mut ctx);
+    timing.seconds += started.elapsed().as_secs_f64();
+    timing.calls += 1;
+    flow.map_err(|e| RuntimeError::Operator(format!("{}: {e:#}", spec.id)))
+}
+
+/// Wall time one node spent inside its operator's `on_event` and the number of calls: one row
+/// of the run folder's [`TIMINGS_FILE`] (the per-stage time breakdown of the report).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTiming {
+    /// Wall seconds inside `on_event`.
+    pub seconds: f64,
+    /// Calls of `on_event`.
+    pub calls: u64,
+}
+
+/// Per-node timings in the run folder: header `stage,seconds,calls`, one row per node process.
+pub const TIMINGS_FILE: &str = "timings.csv";
+
+/// Appends `node`'s row to `run_dir/timings.csv`, writing the header when the file is new. An
+/// exclusive lock on the file keeps the header first and the rows of nodes that stop at the same
+/// moment whole.
+pub fn append_timing(run_dir: &Path, node: &str, timing: StageTiming) -> Result<(), RuntimeError> {
+    use std::io::Write as _;
+    let path = run_dir.join(TIMINGS_FILE);
+    let io = |e| RuntimeError::io(&path, e);
+    let mut file = std::fs::File::options()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(io)?;
+    file.lock().map_err(io)?;
+    let mut text = String::new();
+    if file.metadata().map_err(io)?.len() == 0 {
+        text.push_str("stage,seconds,calls\n");
+    }
+    text.push_str(&format!("{node},{:.6},{}\n", timing.seconds, timing.calls));
+    let written = file.write_all(text.as_bytes()).map_err(io);
+    let _ = file.unlock();
+    written
 }
 
 /// Collects outputs in memory (replay).
@@ -197,6 +237,7 @@ pub fn replay_operator<O: Operator>(
         produced: Vec::new(),
     };
     let mut op: O = make_operator(spec, &outputs, &mut sink, None)?;
+    let mut timing = StageTiming::default();
     for input in inputs {
         let Some(in_spec) = spec.inputs.iter().find(|i| i.name == input.port) else {
             return Err(RuntimeError::Other(format!(
@@ -214,11 +255,19 @@ pub fn replay_operator<O: Operator>(
                 bytes: &input.bytes,
             })
         };
-        if dispatch(&mut op, spec, &outputs, &mut sink, None, event)? == Flow::Stop {
+        if dispatch(&mut op, spec, &outputs, &mut sink, None, event, &mut timing)? == Flow::Stop {
             return Ok(sink.produced);
         }
     }
-    dispatch(&mut op, spec, &outputs, &mut sink, None, Event::Stop)?;
+    dispatch(
+        &mut op,
+        spec,
+        &outputs,
+        &mut sink,
+        None,
+        Event::Stop,
+        &mut timing,
+    )?;
     Ok(sink.produced)
 }
 
@@ -305,6 +354,32 @@ pub fn shm_limits(dataflow: &Dataflow, node: &str, output: &str) -> ShmLimits {
     ShmLimits::for_consumers(&queues)
 }
 
+/// True when node `id` is an external executable (`path:`). External nodes speak Zenoh only: they
+/// cannot join iceoryx2 shared memory, so every topic they produce or consume travels over Zenoh.
+pub fn is_external(dataflow: &Dataflow, id: &str) -> bool {
+    dataflow
+        .node(id)
+        .is_some_and(|n| matches!(n.implementation, NodeImpl::Path { .. }))
+}
+
+/// True when the shared-memory-class output `node/output` must also be published on Zenoh: a
+/// consumer runs on another machine or is an external node.
+pub fn output_needs_zenoh(dataflow: &Dataflow, node: &str, output: &str) -> bool {
+    let machine = dataflow.node(node).map(|n| n.machine.as_str());
+    dataflow
+        .consumers(node, output)
+        .any(|(n, _)| Some(n.machine.as_str()) != machine || is_external(dataflow, &n.id))
+}
+
+/// True when a process on `machine` can read the shared-memory-class output `node/output` from
+/// iceoryx2: the producer is a built-in operator on the same machine. Otherwise (another machine,
+/// or an external producer that publishes on Zenoh only) it subscribes over Zenoh.
+pub fn readable_from_shm(dataflow: &Dataflow, node: &str, machine: &str) -> bool {
+    dataflow
+        .node(node)
+        .is_some_and(|n| n.machine == machine && !is_external(dataflow, node))
+}
+
 /// Install SIGINT/SIGTERM handlers that set `stop`.
 pub fn install_stop_signals(stop: &Arc<AtomicBool>) -> Result<(), RuntimeError> {
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -323,7 +398,6 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
     let spec = dataflow
         .node(setup.node_id)
         .ok_or_else(|| RuntimeError::UnknownNode(setup.node_id.to_string()))?;
-    let outputs = outputs_of(spec);
     let session = open_zenoh(&run.client_settings(&spec.machine))?;
     let needs_shm = spec
         .outputs
@@ -342,9 +416,7 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
     let mut ports = Vec::new();
     for out in &spec.outputs {
         let key = topic_key(&run.run_id, &spec.id, &out.name);
-        let remote = dataflow
-            .consumers(&spec.id, &out.name)
-            .any(|(n, _)| n.machine != spec.machine);
+        let remote = output_needs_zenoh(dataflow, &spec.id, &out.name);
         let port = match (out.kind.transport_class(), &iox) {
             (TransportClass::SharedMemory, Some(iox)) => LivePort {
                 shm: Some(ShmPublisher::create(
@@ -370,12 +442,9 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
     let mut inputs = Vec::new();
     for input in &spec.inputs {
         let key = topic_key(&run.run_id, &input.source_node, &input.source_output);
-        let producer_machine = dataflow
-            .node(&input.source_node)
-            .map(|n| n.machine.as_str());
         let live = match (&iox, input.kind.transport_class()) {
             (Some(iox), TransportClass::SharedMemory)
-                if producer_machine == Some(spec.machine.as_str()) =>
+                if readable_from_shm(dataflow, &input.source_node, &spec.machine) =>
             {
                 LiveInput::Shm(ShmSubscriber::create(
                     iox,
@@ -426,9 +495,10 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
     }
 
     let mut sink = LiveSink { ports };
+    let mut timing = StageTiming::default();
     let result = event_loop::<O>(
         spec,
-        &outputs,
+        &mut timing,
         &mut sink,
         &inputs,
         &stop_sub,
@@ -436,6 +506,12 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
         run.max_steps,
     );
     sink.end_of_stream();
+    // Launched nodes know their run folder from the launcher's environment.
+    if let Some(run_dir) = std::env::var_os("ACTIVEMAP_RUN_DIR")
+        && let Err(e) = append_timing(Path::new(&run_dir), &spec.id, timing)
+    {
+        eprintln!("{}: cannot record timings: {e}", spec.id);
+    }
     // Let Zenoh flush the last messages before the session closes.
     std::thread::sleep(Duration::from_millis(50));
     drop(sink);
@@ -445,13 +521,14 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
 
 fn event_loop<O: Operator>(
     spec: &NodeSpec,
-    outputs: &[(String, MessageKind)],
+    timing: &mut StageTiming,
     sink: &mut LiveSink,
     inputs: &[LiveInput],
     stop_sub: &ZenohSubscriber,
     stop: &AtomicBool,
     max_steps: Option<u64>,
 ) -> Result<(), RuntimeError> {
+    let outputs = &outputs_of(spec);
     let mut op: O = make_operator(spec, outputs, sink, max_steps)?;
     let started = Instant::now();
     let mut timers: Vec<(String, Duration, Instant)> = spec
@@ -463,7 +540,7 @@ fn event_loop<O: Operator>(
     let mut idle = IDLE_SLEEP_MIN;
     loop {
         if stop.load(Ordering::Relaxed) || stop_sub.recv(None)?.is_some() {
-            dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop)?;
+            dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop, timing)?;
             return Ok(());
         }
         let mut busy = false;
@@ -487,7 +564,7 @@ fn event_loop<O: Operator>(
                         bytes,
                     })
                 };
-                flow = dispatch(&mut op, spec, outputs, sink, max_steps, event);
+                flow = dispatch(&mut op, spec, outputs, sink, max_steps, event, timing);
             };
             let received = match live {
                 LiveInput::Shm(s) => s.try_recv(&mut handle)?,
@@ -498,12 +575,12 @@ fn event_loop<O: Operator>(
                 closed[i] = true;
             }
             if flow? == Flow::Stop {
-                dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop)?;
+                dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop, timing)?;
                 return Ok(());
             }
         }
         if !inputs.is_empty() && closed.iter().all(|c| *c) {
-            dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop)?;
+            dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop, timing)?;
             return Ok(());
         }
         let now = Instant::now();
@@ -523,9 +600,10 @@ fn event_loop<O: Operator>(
                     Event::Timer {
                         name: name.as_str(),
                     },
+                    timing,
                 )? == Flow::Stop
                 {
-                    dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop)?;
+                    dispatch(&mut op, spec, outputs, sink, max_steps, Event::Stop, timing)?;
                     return Ok(());
                 }
             }
@@ -607,6 +685,45 @@ mod tests {
                 _ => Ok(Flow::Continue),
             }
         }
+    }
+
+    #[test]
+    fn timings_of_concurrent_nodes_form_one_csv_with_one_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let threads: Vec<_> = (0..6)
+            .map(|t| {
+                let d = dir.path().to_path_buf();
+                std::thread::spawn(move || {
+                    for k in 0..25u64 {
+                        let timing = StageTiming {
+                            seconds: t as f64 + k as f64 * 1e-3,
+                            calls: k,
+                        };
+                        append_timing(&d, &format!("node{t}"), timing).unwrap();
+                    }
+                })
+            })
+            .collect();
+        threads.into_iter().for_each(|t| t.join().unwrap());
+        let text = std::fs::read_to_string(dir.path().join(TIMINGS_FILE)).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some("stage,seconds,calls"));
+        let mut rows = 0;
+        for line in lines {
+            let f: Vec<&str> = line.split(',').collect();
+            let t: u64 = f[0].strip_prefix("node").unwrap().parse().unwrap();
+            let (secs, calls): (f64, u64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
+            assert_eq!(f.len(), 3, "{line}");
+            assert!(
+                (secs - (t as f64 + calls as f64 * 1e-3)).abs() < 1e-6,
+                "{line}"
+            );
+            rows += 1;
+        }
+        assert_eq!(rows, 150);
+        let missing = dir.path().join("absent");
+        let e = append_timing(&missing, "x", StageTiming::default()).unwrap_err();
+        assert!(e.to_string().contains("absent"), "{e}");
     }
 
     #[test]

@@ -51,7 +51,9 @@ impl Recorder {
         dataflow: &Dataflow,
         run: &RunInfo,
         session: zenoh::Session,
+        machine: Option<&str>,
     ) -> Result<Self, RuntimeError> {
+        let machine = machine.map(str::to_string);
         let stop = Arc::new(AtomicBool::new(false));
         let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel(1);
         let dataflow = dataflow.clone();
@@ -60,7 +62,17 @@ impl Recorder {
         let stop2 = stop.clone();
         let thread = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || record_loop(&path, &dataflow, &run, session, &stop2, ready_tx))
+            .spawn(move || {
+                record_loop(
+                    &path,
+                    &dataflow,
+                    &run,
+                    machine.as_deref(),
+                    session,
+                    &stop2,
+                    ready_tx,
+                )
+            })
             .map_err(|e| RuntimeError::Other(format!("cannot start the recorder thread: {e}")))?;
         match ready_rx.recv_timeout(Duration::from_secs(30)) {
             Ok(Ok(())) => Ok(Self {
@@ -105,6 +117,7 @@ fn record_loop(
     path: &Path,
     dataflow: &Dataflow,
     run: &RunInfo,
+    machine: Option<&str>,
     session: zenoh::Session,
     stop: &AtomicBool,
     ready: std::sync::mpsc::SyncSender<Result<(), String>>,
@@ -178,8 +191,12 @@ fn record_loop(
                     .add_channel(schema_id, &topic, &encoding, &ch_meta)
                     .map_err(mcap_err)?;
                 let key = topic_key(&run.run_id, &n.id, &o.name);
+                // Shared memory only from a built-in producer on the recorder's machine; an
+                // external node or another machine's node publishes on Zenoh.
+                let from_shm =
+                    crate::node::readable_from_shm(dataflow, &n.id, machine.unwrap_or(&n.machine));
                 let source = match (&iox, kind.transport_class()) {
-                    (Some(iox), TransportClass::SharedMemory) => {
+                    (Some(iox), TransportClass::SharedMemory) if from_shm => {
                         let limits = shm_limits(dataflow, &n.id, &o.name);
                         Source::Shm(ShmSubscriber::create(iox, &key, limits, limits.buffer)?)
                     }
@@ -394,10 +411,10 @@ pub fn compare_outputs(
     let mut recorded: BTreeMap<String, Vec<&[u8]>> = BTreeMap::new();
     let prefix = format!("{node}/");
     for m in &recording.messages {
-        if let Some(port) = m.topic.strip_prefix(&prefix) {
-            if !m.bytes.is_empty() {
-                recorded.entry(port.to_string()).or_default().push(&m.bytes);
-            }
+        if let Some(port) = m.topic.strip_prefix(&prefix)
+            && !m.bytes.is_empty()
+        {
+            recorded.entry(port.to_string()).or_default().push(&m.bytes);
         }
     }
     let mut made: BTreeMap<String, Vec<&[u8]>> = BTreeMap::new();

@@ -105,3 +105,58 @@ fn python_codecs_match_the_pipeline_schemas() {
         assert_eq!(out.trim(), format!("{step} {name}"));
     }
 }
+
+/// The Python client's pure-Python ray caster (the CI scene of the external simulator) sees the
+/// same box room as the Rust renderer: same z-depth per pixel, and the same camera pose
+/// convention (`camera_pose_from_planar`).
+#[test]
+fn python_client_ray_caster_matches_the_rust_renderer() {
+    use activemap_geometry::{PlanarPose, camera_pose_from_planar};
+    let Some(_) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (x, y, yaw) = (0.3, -0.2, 0.7);
+    let scene = super::fixtures::box_room([-2.0, -1.5, 0.0], [2.0, 1.5, 2.5]);
+    let mut config = SimConfig::with_resolution(16, 12);
+    config.floor_z = Some(0.0);
+    config.start = Some(PlanarPose::new(x, y, yaw));
+    let mut sim = Simulator::new(scene, config).unwrap();
+    let frame = sim.render();
+    let code = format!(
+        "import activemap_sim_client as c\n\
+         scene = c.BoxRoomScene(boxes=[])\n\
+         cam = c.RayCastCamera(16, 12, 90.0)\n\
+         rgb, depth = cam.render(scene, {x}, {y}, {yaw})\n\
+         open('depth.bin', 'wb').write(depth)\n\
+         t, q = c.camera_pose({x}, {y}, {yaw})\n\
+         print(*t, *q)\n"
+    );
+    let out = run_python(&code, dir.path());
+    let depth: Vec<f32> = std::fs::read(dir.path().join("depth.bin"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    assert_eq!(depth.len(), frame.depth.len());
+    for (i, (p, r)) in depth.iter().zip(&frame.depth).enumerate() {
+        assert!(*r > 0.0, "pixel {i}: the Rust renderer saw no surface");
+        assert!((p - r).abs() <= 1e-4 * r, "pixel {i}: python {p} rust {r}");
+    }
+    let pose: Vec<f64> = out.split_whitespace().map(|v| v.parse().unwrap()).collect();
+    let truth = camera_pose_from_planar(&PlanarPose::new(x, y, yaw), 0.0, 0.88);
+    let t = truth.translation.vector;
+    let q = truth.rotation.coords; // x, y, z, w
+    // A quaternion and its negation are the same rotation.
+    let sign = if (q[3] * pose[6]) < 0.0 { -1.0 } else { 1.0 };
+    for k in 0..3 {
+        assert!(
+            (pose[k] - t[k]).abs() < 1e-12,
+            "translation {pose:?} vs {t:?}"
+        );
+    }
+    for k in 0..4 {
+        assert!(
+            (sign * pose[3 + k] - q[k]).abs() < 1e-12,
+            "rotation {pose:?} vs {q:?}"
+        );
+    }
+}

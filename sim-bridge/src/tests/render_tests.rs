@@ -192,3 +192,93 @@ fn rendering_is_deterministic_and_thread_count_independent() {
         "a closed house has a surface behind every pixel"
     );
 }
+
+/// `render_into` writes every pixel of caller buffers holding stale data (as a reused
+/// shared-memory sample does), with the same bits as `render`, and a reused renderer gives the
+/// same frame as a fresh one. Wrong buffer sizes are errors naming the buffer.
+#[test]
+fn render_into_overwrites_stale_buffers_and_checks_their_size() {
+    // One textured house frame, and a lone quad that leaves most pixels empty.
+    let house = crate::house::generate(
+        3,
+        &crate::house::HouseConfig {
+            texture_size: 64,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut quad = crate::Scene::default();
+    let m = flat(&mut quad, [0.2, 0.4, 0.6]);
+    push_quad(
+        &mut quad,
+        [
+            [2.0, -0.3, 0.5],
+            [2.0, 0.3, 0.5],
+            [2.0, 0.3, 1.2],
+            [2.0, -0.3, 1.2],
+        ],
+        [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+        m,
+    );
+    let k = Intrinsics::from_hfov(40, 30, std::f64::consts::FRAC_PI_2);
+    let mut reused = Renderer::new();
+    for (scene, planar) in [
+        (&house.scene, house.start),
+        (&quad, PlanarPose::new(0.0, 0.0, 0.0)),
+        (&house.scene, house.start),
+    ] {
+        let pose = camera_pose_from_planar(&planar, 0.0, 0.88);
+        let fresh = Renderer::new().render(scene, &k, &pose, DepthRange::default());
+        let mut rgb = vec![0xAB; 3 * 40 * 30];
+        let mut depth = vec![f32::NAN; 40 * 30];
+        reused
+            .render_into(
+                scene,
+                &k,
+                &pose,
+                DepthRange::default(),
+                &mut rgb,
+                &mut depth,
+            )
+            .unwrap();
+        assert_eq!(rgb, fresh.rgb);
+        assert_eq!(
+            depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+            fresh.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+        );
+    }
+    // The quad frame really had empty pixels (black, depth 0) next to covered ones.
+    let pose = camera_pose_from_planar(&PlanarPose::new(0.0, 0.0, 0.0), 0.0, 0.88);
+    let f = Renderer::new().render(&quad, &k, &pose, DepthRange::default());
+    assert!(f.depth.contains(&0.0) && f.depth.iter().any(|d| *d > 0.0));
+    let (mut rgb, mut depth) = (vec![0u8; 3 * 40 * 30], vec![0f32; 40 * 30 - 1]);
+    let err = reused
+        .render_into(
+            &quad,
+            &k,
+            &pose,
+            DepthRange::default(),
+            &mut rgb,
+            &mut depth,
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("depth") && err.contains("1199") && err.contains("1200"),
+        "{err}"
+    );
+    let mut rgb = vec![0u8; 5];
+    let mut depth = vec![0f32; 40 * 30];
+    let err = reused
+        .render_into(
+            &quad,
+            &k,
+            &pose,
+            DepthRange::default(),
+            &mut rgb,
+            &mut depth,
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("rgb") && err.contains("3600"), "{err}");
+}

@@ -375,13 +375,21 @@ fn timings_section(dir: &Path) -> Result<String, RunError> {
                 .map(|(t, c)| (stage.to_string(), t, c)),
             _ => None,
         };
-        rows.push(parsed.ok_or_else(|| RunError::Malformed {
+        let (stage, secs, calls) = parsed.ok_or_else(|| RunError::Malformed {
             path: path.clone(),
             detail: format!(
                 "line {}: expected `stage,seconds,calls`, found `{line}`",
                 n + 1
             ),
-        })?);
+        })?;
+        // A node restarted by its restart policy appends a second row: one stage, summed.
+        match rows.iter_mut().find(|r| r.0 == stage) {
+            Some(row) => {
+                row.1 += secs;
+                row.2 += calls;
+            }
+            None => rows.push((stage, secs, calls)),
+        }
     }
     let total: f64 = rows.iter().map(|r| r.1).sum();
     s += &svg::bars(
@@ -475,7 +483,7 @@ mod tests {
             .unwrap();
         std::fs::write(
             dir.join(files::TIMINGS),
-            "stage,seconds,calls\ntracker,3.0,12\nmapper,1.0,4\n",
+            "stage,seconds,calls\ntracker,2.0,8\nmapper,1.0,4\ntracker,1.0,4\n",
         )
         .unwrap();
         std::fs::write(
@@ -514,6 +522,8 @@ mod tests {
         // Values: coverage 42 %, the tracker holds 75 % of the time, escaped LLM prompt.
         assert!(html.contains("<td>42.00</td>"), "coverage cell");
         assert!(html.contains("75.0 %"));
+        // The restarted tracker's two rows are one stage: 3 s over 12 calls.
+        assert!(html.contains("<td>3.000</td><td>75.0 %</td><td>12</td><td>250.00</td>"));
         assert!(html.contains("pick &lt;a frontier&gt;"));
         assert!(html.contains("ATE RMSE 0.0000 m over 12 poses"));
     }

@@ -1,0 +1,430 @@
+//! `activemap bench explore` (issue 6): the whole exploration loop (`dataflow.yaml`: sim →
+//! tracker → mapper → occupancy → frontier → FBE planner → scorer → follower, estimated poses)
+//! on several procedural houses, each as a real launched run with its step budget and no
+//! end-of-run rendering evaluation. Per house it prints
+//! `explore fbe <house> coverage <x> ate_cm <y> steps_per_s <z>`, then the path length and the
+//! share of each node's busy time (the run folder's `timings.csv`, written by every node host).
+//!
+//! Steps per second are the steps taken over the wall time of the launched run (process start
+//! and shutdown included), on this machine as loaded at the time: quote them with the load.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use activemap_runtime::dataflow::Dataflow;
+use activemap_runtime::launch::{LaunchOptions, run_local};
+use activemap_runtime::node::install_stop_signals;
+use anyhow::{Context as _, bail};
+
+/// Options of `activemap bench explore`.
+#[derive(clap::Args)]
+pub struct ExploreArgs {
+    /// The exploration dataflow (its `sim` and `evaluator` nodes get each house).
+    #[arg(long, default_value = "dataflow.yaml")]
+    flow: PathBuf,
+    /// Procedural houses (the seeds of `house:<n>` scenes).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+    houses: Vec<u64>,
+    /// Step budget of each episode.
+    #[arg(long, default_value_t = 2000)]
+    steps: u64,
+    /// Camera width and height, pixels.
+    #[arg(long, default_value_t = 160)]
+    resolution: u32,
+    /// Largest number of rooms of the houses (default: the generator's).
+    #[arg(long)]
+    max_rooms: Option<u32>,
+    /// Largest floor area of the houses, m² (default: the generator's).
+    #[arg(long)]
+    max_area: Option<f64>,
+    /// Folder of the run folders (one per house).
+    #[arg(long, default_value = "runs/bench-explore")]
+    out: PathBuf,
+}
+
+/// One node's busy time in a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageTime {
+    /// Node id.
+    pub stage: String,
+    /// Wall seconds inside `on_event`.
+    pub seconds: f64,
+    /// Calls of `on_event`.
+    pub calls: u64,
+}
+
+/// Reads a run folder's `timings.csv` (header `stage,seconds,calls`); rows of the same stage (a
+/// restarted node) are summed. Sorted by busy time, largest first.
+pub fn read_timings(path: &Path) -> anyhow::Result<Vec<StageTime>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or_default();
+    if header.trim() != "stage,seconds,calls" {
+        bail!(
+            "{}: header `{header}`, expected `stage,seconds,calls`",
+            path.display()
+        );
+    }
+    let mut out: Vec<StageTime> = Vec::new();
+    for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let bad = || format!("{}:{}: `{line}`", path.display(), i + 2);
+        let mut f = line.split(',');
+        let (Some(stage), Some(seconds), Some(calls), None) =
+            (f.next(), f.next(), f.next(), f.next())
+        else {
+            bail!("{}: expected 3 fields", bad());
+        };
+        let seconds: f64 = seconds.trim().parse().with_context(bad)?;
+        let calls: u64 = calls.trim().parse().with_context(bad)?;
+        match out.iter_mut().find(|s| s.stage == stage) {
+            Some(s) => {
+                s.seconds += seconds;
+                s.calls += calls;
+            }
+            None => out.push(StageTime {
+                stage: stage.to_string(),
+                seconds,
+                calls,
+            }),
+        }
+    }
+    out.sort_by(|a, b| b.seconds.total_cmp(&a.seconds));
+    Ok(out)
+}
+
+/// `stage share%` pairs: each stage's part of the summed busy time of all stages.
+pub fn shares(stages: &[StageTime]) -> Vec<(String, f64)> {
+    let total: f64 = stages.iter().map(|s| s.seconds).sum();
+    stages
+        .iter()
+        .map(|s| {
+            let share = if total > 0.0 {
+                100.0 * s.seconds / total
+            } else {
+                0.0
+            };
+            (s.stage.clone(), share)
+        })
+        .collect()
+}
+
+/// What one house's episode measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HouseResult {
+    /// `house:<n>`.
+    pub scene: String,
+    /// Final 2D coverage, percent.
+    pub coverage_pct: f64,
+    /// ATE RMSE, centimetres (None when too few poses).
+    pub ate_cm: Option<f64>,
+    /// Steps taken.
+    pub steps: u64,
+    /// Steps over the run's wall time.
+    pub steps_per_s: f64,
+    /// True path length, metres.
+    pub path_length_m: f64,
+    /// Busy time per node.
+    pub stages: Vec<StageTime>,
+}
+
+impl HouseResult {
+    /// The benchmark's lines for this house.
+    pub fn lines(&self) -> Vec<String> {
+        let ate = self
+            .ate_cm
+            .map_or_else(|| "nan".to_string(), |a| format!("{a:.1}"));
+        let mut out = vec![
+            format!(
+                "explore fbe {} coverage {:.1} ate_cm {ate} steps_per_s {:.2}",
+                self.scene, self.coverage_pct, self.steps_per_s
+            ),
+            format!(
+                "explore fbe {} steps {} path_m {:.2}",
+                self.scene, self.steps, self.path_length_m
+            ),
+        ];
+        let per_step = |s: f64| 1000.0 * s / self.steps.max(1) as f64;
+        for ((stage, share), t) in shares(&self.stages).iter().zip(&self.stages) {
+            out.push(format!(
+                "explore fbe {} stage {stage} share_pct {share:.1} busy_ms_per_step {:.1}",
+                self.scene,
+                per_step(t.seconds)
+            ));
+        }
+        out
+    }
+}
+
+/// Replaces the value of `key` in a YAML flow-map line (`key: value` up to the next `,` or
+/// `}`), or adds the pair before the closing `}` when absent.
+fn set_flow_key(line: &str, key: &str, value: &str) -> String {
+    let pattern = format!("{key}:");
+    let at = line.match_indices(&pattern).map(|(i, _)| i).find(|&i| {
+        i == 0 || !line.as_bytes()[i - 1].is_ascii_alphanumeric() && line.as_bytes()[i - 1] != b'_'
+    });
+    match at {
+        Some(i) => {
+            let start = i + pattern.len();
+            let end = line[start..]
+                .find([',', '}'])
+                .map_or(line.len(), |e| start + e);
+            format!("{}{key}: {value}{}", &line[..i], &line[end..])
+        }
+        None => match line.rfind('}') {
+            Some(close) => format!(
+                "{}, {key}: {value} {}",
+                line[..close].trim_end(),
+                &line[close..]
+            ),
+            None => line.to_string(),
+        },
+    }
+}
+
+/// The benchmark's dataflow for one house: every flow-map line holding `scene:` (the `sim` and
+/// `evaluator` nodes) gets the house (and the size limits when given); the simulator's line also
+/// gets the resolution. Checked by parsing the result and reading the `sim` node's config back.
+pub fn house_flow(
+    text: &str,
+    scene: &str,
+    resolution: u32,
+    max_rooms: Option<u32>,
+    max_area: Option<f64>,
+) -> anyhow::Result<String> {
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut line = line.to_string();
+        if line.contains("scene:") && line.contains('{') {
+            line = set_flow_key(&line, "scene", &format!("\"{scene}\""));
+            if let Some(r) = max_rooms {
+                line = set_flow_key(&line, "max_rooms", &r.to_string());
+            }
+            if let Some(a) = max_area {
+                line = set_flow_key(&line, "max_area", &a.to_string());
+            }
+            if line.contains("width:") {
+                line = set_flow_key(&line, "width", &resolution.to_string());
+                line = set_flow_key(&line, "height", &resolution.to_string());
+            }
+        }
+        out.push_str(&line);
+        out.push('\n');
+    }
+    let flow = Dataflow::parse(
+        "bench explore flow",
+        &out,
+        PathBuf::new(),
+        &activemap_operators::catalog(),
+    )
+    .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let sim = flow
+        .nodes
+        .iter()
+        .find(|n| matches!(&n.implementation, activemap_runtime::dataflow::NodeImpl::Operator(op) if op == "sim"))
+        .context("the flow has no `sim` node")?;
+    let c = &sim.config;
+    anyhow::ensure!(
+        c["scene"] == scene
+            && c["width"].as_u64() == Some(resolution.into())
+            && c["height"].as_u64() == Some(resolution.into()),
+        "the `sim` node's config line must be a one-line flow map with scene, width and height; got {c}"
+    );
+    Ok(out)
+}
+
+/// Runs one house's episode into `dir` and reads its results.
+fn run_house(
+    exe: &Path,
+    args: &ExploreArgs,
+    scene: &str,
+    dir: &Path,
+) -> anyhow::Result<HouseResult> {
+    let source = std::fs::read_to_string(&args.flow)
+        .with_context(|| format!("reading {}", args.flow.display()))?;
+    let text = house_flow(
+        &source,
+        scene,
+        args.resolution,
+        args.max_rooms,
+        args.max_area,
+    )?;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let flow_path = dir.join("explore_dataflow.yaml");
+    std::fs::write(&flow_path, &text)
+        .with_context(|| format!("writing {}", flow_path.display()))?;
+    let flow = Dataflow::load(&flow_path, &activemap_operators::catalog())
+        .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let run_dir = dir.join("run");
+    if run_dir.exists() {
+        std::fs::remove_dir_all(&run_dir)
+            .with_context(|| format!("clearing {}", run_dir.display()))?;
+    }
+    let mut opts = LaunchOptions::new(run_dir.clone(), exe.to_path_buf());
+    opts.max_steps = Some(args.steps);
+    opts.record = false;
+    let stop = Arc::new(AtomicBool::new(false));
+    install_stop_signals(&stop)?;
+    let started = Instant::now();
+    let report = run_local(&flow, &opts, stop)?;
+    let wall = started.elapsed().as_secs_f64();
+    if let Some(failure) = report.failure {
+        bail!("{scene}: the flow stopped: {failure}");
+    }
+    if report.interrupted {
+        bail!("{scene}: interrupted");
+    }
+    let summary_path = run_dir.join(activemap_eval::run_folder::files::SUMMARY);
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&summary_path)
+            .with_context(|| format!("reading {}", summary_path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", summary_path.display()))?;
+    let number = |key: &str| {
+        summary[key]
+            .as_f64()
+            .with_context(|| format!("{}: no number `{key}`", summary_path.display()))
+    };
+    let steps = number("steps")? as u64;
+    Ok(HouseResult {
+        scene: scene.to_string(),
+        coverage_pct: 100.0 * number("coverage")?,
+        ate_cm: summary["ate_m"].as_f64().map(|a| 100.0 * a),
+        steps,
+        steps_per_s: steps as f64 / wall.max(1e-9),
+        path_length_m: number("path_length_m")?,
+        stages: read_timings(&run_dir.join(activemap_runtime::node::TIMINGS_FILE))?,
+    })
+}
+
+/// Runs the benchmark and prints its lines.
+pub fn run(args: &ExploreArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !args.houses.is_empty(),
+        "bench explore: --houses must name at least one house"
+    );
+    let exe = std::env::current_exe().context("locating the activemap executable")?;
+    let scenes: Vec<String> = args.houses.iter().map(|h| format!("house:{h}")).collect();
+    let mut coverages = Vec::new();
+    let mut rates = Vec::new();
+    for scene in &scenes {
+        let dir = args.out.join(scene.replace(':', "-"));
+        let result = run_house(&exe, args, scene, &dir)?;
+        for line in result.lines() {
+            println!("{line}");
+        }
+        coverages.push(result.coverage_pct);
+        rates.push(result.steps_per_s);
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    println!(
+        "explore fbe median coverage {:.1} steps_per_s {:.2} (houses {})",
+        median(&mut coverages),
+        median(&mut rates),
+        scenes.join(",")
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A restarted node's two rows are summed; shares are of the summed busy time and add up
+    /// to 100 %; a malformed row is an error naming the file and line.
+    #[test]
+    fn timings_are_summed_per_stage_and_shared() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("timings.csv");
+        std::fs::write(
+            &path,
+            "stage,seconds,calls\ntracker,3.0,10\nsim,1.0,10\ntracker,1.0,5\n",
+        )
+        .unwrap();
+        let t = read_timings(&path).unwrap();
+        assert_eq!(
+            t,
+            vec![
+                StageTime {
+                    stage: "tracker".into(),
+                    seconds: 4.0,
+                    calls: 15
+                },
+                StageTime {
+                    stage: "sim".into(),
+                    seconds: 1.0,
+                    calls: 10
+                }
+            ]
+        );
+        let s = shares(&t);
+        assert_eq!(s[0], ("tracker".to_string(), 80.0));
+        assert_eq!(s[1], ("sim".to_string(), 20.0));
+        std::fs::write(&path, "stage,seconds,calls\ntracker,x,1\n").unwrap();
+        let e = format!("{:#}", read_timings(&path).unwrap_err());
+        assert!(e.contains("timings.csv:2"), "{e}");
+    }
+
+    /// The reference dataflow rewritten for a house keeps validating and its `sim` and
+    /// `evaluator` nodes get the house; the sim gets the resolution.
+    #[test]
+    fn house_flow_sets_the_scene_and_resolution() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let text = std::fs::read_to_string(root.join("dataflow.yaml")).unwrap();
+        let out = house_flow(&text, "house:2", 96, Some(2), Some(30.0)).unwrap();
+        let flow =
+            Dataflow::parse("t", &out, PathBuf::new(), &activemap_operators::catalog()).unwrap();
+        let config = |id: &str| {
+            flow.nodes
+                .iter()
+                .find(|n| n.id == id)
+                .unwrap()
+                .config
+                .clone()
+        };
+        let (sim, ev) = (config("sim"), config("evaluator"));
+        assert_eq!(sim["scene"], "house:2");
+        assert_eq!(sim["width"], 96);
+        assert_eq!(sim["height"], 96);
+        assert_eq!(sim["max_rooms"], 2);
+        assert_eq!(ev["scene"], "house:2");
+        assert_eq!(ev["max_area"], 30.0);
+        assert_eq!(
+            set_flow_key("config: { a: 1, ab: 2 }", "b", "3"),
+            "config: { a: 1, ab: 2, b: 3 }"
+        );
+    }
+
+    /// The per-house line has the issue's exact shape.
+    #[test]
+    fn the_house_line_has_the_issue_format() {
+        let r = HouseResult {
+            scene: "house:2".into(),
+            coverage_pct: 87.26,
+            ate_cm: Some(3.04),
+            steps: 2000,
+            steps_per_s: 3.456,
+            path_length_m: 41.5,
+            stages: vec![StageTime {
+                stage: "tracker".into(),
+                seconds: 100.0,
+                calls: 4000,
+            }],
+        };
+        let lines = r.lines();
+        assert_eq!(
+            lines[0],
+            "explore fbe house:2 coverage 87.3 ate_cm 3.0 steps_per_s 3.46"
+        );
+        assert_eq!(lines[1], "explore fbe house:2 steps 2000 path_m 41.50");
+        assert_eq!(
+            lines[2],
+            "explore fbe house:2 stage tracker share_pct 100.0 busy_ms_per_step 50.0"
+        );
+    }
+}

@@ -1,0 +1,676 @@
+//! `activemap bench results` (issue 7): methods × scenes × seeds of exploration episodes, each
+//! run as `activemap run` does (the launcher, the step budget, then `eval`), summarised as
+//! `results.md` and `results.csv` in the layout of the paper's Table 1 (`activemap_eval::results`).
+//!
+//! Each cell gets its own dataflow, derived from the method's file: the `sim` node gets the
+//! house, resolution and step budget, the `evaluator` node the same house, and every node whose
+//! config declares `seed` gets the cell's seed. Cells run as child processes, `--jobs` at a time;
+//! a cell whose folder already holds a complete `metrics.json` is not re-run, a half-finished one
+//! is cleared and re-run. Ctrl-C (or SIGTERM) stops the running episodes cleanly and writes the
+//! table of what is complete.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use activemap_eval::results::{self, Cell, CellOutcome, GridSettings, Method};
+use activemap_runtime::dataflow::Dataflow;
+use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
+use anyhow::{Context as _, bail};
+use serde_json::Value;
+
+/// Options of `activemap bench results`.
+#[derive(clap::Args)]
+pub struct ResultsArgs {
+    /// A method as NAME=DATAFLOW (repeatable): the table's rows. FBE is the reference flow; the
+    /// Fisher and LLM planners join as their own dataflow files.
+    #[arg(long = "method", default_values_t = ["fbe=dataflow.yaml".to_string()])]
+    methods: Vec<String>,
+    /// Procedural houses (the seeds of `house:<n>` scenes).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+    houses: Vec<u64>,
+    /// Seeds per method and house (set on every node whose config declares `seed`; otherwise
+    /// repetitions, whose spread is the run-to-run variation).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+    seeds: Vec<u64>,
+    /// Step budget of each episode.
+    #[arg(long, default_value_t = 2000)]
+    steps: u64,
+    /// Camera width and height, pixels.
+    #[arg(long, default_value_t = 160)]
+    resolution: u32,
+    /// Largest number of rooms of the houses (default: the generator's).
+    #[arg(long)]
+    max_rooms: Option<u32>,
+    /// Largest floor area of the houses, m² (default: the generator's).
+    #[arg(long)]
+    max_area: Option<f64>,
+    /// Test views of each evaluation (SPEC §8: 2000).
+    #[arg(long, default_value_t = 2000)]
+    eval_views: usize,
+    /// Output folder: one run folder per cell, results.md and results.csv.
+    #[arg(long, default_value = "runs/results")]
+    out: PathBuf,
+    /// Episodes run at once (default: one per two cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Keep each episode's recording.mcap.
+    #[arg(long)]
+    record: bool,
+}
+
+/// Runs the grid, writes the tables and prints the Markdown.
+pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        !args.houses.is_empty() && !args.seeds.is_empty() && !args.methods.is_empty(),
+        "bench results: --method, --houses and --seeds must each name at least one"
+    );
+    anyhow::ensure!(args.steps > 0, "bench results: --steps must be > 0");
+    anyhow::ensure!(
+        (16..=4096).contains(&args.resolution),
+        "bench results: --resolution must be in 16..=4096"
+    );
+    anyhow::ensure!(
+        args.eval_views > 0,
+        "bench results: --eval-views must be > 0"
+    );
+    let methods = args
+        .methods
+        .iter()
+        .map(|m| {
+            let mut m = Method::parse(m)?;
+            m.dataflow = std::path::absolute(&m.dataflow)
+                .with_context(|| format!("method `{}`: {}", m.name, m.dataflow.display()))?;
+            Ok(m)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let scenes: Vec<String> = args.houses.iter().map(|h| format!("house:{h}")).collect();
+    let settings = GridSettings {
+        steps: args.steps,
+        resolution: args.resolution,
+        max_rooms: args.max_rooms,
+        max_area: args.max_area,
+        eval_views: args.eval_views,
+    };
+    let cells = results::cells(&methods, &scenes, &args.seeds, &settings);
+    // Every cell's dataflow is checked before the first episode starts.
+    for cell in &cells {
+        cell_flow(cell)?;
+    }
+    let exe = std::env::current_exe().context("locating the activemap executable")?;
+    let stop = Arc::new(AtomicBool::new(false));
+    activemap_runtime::node::install_stop_signals(&stop)?;
+    let jobs = args.jobs.unwrap_or_else(results::default_jobs).max(1);
+    eprintln!(
+        "bench results: {} cells ({} methods × {} houses × {} seeds), {jobs} at a time, in {}",
+        cells.len(),
+        methods.len(),
+        scenes.len(),
+        args.seeds.len(),
+        args.out.display()
+    );
+    let started = Instant::now();
+    let run = |cell: &Cell, dir: &Path| run_cell(&exe, cell, dir, args.record, &stop);
+    let progress = |r: &results::CellResult| {
+        let what = match &r.outcome {
+            CellOutcome::Reused(_) => "complete from an earlier run, kept".to_string(),
+            CellOutcome::Ran(_) => "done".to_string(),
+            CellOutcome::Failed(why) => format!("FAILED: {why}"),
+            CellOutcome::Interrupted => "stopped".to_string(),
+        };
+        eprintln!(
+            "bench results: [{:>6.0} s] {}: {what}",
+            started.elapsed().as_secs_f64(),
+            r.cell.label()
+        );
+    };
+    let outcome = results::run_cells(&cells, &args.out, jobs, &stop, run, progress)?;
+    let list = |v: &[u64]| v.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
+    let heading = format!(
+        "Command: `activemap {}`\n\n\
+         Houses {} (max_rooms {}, max_area {}), seeds {}; {} steps per episode, {res}×{res} px \
+         camera; {} test views per evaluation (SPEC §8). Methods: {}.",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
+        scenes.join(", "),
+        args.max_rooms.map_or("default".into(), |v| v.to_string()),
+        args.max_area
+            .map_or("default".into(), |v| format!("{v} m²")),
+        list(&args.seeds),
+        args.steps,
+        args.eval_views,
+        methods
+            .iter()
+            .map(|m| format!("{} = `{}`", m.name, m.dataflow.display()))
+            .collect::<Vec<_>>()
+            .join(", "),
+        res = args.resolution,
+    );
+    let (md, csv) = results::write_tables(&args.out, &heading, &outcome)?;
+    print!("{}", std::fs::read_to_string(&md).unwrap_or_default());
+    eprintln!(
+        "bench results: wrote {} and {}",
+        md.display(),
+        csv.display()
+    );
+    if outcome
+        .iter()
+        .any(|r| r.outcome == CellOutcome::Interrupted)
+    {
+        eprintln!("bench results: stopped; run the same command again to resume");
+        return Ok(ExitCode::from(130));
+    }
+    if outcome
+        .iter()
+        .any(|r| matches!(r.outcome, CellOutcome::Failed(_)))
+    {
+        eprintln!("bench results: some cells failed (see their bench.log)");
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The cell's dataflow derived from its method's file (same nodes in the same order, written in
+/// YAML flow style), validated against the operator catalog.
+fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
+    let file = &cell.method.dataflow;
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("method `{}`: reading {}", cell.method.name, file.display()))?;
+    let mut tree = yaml::parse(&text)
+        .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), e.loc, e.message))?;
+    let base = file.parent().unwrap_or(Path::new("."));
+    let Some(YamlNode::Seq { items: nodes, .. }) = entry(&mut tree, "nodes") else {
+        bail!("{}: no `nodes` list", file.display());
+    };
+    let (mut sims, mut evaluators) = (0, 0);
+    let s = &cell.settings;
+    for node in nodes.iter_mut() {
+        // External executables keep working from the cell's folder.
+        if let Some(YamlNode::Scalar { value, .. }) = entry(node, "path")
+            && Path::new(value.as_str()).is_relative()
+        {
+            *value = base.join(value.as_str()).display().to_string();
+        }
+        let operator = node
+            .get("operator")
+            .and_then(YamlNode::as_str)
+            .unwrap_or_default()
+            .to_string();
+        if !matches!(node, YamlNode::Map { .. }) {
+            continue;
+        }
+        let needs_config = operator == "sim" || operator == "evaluator";
+        if needs_config && !matches!(node.get("config"), Some(YamlNode::Map { .. })) {
+            set(
+                node,
+                "config",
+                Some(YamlNode::Map {
+                    entries: Vec::new(),
+                    loc: Loc::default(),
+                }),
+            );
+        }
+        let Some(config) = entry(node, "config") else {
+            continue;
+        };
+        if config.get("seed").is_some() {
+            set(config, "seed", Some(scalar(cell.seed)));
+        }
+        let set_scene = |config: &mut YamlNode| {
+            set(config, "scene", Some(quoted(&cell.scene)));
+            set(config, "max_rooms", s.max_rooms.map(scalar));
+            set(config, "max_area", s.max_area.map(scalar));
+        };
+        match operator.as_str() {
+            "sim" => {
+                sims += 1;
+                set_scene(&mut *config);
+                set(config, "width", Some(scalar(s.resolution)));
+                set(config, "height", Some(scalar(s.resolution)));
+                set(config, "max_steps", Some(scalar(s.steps)));
+            }
+            "evaluator" => {
+                evaluators += 1;
+                set_scene(&mut *config);
+            }
+            _ => {}
+        }
+    }
+    if sims != 1 || evaluators != 1 {
+        bail!(
+            "method `{}`: {} must hold exactly one `sim` and one `evaluator` node (found {sims} and {evaluators}); the bench sets the scene on them",
+            cell.method.name,
+            file.display()
+        );
+    }
+    let mut text = format!(
+        "# Generated by `activemap bench results` from {} for {}.\n",
+        file.display(),
+        cell.label()
+    );
+    emit(&tree, 0, &mut text);
+    text.push('\n');
+    Dataflow::parse(
+        &format!("{} ({})", file.display(), cell.label()),
+        &text,
+        base.to_path_buf(),
+        &activemap_operators::catalog(),
+    )
+    .map_err(|d| anyhow::anyhow!("{d}"))?;
+    Ok(text)
+}
+
+/// The value of `key` in a mapping, mutable.
+fn entry<'a>(node: &'a mut YamlNode, key: &str) -> Option<&'a mut YamlNode> {
+    match node {
+        YamlNode::Map { entries, .. } => entries.iter_mut().find(|e| e.0 == key).map(|e| &mut e.2),
+        _ => None,
+    }
+}
+
+/// Sets (or with `None` removes) `key` in a mapping, keeping the entry's place.
+fn set(node: &mut YamlNode, key: &str, value: Option<YamlNode>) {
+    let YamlNode::Map { entries, .. } = node else {
+        return;
+    };
+    let at = entries.iter().position(|e| e.0 == key);
+    match (at, value) {
+        (Some(i), Some(v)) => entries[i].2 = v,
+        (Some(i), None) => {
+            entries.remove(i);
+        }
+        (None, Some(v)) => entries.push((key.to_string(), Loc::default(), v)),
+        (None, None) => {}
+    }
+}
+
+/// A plain (number) scalar.
+fn scalar(v: impl ToString) -> YamlNode {
+    YamlNode::Scalar {
+        value: v.to_string(),
+        quoted: false,
+        loc: Loc::default(),
+    }
+}
+
+/// A quoted (string) scalar.
+fn quoted(v: &str) -> YamlNode {
+    YamlNode::Scalar {
+        value: v.to_string(),
+        quoted: true,
+        loc: Loc::default(),
+    }
+}
+
+/// Writes `node` in YAML flow style (JSON-like, order kept): plain scalars that resolve to
+/// numbers, booleans or null stay plain, every other scalar is written as a quoted string.
+fn emit(node: &YamlNode, indent: usize, out: &mut String) {
+    let pad = |n: usize| "  ".repeat(n);
+    match node {
+        YamlNode::Scalar { value, quoted, .. } => {
+            let plain = !quoted && !node.to_json().is_string();
+            if plain {
+                out.push_str(value);
+            } else {
+                out.push_str(&Value::String(value.clone()).to_string());
+            }
+        }
+        YamlNode::Seq { items, .. } => {
+            out.push_str("[\n");
+            for (i, item) in items.iter().enumerate() {
+                out.push_str(&pad(indent + 1));
+                emit(item, indent + 1, out);
+                out.push_str(if i + 1 < items.len() { ",\n" } else { "\n" });
+            }
+            out.push_str(&pad(indent));
+            out.push(']');
+        }
+        YamlNode::Map { entries, .. } => {
+            out.push_str("{\n");
+            for (i, (key, _, value)) in entries.iter().enumerate() {
+                out.push_str(&pad(indent + 1));
+                out.push_str(&Value::String(key.clone()).to_string());
+                out.push_str(": ");
+                emit(value, indent + 1, out);
+                out.push_str(if i + 1 < entries.len() { ",\n" } else { "\n" });
+            }
+            out.push_str(&pad(indent));
+            out.push('}');
+        }
+    }
+}
+
+/// File in a cell's folder holding its derived dataflow.
+const CELL_FLOW: &str = "cell_dataflow.yaml";
+/// File in a cell's folder holding the output of its `activemap run`.
+const CELL_LOG: &str = "bench.log";
+
+/// Runs one cell: `activemap run` on the cell's dataflow into `dir`, with the step budget and
+/// the evaluation; on a stop request the episode gets SIGTERM and stops cleanly.
+fn run_cell(
+    exe: &Path,
+    cell: &Cell,
+    dir: &Path,
+    record: bool,
+    stop: &AtomicBool,
+) -> Result<(), String> {
+    let flow = cell_flow(cell).map_err(|e| format!("{e:#}"))?;
+    let flow_path = dir.join(CELL_FLOW);
+    std::fs::write(&flow_path, flow).map_err(|e| format!("{}: {e}", flow_path.display()))?;
+    if stop.load(Ordering::SeqCst) {
+        return Err("stopped before the episode started".into());
+    }
+    let log_path = dir.join(CELL_LOG);
+    let log =
+        std::fs::File::create(&log_path).map_err(|e| format!("{}: {e}", log_path.display()))?;
+    let log2 = log
+        .try_clone()
+        .map_err(|e| format!("{}: {e}", log_path.display()))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("run")
+        .arg(&flow_path)
+        .arg("--out")
+        .arg(dir)
+        .arg("--max-steps")
+        .arg(cell.settings.steps.to_string())
+        .arg("--eval-views")
+        .arg(cell.settings.eval_views.to_string());
+    if !record {
+        cmd.arg("--no-record");
+    }
+    let child = cmd
+        .stdin(Stdio::null())
+        .stdout(log)
+        .stderr(log2)
+        .spawn()
+        .map_err(|e| format!("starting {}: {e}", exe.display()))?;
+    let status = wait_or_stop(child, stop)?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "activemap run: {status}; last lines of {}:\n{}",
+            log_path.display(),
+            activemap_runtime::launch::tail(&log_path, 8)
+        ))
+    }
+}
+
+/// Waits for `child`; when `stop` is set, sends it SIGTERM (the launcher then stops its nodes
+/// cleanly) and waits for it to end.
+fn wait_or_stop(mut child: Child, stop: &AtomicBool) -> Result<std::process::ExitStatus, String> {
+    let mut signalled = false;
+    loop {
+        if let Some(status) = child.try_wait().map_err(|e| e.to_string())? {
+            return Ok(status);
+        }
+        if stop.load(Ordering::SeqCst) && !signalled {
+            signalled = true;
+            // std can only SIGKILL a child, which would orphan the episode's nodes.
+            let _ = Command::new("kill")
+                .arg("-TERM")
+                .arg(child.id().to_string())
+                .status();
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! End to end through the real binary: a tiny grid (1 method × 2 houses × 1 seed, few
+    //! steps, 64×64), interrupted by SIGINT while the second cell runs, then resumed.
+
+    use super::*;
+    use activemap_eval::MetricsReport;
+
+    fn root() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    }
+
+    /// The `activemap` binary next to this test executable (cargo builds it for the package's
+    /// integration tests in the same `cargo test -p activemap`).
+    fn binary() -> PathBuf {
+        let exe = std::env::current_exe().unwrap();
+        let bin = exe
+            .parent()
+            .and_then(Path::parent)
+            .unwrap()
+            .join("activemap");
+        assert!(
+            bin.exists(),
+            "{} not built: run `cargo test -p activemap` (it builds the binary) or `cargo build`",
+            bin.display()
+        );
+        bin
+    }
+
+    fn cell(settings: GridSettings) -> Cell {
+        let mut m = Method::parse("fbe=dataflow.yaml").unwrap();
+        m.dataflow = root().join("dataflow.yaml");
+        results::cells(&[m], &["house:3".into()], &[5], &settings).remove(0)
+    }
+
+    fn small() -> GridSettings {
+        GridSettings {
+            steps: 25,
+            resolution: 64,
+            max_rooms: Some(2),
+            max_area: Some(30.0),
+            eval_views: 8,
+        }
+    }
+
+    #[test]
+    fn cell_flow_sets_the_scene_size_and_budget_and_stays_valid() {
+        let text = cell_flow(&cell(small())).unwrap();
+        let flow = Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+        let sim = &flow.node("sim").unwrap().config;
+        assert_eq!(sim["scene"], "house:3");
+        assert_eq!(
+            (sim["width"].as_u64(), sim["height"].as_u64()),
+            (Some(64), Some(64))
+        );
+        assert_eq!(sim["max_steps"].as_u64(), Some(25));
+        assert_eq!(sim["max_rooms"].as_u64(), Some(2));
+        // Everything else is the method's flow, in its order.
+        let original = Dataflow::load(
+            &root().join("dataflow.yaml"),
+            &activemap_operators::catalog(),
+        )
+        .unwrap();
+        let shape = |f: &Dataflow| -> Vec<String> {
+            f.nodes
+                .iter()
+                .map(|n| {
+                    let inputs: Vec<String> = n
+                        .inputs
+                        .iter()
+                        .map(|i| {
+                            format!(
+                                "{}<-{}/{}:{}",
+                                i.name, i.source_node, i.source_output, i.queue_size
+                            )
+                        })
+                        .collect();
+                    format!("{} {:?} {:?}", n.id, inputs, n.timers)
+                })
+                .collect()
+        };
+        assert_eq!(shape(&flow), shape(&original));
+        for n in &original.nodes {
+            if n.id != "sim" && n.id != "evaluator" {
+                assert_eq!(flow.node(&n.id).unwrap().config, n.config, "{}", n.id);
+            }
+        }
+        assert_eq!(
+            sim["lockstep"],
+            original.node("sim").unwrap().config["lockstep"]
+        );
+        let ev = &flow.node("evaluator").unwrap().config;
+        assert_eq!(ev["scene"], "house:3");
+        assert_eq!(ev["max_area"].as_f64(), Some(30.0));
+        // Generator defaults: the keys go away rather than keeping the file's values.
+        let text = cell_flow(&cell(GridSettings {
+            max_rooms: None,
+            max_area: None,
+            ..small()
+        }))
+        .unwrap();
+        assert!(!text.contains("max_rooms") && !text.contains("max_area"));
+        // A flow without an evaluator cannot be scored.
+        let dir = tempfile::tempdir().unwrap();
+        let no_eval = dir.path().join("x.yaml");
+        let base = std::fs::read_to_string(root().join("dataflow.yaml")).unwrap();
+        let cut = base.find("  - id: evaluator").unwrap();
+        std::fs::write(&no_eval, &base[..cut]).unwrap();
+        let mut c = cell(small());
+        c.method.dataflow = no_eval;
+        let e = cell_flow(&c).unwrap_err().to_string();
+        assert!(e.contains("exactly one `sim` and one `evaluator`"), "{e}");
+    }
+
+    fn bench(out: &Path, steps: u64) -> Command {
+        let mut cmd = Command::new(binary());
+        cmd.current_dir(root()).args([
+            "bench",
+            "results",
+            "--method",
+            "fbe=dataflow.yaml",
+            "--houses",
+            "3,4",
+            "--seeds",
+            "1",
+            "--steps",
+            steps.to_string().as_str(),
+            "--resolution",
+            "64",
+            "--max-rooms",
+            "2",
+            "--max-area",
+            "30",
+            "--eval-views",
+            "8",
+            "--jobs",
+            "1",
+            "--out",
+        ]);
+        cmd.arg(out).stdin(Stdio::null());
+        cmd
+    }
+
+    fn wait_until(what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
+        let t0 = Instant::now();
+        while !done() {
+            assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    #[test]
+    fn tiny_grid_table_matches_its_runs_and_resumes_after_an_interrupt() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let first = out.join("fbe/house-3/seed1");
+        let second = out.join("fbe/house-4/seed1");
+        let metrics = |d: &Path| d.join("metrics.json");
+
+        // 1. Interrupt while the second cell's episode runs.
+        let mut child = bench(&out, 25)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        wait_until("the first cell", Duration::from_secs(300), || {
+            metrics(&first).exists() && second.join(CELL_FLOW).exists()
+        });
+        Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .unwrap();
+        let mut log = String::new();
+        std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut log).unwrap();
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(130), "{log}");
+        assert!(
+            !metrics(&second).exists(),
+            "the interrupted cell finished: {log}"
+        );
+        let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+        assert!(md.contains("fbe house:4 seed 1: not run (stopped)"), "{md}");
+        assert!(md.contains("| 1/2 |"), "{md}");
+        std::fs::write(first.join("marker"), "kept").unwrap();
+
+        // 2. Resume: the complete cell is kept, the interrupted one re-runs.
+        let done = bench(&out, 25).output().unwrap();
+        let log = String::from_utf8_lossy(&done.stderr);
+        assert!(done.status.success(), "{log}");
+        assert!(first.join("marker").exists(), "complete cell re-run: {log}");
+        assert!(
+            log.contains("fbe house:3 seed 1: complete from an earlier run, kept"),
+            "{log}"
+        );
+        assert!(log.contains("fbe house:4 seed 1: done"), "{log}");
+
+        // 3. The table holds the runs' own numbers.
+        let report = |d: &Path| {
+            MetricsReport::from_json(&std::fs::read_to_string(metrics(d)).unwrap()).unwrap()
+        };
+        let (a, b) = (report(&first), report(&second));
+        let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+        let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+        let col = |name: &str| rows[0].iter().position(|c| *c == name).unwrap();
+        let value = |row: &[&str], name: &str| -> Option<f64> {
+            let v = row[col(name)];
+            (!v.is_empty()).then(|| v.parse().unwrap())
+        };
+        assert_eq!(rows.len(), 4, "{csv}");
+        let (all, h3, h4) = (&rows[1], &rows[2], &rows[3]);
+        assert_eq!((all[1], h3[1], h4[1]), ("all", "house:3", "house:4"));
+        for (name, get, scale) in [
+            ("psnr_db", a.psnr_db.zip(b.psnr_db), 1.0),
+            ("ssim", a.ssim.zip(b.ssim), 1.0),
+            ("depth_mae_m", a.depth_mae_m.zip(b.depth_mae_m), 1.0),
+            ("ate_rmse_m", a.ate_rmse_m.zip(b.ate_rmse_m), 1.0),
+            (
+                "completeness_pct",
+                a.completeness.zip(b.completeness),
+                100.0,
+            ),
+            ("coverage_2d_pct", a.coverage_2d.zip(b.coverage_2d), 100.0),
+        ] {
+            let (x, y) = get.unwrap_or_else(|| panic!("{name} missing in a run"));
+            assert_eq!(value(h3, name), Some(x * scale), "{name}");
+            assert_eq!(value(h4, name), Some(y * scale), "{name}");
+            let mean = value(all, name).unwrap();
+            assert!(
+                (mean - (x + y) / 2.0 * scale).abs() <= 1e-9 * mean.abs().max(1.0),
+                "{name}"
+            );
+        }
+        assert_eq!(value(all, "ssim_n"), Some(1.0));
+        let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+        assert!(
+            md.contains(&format!(
+                "| fbe | {:.2} |",
+                (a.psnr_db.unwrap() + b.psnr_db.unwrap()) / 2.0
+            )),
+            "{md}"
+        );
+        // Every run folder has the per-stage timings.
+        let timings = std::fs::read_to_string(second.join("timings.csv")).unwrap();
+        assert!(timings.starts_with("stage,seconds,calls\n"), "{timings}");
+        for node in ["sim", "tracker", "mapper", "evaluator"] {
+            assert!(timings.contains(&format!("\n{node},")), "{node}: {timings}");
+        }
+
+        // 4. Other settings into the same folder are refused, naming the difference.
+        let clash = bench(&out, 26).output().unwrap();
+        let log = String::from_utf8_lossy(&clash.stderr);
+        assert!(
+            !clash.status.success() && log.contains("steps 25 there, 26 now"),
+            "{log}"
+        );
+    }
+}

@@ -1,0 +1,134 @@
+//! `activemap up` / `start` / `list` / `logs` / `stop` / `down`: the machine daemons of distributed
+//! runs, and the client commands that talk to them (crates/runtime/src/daemon.rs).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use activemap_runtime::daemon::{DaemonClient, DaemonOptions, RunEntry, RunState, serve};
+use activemap_runtime::node::install_stop_signals;
+use anyhow::Context as _;
+
+/// Options shared by the client commands: where to reach the daemon network.
+#[derive(clap::Args, Debug)]
+pub struct Connect {
+    /// Control endpoint of any daemon (its `up --listen`), e.g. tcp/127.0.0.1:7400.
+    #[arg(long, required = true)]
+    pub connect: Vec<String>,
+    /// How long to wait for the daemons' answers, in seconds.
+    #[arg(long, default_value_t = 5.0)]
+    pub timeout: f64,
+}
+
+impl Connect {
+    fn client(&self) -> anyhow::Result<DaemonClient> {
+        Ok(DaemonClient::connect(
+            &self.connect,
+            Duration::from_secs_f64(self.timeout.max(0.1)),
+        )?)
+    }
+}
+
+/// Run this machine's daemon until Ctrl-C or `activemap down`.
+pub fn up(
+    machine: String,
+    listen: Vec<String>,
+    connect: Vec<String>,
+    runs: PathBuf,
+) -> anyhow::Result<()> {
+    let opts = DaemonOptions {
+        machine,
+        listen,
+        connect,
+        runs_dir: runs,
+        exe: std::env::current_exe().context("locating the activemap executable")?,
+        base_dir: std::env::current_dir().context("reading the working directory")?,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    install_stop_signals(&stop)?;
+    serve(&opts, &activemap_operators::catalog(), stop)?;
+    eprintln!("activemap daemon `{}` stopped", opts.machine);
+    Ok(())
+}
+
+/// Submit a flow to the daemons; with `wait`, follow it to the end. False when the run failed.
+pub fn start(
+    flow: &activemap_runtime::Dataflow,
+    connect: &Connect,
+    run_id: Option<String>,
+    max_steps: Option<u64>,
+    record: bool,
+    wait: bool,
+) -> anyhow::Result<bool> {
+    let client = connect.client()?;
+    let started = client.start(flow, run_id, max_steps, record)?;
+    let run_id = started
+        .first()
+        .map(|e| e.run_id.clone())
+        .context("the flow has no nodes")?;
+    println!("run {run_id} started");
+    print_entries(&started);
+    if !wait {
+        return Ok(true);
+    }
+    let done = client.wait(&run_id, Duration::from_millis(250))?;
+    print_entries(&done);
+    Ok(done.iter().all(|e| e.state == RunState::Finished))
+}
+
+/// Print the runs the daemons know.
+pub fn list(connect: &Connect) -> anyhow::Result<()> {
+    print_entries(&connect.client()?.runs()?);
+    Ok(())
+}
+
+/// Print a run's log tails from every machine.
+pub fn logs(
+    connect: &Connect,
+    run_id: &str,
+    node: Option<String>,
+    lines: usize,
+) -> anyhow::Result<()> {
+    let tails = connect.client()?.logs(run_id, node, lines)?;
+    if tails.is_empty() {
+        anyhow::bail!("no daemon has logs of run {run_id}");
+    }
+    for t in tails {
+        println!("==> {}: {} <==\n{}", t.machine, t.file, t.text);
+    }
+    Ok(())
+}
+
+/// Stop one run everywhere.
+pub fn stop(connect: &Connect, run_id: &str) -> anyhow::Result<()> {
+    connect.client()?.stop(run_id)?;
+    println!("stop sent to run {run_id}");
+    Ok(())
+}
+
+/// Shut the daemons down.
+pub fn down(connect: &Connect) -> anyhow::Result<()> {
+    let machines = connect.client()?.down()?;
+    if machines.is_empty() {
+        anyhow::bail!("no daemon answered at {}", connect.connect.join(", "));
+    }
+    println!("daemons going down: {}", machines.join(", "));
+    Ok(())
+}
+
+fn print_entries(entries: &[RunEntry]) {
+    for e in entries {
+        let state = match &e.state {
+            RunState::Running => "running".to_string(),
+            RunState::Finished => "finished".to_string(),
+            RunState::Failed(why) => format!("failed: {why}"),
+        };
+        println!(
+            "{:<24} {:<12} {:<40} {state}",
+            e.run_id,
+            e.machine,
+            e.run_dir.display()
+        );
+    }
+}

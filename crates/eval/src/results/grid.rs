@@ -1,0 +1,335 @@
+//! The grid of a results benchmark: methods × scenes × seeds, one run folder per cell, and what
+//! each folder says about its cell (complete, half-finished, absent).
+//!
+//! A cell is complete when its folder holds a `cell.json` equal to the cell's settings and a
+//! `metrics.json` that parses; anything else in an existing folder is a half-finished run.
+
+use crate::MetricsReport;
+use crate::run_folder::{RunError, files, read_text, write_file};
+use std::path::{Path, PathBuf};
+
+/// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
+/// and LLM planners are further dataflow files).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Method {
+    /// Row name in the table (letters, digits, `-`, `_`, `.`; also the folder name).
+    pub name: String,
+    /// Dataflow file of the method.
+    pub dataflow: PathBuf,
+}
+
+impl Method {
+    /// Parses `NAME=DATAFLOW`, checking the name is usable as a folder name.
+    pub fn parse(text: &str) -> Result<Self, RunError> {
+        let bad = |detail: String| RunError::Settings(format!("method `{text}`: {detail}"));
+        let (name, file) = text
+            .split_once('=')
+            .ok_or_else(|| bad("expected NAME=DATAFLOW, e.g. fbe=dataflow.yaml".into()))?;
+        let name = name.trim();
+        if !is_folder_name(name) {
+            return Err(bad(format!(
+                "name `{name}` must be non-empty letters, digits, `-`, `_` or `.`"
+            )));
+        }
+        if file.trim().is_empty() {
+            return Err(bad("no dataflow file".into()));
+        }
+        Ok(Self {
+            name: name.to_string(),
+            dataflow: PathBuf::from(file.trim()),
+        })
+    }
+}
+
+fn is_folder_name(name: &str) -> bool {
+    !name.is_empty()
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
+/// Settings shared by every cell of a grid (they are part of each cell's identity).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GridSettings {
+    /// Step budget of each episode.
+    pub steps: u64,
+    /// Camera width and height, pixels.
+    pub resolution: u32,
+    /// Largest number of rooms of the procedural houses (`None` = generator default).
+    pub max_rooms: Option<u32>,
+    /// Largest floor area of the procedural houses, m² (`None` = generator default).
+    pub max_area: Option<f64>,
+    /// Test views of the evaluation (SPEC §8: 2000).
+    pub eval_views: usize,
+}
+
+/// One cell of the grid: a method on a scene with a seed, under the grid's settings.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Cell {
+    /// The method.
+    pub method: Method,
+    /// The scene, `house:<seed>` or a scene file.
+    pub scene: String,
+    /// Repetition seed (set on every node whose config declares `seed`).
+    pub seed: u64,
+    /// The grid's settings.
+    pub settings: GridSettings,
+}
+
+/// File in a cell's folder holding the cell (written before the run starts).
+pub const CELL_FILE: &str = "cell.json";
+
+impl Cell {
+    /// The cell's run folder under `out`: `<method>/<scene>/seed<seed>`, the scene made
+    /// folder-safe (`house:3` → `house-3`).
+    pub fn dir(&self, out: &Path) -> PathBuf {
+        out.join(&self.method.name)
+            .join(scene_folder(&self.scene))
+            .join(format!("seed{}", self.seed))
+    }
+
+    /// Short label for progress lines, e.g. `fbe house:3 seed 1`.
+    pub fn label(&self) -> String {
+        format!("{} {} seed {}", self.method.name, self.scene, self.seed)
+    }
+
+    /// Writes `cell.json` into `dir` (created).
+    pub fn save(&self, dir: &Path) -> Result<(), RunError> {
+        std::fs::create_dir_all(dir).map_err(|source| RunError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let text = serde_json::to_string_pretty(self).unwrap_or_default();
+        write_file(&dir.join(CELL_FILE), text)
+    }
+}
+
+/// A folder-safe form of a scene name: every character other than letters, digits, `-`, `_`
+/// and `.` becomes `-` (a path keeps only its file name).
+pub fn scene_folder(scene: &str) -> String {
+    let name = if scene.contains('/') {
+        Path::new(scene)
+            .file_name()
+            .map_or(scene.to_string(), |f| f.to_string_lossy().into_owned())
+    } else {
+        scene.to_string()
+    };
+    name.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect()
+}
+
+/// Every cell of methods × scenes × seeds, in that nesting order.
+pub fn cells(
+    methods: &[Method],
+    scenes: &[String],
+    seeds: &[u64],
+    settings: &GridSettings,
+) -> Vec<Cell> {
+    let mut out = Vec::with_capacity(methods.len() * scenes.len() * seeds.len());
+    for method in methods {
+        for scene in scenes {
+            for &seed in seeds {
+                out.push(Cell {
+                    method: method.clone(),
+                    scene: scene.clone(),
+                    seed,
+                    settings: settings.clone(),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// What a cell's folder holds.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CellState {
+    /// No folder: never started.
+    Absent,
+    /// A folder without a usable `metrics.json`: interrupted or failed; to be re-run.
+    HalfFinished,
+    /// Finished: the metrics of its run.
+    Complete(Box<MetricsReport>),
+}
+
+/// The state of `cell`'s folder under `out`. A folder whose `cell.json` holds other settings
+/// is an error (re-running would silently mix two configurations): use another output folder.
+pub fn cell_state(cell: &Cell, out: &Path) -> Result<CellState, RunError> {
+    let dir = cell.dir(out);
+    if !dir.exists() {
+        return Ok(CellState::Absent);
+    }
+    let cell_path = dir.join(CELL_FILE);
+    let recorded = match read_text(&cell_path, "the cell's settings") {
+        Ok(text) => text,
+        Err(RunError::Missing { .. }) => return Ok(CellState::HalfFinished),
+        Err(e) => return Err(e),
+    };
+    let recorded: Cell = serde_json::from_str(&recorded).map_err(|e| RunError::Malformed {
+        path: cell_path.clone(),
+        detail: e.to_string(),
+    })?;
+    if recorded != *cell {
+        return Err(RunError::Malformed {
+            path: cell_path,
+            detail: format!(
+                "this folder was run with other settings ({}); choose another output folder",
+                settings_difference(&recorded, cell)
+            ),
+        });
+    }
+    let metrics_path = dir.join(files::METRICS_JSON);
+    match std::fs::read_to_string(&metrics_path) {
+        Ok(text) => match MetricsReport::from_json(&text) {
+            Ok(m) => Ok(CellState::Complete(Box::new(m))),
+            Err(_) => Ok(CellState::HalfFinished),
+        },
+        Err(_) => Ok(CellState::HalfFinished),
+    }
+}
+
+/// Names what differs between two cells, for error messages.
+fn settings_difference(a: &Cell, b: &Cell) -> String {
+    let (sa, sb) = (&a.settings, &b.settings);
+    let mut diff = Vec::new();
+    let mut check = |name: &str, x: String, y: String| {
+        if x != y {
+            diff.push(format!("{name} {x} there, {y} now"));
+        }
+    };
+    check(
+        "dataflow",
+        a.method.dataflow.display().to_string(),
+        b.method.dataflow.display().to_string(),
+    );
+    check("steps", sa.steps.to_string(), sb.steps.to_string());
+    check(
+        "resolution",
+        sa.resolution.to_string(),
+        sb.resolution.to_string(),
+    );
+    check(
+        "max_rooms",
+        format!("{:?}", sa.max_rooms),
+        format!("{:?}", sb.max_rooms),
+    );
+    check(
+        "max_area",
+        format!("{:?}", sa.max_area),
+        format!("{:?}", sb.max_area),
+    );
+    check(
+        "eval_views",
+        sa.eval_views.to_string(),
+        sb.eval_views.to_string(),
+    );
+    if diff.is_empty() {
+        "the cell differs".into()
+    } else {
+        diff.join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn settings() -> GridSettings {
+        GridSettings {
+            steps: 40,
+            resolution: 64,
+            max_rooms: Some(2),
+            max_area: Some(30.0),
+            eval_views: 10,
+        }
+    }
+
+    #[test]
+    fn methods_parse_and_bad_names_are_refused() {
+        let m = Method::parse("fbe=dataflow.yaml").unwrap();
+        assert_eq!(m.name, "fbe");
+        assert_eq!(m.dataflow, PathBuf::from("dataflow.yaml"));
+        for bad in ["fbe", "=x.yaml", "a/b=x.yaml", "fbe=", "..=x.yaml"] {
+            let e = Method::parse(bad).unwrap_err().to_string();
+            assert!(e.contains(&format!("method `{bad}`")), "{e}");
+        }
+    }
+
+    #[test]
+    fn grid_enumerates_every_cell_into_its_own_folder() {
+        let methods = [
+            Method::parse("fbe=a.yaml").unwrap(),
+            Method::parse("fisher=b.yaml").unwrap(),
+        ];
+        let scenes = ["house:1".to_string(), "scenes/x y.glb".to_string()];
+        let cells = cells(&methods, &scenes, &[1, 2, 3], &settings());
+        assert_eq!(cells.len(), 12);
+        let dirs: std::collections::BTreeSet<PathBuf> =
+            cells.iter().map(|c| c.dir(Path::new("/o"))).collect();
+        assert_eq!(dirs.len(), 12);
+        assert_eq!(
+            cells[0].dir(Path::new("/o")),
+            PathBuf::from("/o/fbe/house-1/seed1")
+        );
+        assert_eq!(
+            cells[11].dir(Path::new("/o")),
+            PathBuf::from("/o/fisher/x-y.glb/seed3")
+        );
+    }
+
+    #[test]
+    fn cell_states_follow_the_folder_contents() {
+        let out = tempfile::tempdir().unwrap();
+        let cell = cells(
+            &[Method::parse("fbe=a.yaml").unwrap()],
+            &["house:1".into()],
+            &[7],
+            &settings(),
+        )
+        .remove(0);
+        assert_eq!(cell_state(&cell, out.path()).unwrap(), CellState::Absent);
+        let dir = cell.dir(out.path());
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(
+            cell_state(&cell, out.path()).unwrap(),
+            CellState::HalfFinished
+        );
+        cell.save(&dir).unwrap();
+        assert_eq!(
+            cell_state(&cell, out.path()).unwrap(),
+            CellState::HalfFinished
+        );
+        // A metrics.json cut short by a kill is not complete.
+        std::fs::write(dir.join(files::METRICS_JSON), "{\"psnr_db\": 1").unwrap();
+        assert_eq!(
+            cell_state(&cell, out.path()).unwrap(),
+            CellState::HalfFinished
+        );
+        let report = MetricsReport {
+            psnr_db: Some(20.5),
+            test_views: 10,
+            ..Default::default()
+        };
+        std::fs::write(dir.join(files::METRICS_JSON), report.to_json()).unwrap();
+        assert_eq!(
+            cell_state(&cell, out.path()).unwrap(),
+            CellState::Complete(Box::new(report))
+        );
+        // Other settings in the same folder: refused, naming the difference.
+        let mut other = cell.clone();
+        other.settings.steps = 41;
+        let e = cell_state(&other, out.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("cell.json") && e.contains("steps 40 there, 41 now"),
+            "{e}"
+        );
+    }
+}

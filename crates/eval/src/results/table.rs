@@ -1,0 +1,475 @@
+//! The results table in the layout of the paper's Table 1 (rows = methods; columns PSNR ↑,
+//! SSIM ↑, LPIPS ↓, depth MAE ↓, RMSE ATE ↓, completeness ↑ %, SPEC §8) plus 2D coverage, as
+//! Markdown and CSV.
+//!
+//! Aggregation: the paper averages each method over the scenes of a dataset. Here, for each seed,
+//! the mean over the scenes is taken; the table shows the mean of those per-seed values and their
+//! spread (sample standard deviation, n − 1) over seeds. A seed counts for a metric only when every
+//! scene of it is complete with that metric, so a failed run never biases the mean (the `runs`
+//! column shows how many cells are complete). A per-scene table gives mean ± spread over seeds.
+
+use super::runner::{CellOutcome, CellResult};
+use crate::MetricsReport;
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+
+/// One column of the table.
+pub struct Column {
+    /// CSV name (unit in the name).
+    pub key: &'static str,
+    /// Markdown header.
+    pub title: &'static str,
+    /// Decimals printed in Markdown.
+    pub digits: usize,
+    /// Factor from the stored value to the printed one (100 for percentages).
+    pub scale: f64,
+    /// The value in a run's metrics.
+    pub get: fn(&MetricsReport) -> Option<f64>,
+}
+
+/// The columns in Table 1 order, then 2D coverage.
+pub const COLUMNS: [Column; 7] = [
+    Column {
+        key: "psnr_db",
+        title: "PSNR ↑",
+        digits: 2,
+        scale: 1.0,
+        get: |m| m.psnr_db,
+    },
+    Column {
+        key: "ssim",
+        title: "SSIM ↑",
+        digits: 4,
+        scale: 1.0,
+        get: |m| m.ssim,
+    },
+    Column {
+        key: "lpips",
+        title: "LPIPS ↓",
+        digits: 4,
+        scale: 1.0,
+        get: |m| m.lpips,
+    },
+    Column {
+        key: "depth_mae_m",
+        title: "Depth MAE ↓ (m)",
+        digits: 4,
+        scale: 1.0,
+        get: |m| m.depth_mae_m,
+    },
+    Column {
+        key: "ate_rmse_m",
+        title: "RMSE ATE ↓ (m)",
+        digits: 4,
+        scale: 1.0,
+        get: |m| m.ate_rmse_m,
+    },
+    Column {
+        key: "completeness_pct",
+        title: "Completeness (%) ↑",
+        digits: 2,
+        scale: 100.0,
+        get: |m| m.completeness,
+    },
+    Column {
+        key: "coverage_2d_pct",
+        title: "2D coverage (%) ↑",
+        digits: 2,
+        scale: 100.0,
+        get: |m| m.coverage_2d,
+    },
+];
+
+/// Mean and spread of one metric over seeds (printed units: percentages already ×100).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stat {
+    /// Mean.
+    pub mean: f64,
+    /// Sample standard deviation (n − 1); `None` with one value or an infinite mean.
+    pub spread: Option<f64>,
+    /// Number of values (seeds).
+    pub n: usize,
+}
+
+impl Stat {
+    /// Mean and sample standard deviation of `values` (`None` when empty).
+    pub fn of(values: &[f64]) -> Option<Self> {
+        if values.is_empty() {
+            return None;
+        }
+        let n = values.len();
+        let mean = values.iter().sum::<f64>() / n as f64;
+        let spread = if n >= 2 && mean.is_finite() {
+            let ss: f64 = values.iter().map(|v| (v - mean).powi(2)).sum();
+            Some((ss / (n - 1) as f64).sqrt())
+        } else {
+            None
+        };
+        Some(Self { mean, spread, n })
+    }
+
+    fn markdown(&self, digits: usize) -> String {
+        let number = |x: f64| {
+            if x == f64::INFINITY {
+                "∞".to_string()
+            } else {
+                format!("{x:.digits$}")
+            }
+        };
+        match self.spread {
+            Some(s) => format!("{} ± {}", number(self.mean), number(s)),
+            None => number(self.mean),
+        }
+    }
+}
+
+/// One row: a method over all scenes (`scene` = `None`) or on one scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TableRow {
+    /// Method name.
+    pub method: String,
+    /// The scene, or `None` for the all-scene row.
+    pub scene: Option<String>,
+    /// Complete cells.
+    pub complete: usize,
+    /// Cells of the row.
+    pub cells: usize,
+    /// One entry per [`COLUMNS`] entry; `None` = no usable value.
+    pub values: Vec<Option<Stat>>,
+}
+
+fn ordered<T: Ord + Clone>(items: impl Iterator<Item = T>) -> Vec<T> {
+    let mut seen = BTreeSet::new();
+    items.filter(|x| seen.insert(x.clone())).collect()
+}
+
+/// The all-scene rows (Table 1), one per method in first-seen order.
+pub fn method_rows(results: &[CellResult]) -> Vec<TableRow> {
+    let methods = ordered(results.iter().map(|r| r.cell.method.name.clone()));
+    methods
+        .into_iter()
+        .map(|method| {
+            let rows: Vec<&CellResult> = results
+                .iter()
+                .filter(|r| r.cell.method.name == method)
+                .collect();
+            let seeds = ordered(rows.iter().map(|r| r.cell.seed));
+            let values = COLUMNS
+                .iter()
+                .map(|col| {
+                    let per_seed: Vec<f64> = seeds
+                        .iter()
+                        .filter_map(|&seed| {
+                            let cells: Vec<Option<f64>> = rows
+                                .iter()
+                                .filter(|r| r.cell.seed == seed)
+                                .map(|r| r.outcome.metrics().and_then(col.get))
+                                .collect();
+                            let all: Option<Vec<f64>> = cells.into_iter().collect();
+                            all.filter(|v| !v.is_empty())
+                                .map(|v| v.iter().sum::<f64>() / v.len() as f64 * col.scale)
+                        })
+                        .collect();
+                    Stat::of(&per_seed)
+                })
+                .collect();
+            TableRow {
+                complete: rows
+                    .iter()
+                    .filter(|r| r.outcome.metrics().is_some())
+                    .count(),
+                cells: rows.len(),
+                method,
+                scene: None,
+                values,
+            }
+        })
+        .collect()
+}
+
+/// The per-scene rows: method × scene, mean ± spread over the complete seeds.
+pub fn scene_rows(results: &[CellResult]) -> Vec<TableRow> {
+    let keys = ordered(
+        results
+            .iter()
+            .map(|r| (r.cell.method.name.clone(), r.cell.scene.clone())),
+    );
+    keys.into_iter()
+        .map(|(method, scene)| {
+            let rows: Vec<&CellResult> = results
+                .iter()
+                .filter(|r| r.cell.method.name == method && r.cell.scene == scene)
+                .collect();
+            let values = COLUMNS
+                .iter()
+                .map(|col| {
+                    let v: Vec<f64> = rows
+                        .iter()
+                        .filter_map(|r| r.outcome.metrics().and_then(col.get))
+                        .map(|x| x * col.scale)
+                        .collect();
+                    Stat::of(&v)
+                })
+                .collect();
+            TableRow {
+                complete: rows
+                    .iter()
+                    .filter(|r| r.outcome.metrics().is_some())
+                    .count(),
+                cells: rows.len(),
+                method,
+                scene: Some(scene),
+                values,
+            }
+        })
+        .collect()
+}
+
+fn markdown_table(rows: &[TableRow], with_scene: bool) -> String {
+    let mut s = String::from("| Method |");
+    if with_scene {
+        s += " Scene |";
+    }
+    for c in &COLUMNS {
+        let _ = write!(s, " {} |", c.title);
+    }
+    s += " Runs |\n|---|";
+    if with_scene {
+        s += "---|";
+    }
+    s += &"---|".repeat(COLUMNS.len() + 1);
+    s += "\n";
+    for row in rows {
+        let _ = write!(s, "| {} |", row.method);
+        if let Some(scene) = row.scene.as_ref().filter(|_| with_scene) {
+            let _ = write!(s, " {scene} |");
+        }
+        for (c, v) in COLUMNS.iter().zip(&row.values) {
+            let _ = write!(
+                s,
+                " {} |",
+                v.map_or("—".to_string(), |v| v.markdown(c.digits))
+            );
+        }
+        let _ = writeln!(s, " {}/{} |", row.complete, row.cells);
+    }
+    s
+}
+
+/// Why values are missing and which cells did not finish, as Markdown bullet lines.
+fn notes(results: &[CellResult]) -> String {
+    let mut reasons: BTreeMap<(String, String), Vec<String>> = BTreeMap::new();
+    let mut unfinished = Vec::new();
+    for r in results {
+        match &r.outcome {
+            CellOutcome::Reused(m) | CellOutcome::Ran(m) => {
+                for (metric, why) in &m.missing {
+                    reasons
+                        .entry((metric.clone(), why.clone()))
+                        .or_default()
+                        .push(r.cell.label());
+                }
+            }
+            CellOutcome::Failed(why) => {
+                unfinished.push(format!("{}: failed: {why}", r.cell.label()))
+            }
+            CellOutcome::Interrupted => {
+                unfinished.push(format!("{}: not run (stopped)", r.cell.label()))
+            }
+        }
+    }
+    let mut s = String::new();
+    for ((metric, why), cells) in &reasons {
+        let _ = writeln!(
+            s,
+            "- `{metric}` missing in {} run(s) ({}): {why}",
+            cells.len(),
+            cells.join(", ")
+        );
+    }
+    for line in unfinished {
+        let _ = writeln!(s, "- {line}");
+    }
+    s
+}
+
+/// The whole `results.md`: `heading` lines (settings, command), Table 1 layout, the per-scene
+/// table and the notes.
+pub fn markdown(heading: &str, results: &[CellResult]) -> String {
+    let mut s = format!("# Results\n\n{heading}\n\n");
+    s += "## Methods over all scenes (Table 1 layout)\n\n";
+    s += "Mean ± sample standard deviation over seeds of the per-seed mean over scenes; \
+          a seed counts for a metric only when all its scenes have it. Runs = complete / cells.\n\n";
+    s += &markdown_table(&method_rows(results), false);
+    s += "\n## Per scene (mean ± spread over seeds)\n\n";
+    s += &markdown_table(&scene_rows(results), true);
+    let n = notes(results);
+    if !n.is_empty() {
+        s += "\n## Notes\n\n";
+        s += &n;
+    }
+    s
+}
+
+/// The whole `results.csv`: one row per method over all scenes (`scene` = `all`) then per
+/// method and scene; `<metric>` is the mean, `<metric>_std` the spread, `<metric>_n` the number
+/// of seeds; empty = not available. Percentages are ×100.
+pub fn csv(results: &[CellResult]) -> String {
+    let mut s = String::from("method,scene,complete,cells");
+    for c in &COLUMNS {
+        let _ = write!(s, ",{0},{0}_std,{0}_n", c.key);
+    }
+    s.push('\n');
+    for row in method_rows(results).iter().chain(&scene_rows(results)) {
+        let _ = write!(
+            s,
+            "{},{},{},{}",
+            csv_field(&row.method),
+            csv_field(row.scene.as_deref().unwrap_or("all")),
+            row.complete,
+            row.cells
+        );
+        for v in &row.values {
+            match v {
+                Some(v) => {
+                    let mean = if v.mean == f64::INFINITY {
+                        "inf".to_string()
+                    } else {
+                        format!("{}", v.mean)
+                    };
+                    let _ = write!(
+                        s,
+                        ",{mean},{},{}",
+                        v.spread.map_or(String::new(), |x| format!("{x}")),
+                        v.n
+                    );
+                }
+                None => s.push_str(",,,0"),
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::grid::{GridSettings, Method, cells};
+    use super::*;
+
+    fn report(psnr: f64, completeness: Option<f64>) -> MetricsReport {
+        let mut m = MetricsReport {
+            psnr_db: Some(psnr),
+            completeness,
+            ..Default::default()
+        };
+        m.mark_missing("lpips", "weights absent");
+        m
+    }
+
+    /// 2 houses × 2 seeds of FBE with hand-picked values.
+    fn results() -> Vec<CellResult> {
+        let settings = GridSettings {
+            steps: 10,
+            resolution: 32,
+            max_rooms: None,
+            max_area: None,
+            eval_views: 4,
+        };
+        let grid = cells(
+            &[Method::parse("fbe=x.yaml").unwrap()],
+            &["house:1".into(), "house:2".into()],
+            &[1, 2],
+            &settings,
+        );
+        // (house 1, seed 1), (house 1, seed 2), (house 2, seed 1), (house 2, seed 2)
+        let metrics = [
+            report(20.0, Some(0.50)),
+            report(22.0, Some(0.70)),
+            report(24.0, Some(0.60)),
+            report(30.0, None),
+        ];
+        grid.into_iter()
+            .zip(metrics)
+            .map(|(cell, m)| CellResult {
+                cell,
+                outcome: CellOutcome::Ran(Box::new(m)),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn method_row_averages_scenes_per_seed_then_spreads_over_seeds() {
+        let rows = method_rows(&results());
+        assert_eq!(rows.len(), 1);
+        let psnr = rows[0].values[0].unwrap();
+        // Seed 1: (20 + 24) / 2 = 22; seed 2: (22 + 30) / 2 = 26 → mean 24, std √8.
+        assert_eq!(psnr.mean, 24.0);
+        assert!((psnr.spread.unwrap() - 8f64.sqrt()).abs() < 1e-12);
+        assert_eq!(psnr.n, 2);
+        // Completeness: seed 2 lacks house 2, so only seed 1 counts: (50 + 60) / 2 %.
+        let comp = rows[0].values[5].unwrap();
+        assert!((comp.mean - 55.0).abs() < 1e-12 && comp.spread.is_none() && comp.n == 1);
+        assert!(rows[0].values[1].is_none(), "no SSIM anywhere");
+        assert_eq!((rows[0].complete, rows[0].cells), (4, 4));
+    }
+
+    #[test]
+    fn scene_rows_and_both_formats_hold_the_same_numbers() {
+        let r = results();
+        let rows = scene_rows(&r);
+        assert_eq!(rows.len(), 2);
+        let h2 = &rows[1];
+        assert_eq!(h2.scene.as_deref(), Some("house:2"));
+        assert_eq!(h2.values[0].unwrap().mean, 27.0);
+        assert!((h2.values[0].unwrap().spread.unwrap() - 18f64.sqrt()).abs() < 1e-12);
+        let md = markdown("FBE, 10 steps", &r);
+        assert!(
+            md.contains("| fbe | 24.00 ± 2.83 | — | — | — | — | 55.00 | — | 4/4 |"),
+            "{md}"
+        );
+        assert!(md.contains("| fbe | house:2 | 27.00 ± 4.24 |"), "{md}");
+        assert!(md.contains("`lpips` missing in 4 run(s)"), "{md}");
+        let csv = csv(&r);
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 4, "{csv}");
+        assert!(
+            lines[0].starts_with("method,scene,complete,cells,psnr_db,psnr_db_std,psnr_db_n,ssim,")
+        );
+        let f: Vec<&str> = lines[1].split(',').collect();
+        let spread = format!("{}", 8f64.sqrt());
+        assert_eq!(
+            &f[..7],
+            ["fbe", "all", "4", "4", "24", spread.as_str(), "2"]
+        );
+        assert_eq!(&f[7..10], ["", "", "0"]);
+    }
+
+    #[test]
+    fn unfinished_cells_are_counted_and_listed() {
+        let mut r = results();
+        r[3].outcome = CellOutcome::Failed("tracker crashed".into());
+        r[1].outcome = CellOutcome::Interrupted;
+        let rows = method_rows(&r);
+        assert_eq!((rows[0].complete, rows[0].cells), (2, 4));
+        // Only seed 1 is whole: (20 + 24) / 2.
+        assert_eq!(rows[0].values[0].unwrap().mean, 22.0);
+        let md = markdown("", &r);
+        assert!(
+            md.contains("fbe house:2 seed 2: failed: tracker crashed"),
+            "{md}"
+        );
+        assert!(md.contains("fbe house:1 seed 2: not run (stopped)"), "{md}");
+        let inf = Stat::of(&[f64::INFINITY, 3.0]).unwrap();
+        assert!(inf.spread.is_none() && inf.markdown(2) == "∞");
+        assert!(Stat::of(&[]).is_none());
+    }
+}

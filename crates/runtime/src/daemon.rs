@@ -1,0 +1,551 @@
+//! The machine daemon (`activemap up --machine M`): a long-lived process per machine that accepts
+//! dataflows submitted by `activemap start`, runs the share of each flow deployed on its machine
+//! (through [`run_local`] with that machine), and answers `list`, `logs` and `down` requests.
+//!
+//! Daemons talk over Zenoh queries on their own control endpoints (never multicast):
+//! `activemap/daemon/<machine>/<verb>`, verbs `start`, `runs`, `logs` and `down`. A daemon
+//! started with `--connect` to another daemon's endpoint joins its network, so a client that
+//! connects to any one daemon reaches them all. The data plane of a run is separate: it uses the
+//! endpoints that the flow's `machines:` section gives.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use zenoh::Wait;
+use zenoh::query::{ConsolidationMode, QueryTarget};
+
+use crate::RuntimeError;
+use crate::catalog::OperatorDescriptor;
+use crate::dataflow::Dataflow;
+use crate::launch::{LaunchOptions, NodeExit, new_run_id, run_local, tail};
+use crate::node::logs_dir;
+use crate::transport::{ZenohSettings, open_zenoh};
+
+/// Zenoh key of a daemon request: `activemap/daemon/<machine>/<verb>` (`*` for every machine).
+pub fn daemon_key(machine: &str, verb: &str) -> String {
+    format!("activemap/daemon/{machine}/{verb}")
+}
+
+/// How a daemon is started.
+#[derive(Debug, Clone)]
+pub struct DaemonOptions {
+    /// This machine's id, as named in the flows' `machines:` sections.
+    pub machine: String,
+    /// Control endpoints to listen on, e.g. `tcp/127.0.0.2:7400`.
+    pub listen: Vec<String>,
+    /// Control endpoints of other daemons to join.
+    pub connect: Vec<String>,
+    /// Folder of run folders (`<runs_dir>/<run_id>`).
+    pub runs_dir: PathBuf,
+    /// The `activemap` executable that runs built-in operators.
+    pub exe: PathBuf,
+    /// `path:` executables of submitted flows are relative to this folder.
+    pub base_dir: PathBuf,
+}
+
+/// A flow submitted to the daemons (`activemap start`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StartRequest {
+    /// Run id shared by every machine of the run.
+    pub run_id: String,
+    /// Name of the submitted file (for messages).
+    pub file: String,
+    /// The dataflow text.
+    pub source: String,
+    /// Step budget passed to the nodes.
+    pub max_steps: Option<u64>,
+    /// Write a recording of this machine's topics.
+    pub record: bool,
+}
+
+/// State of a run on one machine.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RunState {
+    /// Nodes are running.
+    Running,
+    /// Every node finished (or was stopped on request).
+    Finished,
+    /// A node crashed or the launch failed; the reason.
+    Failed(String),
+}
+
+/// One run as a daemon reports it (`activemap list`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunEntry {
+    /// Machine that reports it.
+    pub machine: String,
+    /// Run id.
+    pub run_id: String,
+    /// Run folder on that machine.
+    pub run_dir: PathBuf,
+    /// State.
+    pub state: RunState,
+}
+
+/// A request for the tail of a run's logs (`activemap logs --run-id`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LogsRequest {
+    /// Run id.
+    pub run_id: String,
+    /// Only this node's logs.
+    pub node: Option<String>,
+    /// Lines per log file.
+    pub lines: usize,
+}
+
+/// One log file's tail, as a daemon returns it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LogTail {
+    /// Machine it comes from.
+    pub machine: String,
+    /// File name, e.g. `tracker.stderr.log`.
+    pub file: String,
+    /// The last lines.
+    pub text: String,
+}
+
+struct Run {
+    dir: PathBuf,
+    state: Arc<Mutex<RunState>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Run the daemon until `stop` is set (Ctrl-C) or a `down` request arrives. Running flows are
+/// stopped cleanly before it returns.
+pub fn serve(
+    opts: &DaemonOptions,
+    catalog: &[OperatorDescriptor],
+    stop: Arc<AtomicBool>,
+) -> Result<(), RuntimeError> {
+    if opts.listen.is_empty() {
+        return Err(RuntimeError::Other(
+            "a daemon needs at least one explicit --listen endpoint (e.g. tcp/127.0.0.1:7400)"
+                .into(),
+        ));
+    }
+    std::fs::create_dir_all(&opts.runs_dir).map_err(|e| RuntimeError::io(&opts.runs_dir, e))?;
+    let session = open_zenoh(&ZenohSettings {
+        mode: "router".into(),
+        listen: opts.listen.clone(),
+        connect: opts.connect.clone(),
+        tls: None,
+    })?;
+    let queryable = session
+        .declare_queryable(daemon_key(&opts.machine, "*"))
+        .wait()
+        .map_err(|e| RuntimeError::Other(format!("daemon queryable: {e}")))?;
+    eprintln!(
+        "activemap daemon `{}` listening on {} (runs in {})",
+        opts.machine,
+        opts.listen.join(", "),
+        opts.runs_dir.display()
+    );
+    let mut runs: BTreeMap<String, Run> = BTreeMap::new();
+    while !stop.load(Ordering::SeqCst) {
+        let query = match queryable.recv_timeout(Duration::from_millis(200)) {
+            Ok(Some(q)) => q,
+            Ok(None) => continue,
+            Err(e) => return Err(RuntimeError::Other(format!("daemon queryable: {e}"))),
+        };
+        let verb = query
+            .key_expr()
+            .as_str()
+            .rsplit('/')
+            .next()
+            .unwrap_or_default()
+            .to_string();
+        let payload = query.payload().map(|p| p.to_bytes().to_vec());
+        let answer: Result<Vec<u8>, String> = match verb.as_str() {
+            "start" => start_run(opts, catalog, payload.as_deref(), &mut runs),
+            "runs" => Ok(serde_json::to_vec(&entries(&opts.machine, &runs)).expect("serialisable")),
+            "logs" => logs(&opts.machine, payload.as_deref(), &runs),
+            "down" => {
+                stop.store(true, Ordering::SeqCst);
+                Ok(b"down".to_vec())
+            }
+            other => Err(format!("unknown daemon request `{other}`")),
+        };
+        let key = daemon_key(&opts.machine, &verb);
+        let sent = match answer {
+            Ok(bytes) => query.reply(key, bytes).wait(),
+            Err(why) => query.reply_err(why.into_bytes()).wait(),
+        };
+        if let Err(e) = sent {
+            eprintln!("activemap daemon: cannot answer a `{verb}` request: {e}");
+        }
+    }
+    for (id, run) in &mut runs {
+        run.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = run.thread.take()
+            && t.join().is_err()
+        {
+            eprintln!("activemap daemon: the supervisor of run {id} panicked");
+        }
+    }
+    drop(queryable);
+    // Linger: this daemon may be the router through which other daemons' answers to the same
+    // `down` request travel back to the client.
+    std::thread::sleep(Duration::from_secs(1));
+    let _ = session.close().wait();
+    Ok(())
+}
+
+fn entries(machine: &str, runs: &BTreeMap<String, Run>) -> Vec<RunEntry> {
+    runs.iter()
+        .map(|(id, r)| RunEntry {
+            machine: machine.to_string(),
+            run_id: id.clone(),
+            run_dir: r.dir.clone(),
+            state: r.state.lock().expect("state lock").clone(),
+        })
+        .collect()
+}
+
+fn start_run(
+    opts: &DaemonOptions,
+    catalog: &[OperatorDescriptor],
+    payload: Option<&[u8]>,
+    runs: &mut BTreeMap<String, Run>,
+) -> Result<Vec<u8>, String> {
+    let request: StartRequest = serde_json::from_slice(payload.unwrap_or_default())
+        .map_err(|e| format!("malformed start request: {e}"))?;
+    if request.run_id.is_empty()
+        || !request
+            .run_id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+    {
+        return Err(format!(
+            "run id `{}` must be non-empty ASCII letters, digits, `-` or `_`",
+            request.run_id
+        ));
+    }
+    if runs.contains_key(&request.run_id) {
+        return Err(format!(
+            "run `{}` already exists on machine `{}`",
+            request.run_id, opts.machine
+        ));
+    }
+    let flow = Dataflow::parse(
+        &request.file,
+        &request.source,
+        opts.base_dir.clone(),
+        catalog,
+    )
+    .map_err(|d| d.to_string())?;
+    if flow.machine(&opts.machine).is_none() {
+        return Err(format!(
+            "{}: machine `{}` is not in the flow's `machines:`",
+            request.file, opts.machine
+        ));
+    }
+    let run_dir = opts.runs_dir.join(&request.run_id);
+    let mut launch = LaunchOptions::new(run_dir.clone(), opts.exe.clone());
+    launch.max_steps = request.max_steps;
+    launch.record = request.record;
+    launch.machine = Some(opts.machine.clone());
+    launch.run_id = Some(request.run_id.clone());
+    let state = Arc::new(Mutex::new(RunState::Running));
+    let stop = Arc::new(AtomicBool::new(false));
+    let thread = {
+        let (state, stop, run_id) = (state.clone(), stop.clone(), request.run_id.clone());
+        std::thread::spawn(move || {
+            let outcome = match run_local(&flow, &launch, stop) {
+                Ok(report) => state_of(&report.nodes, report.failure.as_deref()),
+                Err(e) => RunState::Failed(e.to_string()),
+            };
+            eprintln!("activemap daemon: run {run_id}: {outcome:?}");
+            *state.lock().expect("state lock") = outcome;
+        })
+    };
+    eprintln!(
+        "activemap daemon: run {} started from {} in {}",
+        request.run_id,
+        request.file,
+        run_dir.display()
+    );
+    runs.insert(
+        request.run_id.clone(),
+        Run {
+            dir: run_dir.clone(),
+            state,
+            stop,
+            thread: Some(thread),
+        },
+    );
+    Ok(serde_json::to_vec(&RunEntry {
+        machine: opts.machine.clone(),
+        run_id: request.run_id,
+        run_dir,
+        state: RunState::Running,
+    })
+    .expect("serialisable"))
+}
+
+fn logs(
+    machine: &str,
+    payload: Option<&[u8]>,
+    runs: &BTreeMap<String, Run>,
+) -> Result<Vec<u8>, String> {
+    let request: LogsRequest = serde_json::from_slice(payload.unwrap_or_default())
+        .map_err(|e| format!("malformed logs request: {e}"))?;
+    let Some(run) = runs.get(&request.run_id) else {
+        // Not this machine's run: an empty answer, so the client can tell machines apart.
+        return Ok(b"[]".to_vec());
+    };
+    let tails = log_tails(machine, &run.dir, request.node.as_deref(), request.lines)
+        .map_err(|e| e.to_string())?;
+    Ok(serde_json::to_vec(&tails).expect("serialisable"))
+}
+
+/// The last `lines` lines of each log file of a run folder (only `node`'s, when given), sorted by
+/// file name.
+pub fn log_tails(
+    machine: &str,
+    run_dir: &Path,
+    node: Option<&str>,
+    lines: usize,
+) -> Result<Vec<LogTail>, RuntimeError> {
+    let dir = logs_dir(run_dir);
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map_err(|e| RuntimeError::io(&dir, e))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let name = p
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            node.is_none_or(|n| name.starts_with(&format!("{n}.")))
+        })
+        .collect();
+    files.sort();
+    Ok(files
+        .iter()
+        .map(|p| LogTail {
+            machine: machine.to_string(),
+            file: p
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            text: tail(p, lines),
+        })
+        .collect())
+}
+
+/// One daemon's answer to a request: its machine and the reply bytes or the error text.
+type Answer = (String, Result<Vec<u8>, String>);
+
+/// A client of the daemon network, connected to one daemon's control endpoint.
+pub struct DaemonClient {
+    session: zenoh::Session,
+    timeout: Duration,
+}
+
+impl DaemonClient {
+    /// Connect to the daemon network through `connect` (any daemon's `--listen` endpoint).
+    pub fn connect(connect: &[String], timeout: Duration) -> Result<Self, RuntimeError> {
+        if connect.is_empty() {
+            return Err(RuntimeError::Other(
+                "give a daemon endpoint with --connect (e.g. tcp/127.0.0.1:7400)".into(),
+            ));
+        }
+        let session = open_zenoh(&ZenohSettings {
+            mode: "client".into(),
+            listen: vec![],
+            connect: connect.to_vec(),
+            tls: None,
+        })?;
+        Ok(Self { session, timeout })
+    }
+
+    /// Send `verb` with `payload` to `machine` (`*` for all); every answer, as (machine, bytes)
+    /// or (machine, error text).
+    fn ask(
+        &self,
+        machine: &str,
+        verb: &str,
+        payload: Vec<u8>,
+    ) -> Result<Vec<Answer>, RuntimeError> {
+        let replies = self
+            .session
+            .get(daemon_key(machine, verb))
+            .payload(payload)
+            .target(QueryTarget::All)
+            .consolidation(ConsolidationMode::None)
+            .timeout(self.timeout)
+            .wait()
+            .map_err(|e| RuntimeError::Other(format!("daemon query {verb}: {e}")))?;
+        let mut out = Vec::new();
+        while let Ok(reply) = replies.recv() {
+            match reply.into_result() {
+                Ok(sample) => {
+                    let key = sample.key_expr().as_str().to_string();
+                    let m = key.split('/').nth(2).unwrap_or_default().to_string();
+                    out.push((m, Ok(sample.payload().to_bytes().to_vec())));
+                }
+                Err(err) => out.push((
+                    machine.to_string(),
+                    Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned()),
+                )),
+            }
+        }
+        Ok(out)
+    }
+
+    /// Submit `flow` to the daemons of every machine that has nodes in it. Fails, and stops what
+    /// did start, when a machine's daemon does not answer or refuses the flow.
+    pub fn start(
+        &self,
+        flow: &Dataflow,
+        run_id: Option<String>,
+        max_steps: Option<u64>,
+        record: bool,
+    ) -> Result<Vec<RunEntry>, RuntimeError> {
+        let run_id = run_id.unwrap_or_else(new_run_id);
+        let request = StartRequest {
+            run_id: run_id.clone(),
+            file: flow.file.clone(),
+            source: flow.source.clone(),
+            max_steps,
+            record,
+        };
+        let payload = serde_json::to_vec(&request).expect("serialisable");
+        let mut machines: Vec<&str> = flow.nodes.iter().map(|n| n.machine.as_str()).collect();
+        machines.sort_unstable();
+        machines.dedup();
+        let mut started = Vec::new();
+        let mut problems = Vec::new();
+        for m in machines {
+            let answers = self.ask(m, "start", payload.clone())?;
+            match answers.into_iter().next() {
+                None => problems.push(format!(
+                    "machine `{m}`: no daemon answered within {:?} (is `activemap up --machine {m}` running and connected?)",
+                    self.timeout
+                )),
+                Some((_, Err(why))) => problems.push(format!("machine `{m}`: {why}")),
+                Some((_, Ok(bytes))) => match serde_json::from_slice::<RunEntry>(&bytes) {
+                    Ok(entry) => started.push(entry),
+                    Err(e) => problems.push(format!("machine `{m}`: bad answer: {e}")),
+                },
+            }
+        }
+        if !problems.is_empty() {
+            if !started.is_empty() {
+                self.stop(&run_id)?;
+            }
+            return Err(RuntimeError::Other(format!(
+                "run {run_id} not started:\n  {}",
+                problems.join("\n  ")
+            )));
+        }
+        Ok(started)
+    }
+
+    /// Every run every reachable daemon knows, sorted by run id then machine.
+    pub fn runs(&self) -> Result<Vec<RunEntry>, RuntimeError> {
+        let mut all = Vec::new();
+        for (m, answer) in self.ask("*", "runs", Vec::new())? {
+            let bytes =
+                answer.map_err(|why| RuntimeError::Other(format!("machine `{m}`: {why}")))?;
+            let entries: Vec<RunEntry> = serde_json::from_slice(&bytes)
+                .map_err(|e| RuntimeError::Other(format!("machine `{m}`: bad answer: {e}")))?;
+            all.extend(entries);
+        }
+        all.sort_by(|a, b| (&a.run_id, &a.machine).cmp(&(&b.run_id, &b.machine)));
+        Ok(all)
+    }
+
+    /// Log tails of run `run_id` from every machine.
+    pub fn logs(
+        &self,
+        run_id: &str,
+        node: Option<String>,
+        lines: usize,
+    ) -> Result<Vec<LogTail>, RuntimeError> {
+        let request = LogsRequest {
+            run_id: run_id.to_string(),
+            node,
+            lines,
+        };
+        let mut all = Vec::new();
+        for (m, answer) in self.ask("*", "logs", serde_json::to_vec(&request).expect("json"))? {
+            let bytes =
+                answer.map_err(|why| RuntimeError::Other(format!("machine `{m}`: {why}")))?;
+            let tails: Vec<LogTail> = serde_json::from_slice(&bytes)
+                .map_err(|e| RuntimeError::Other(format!("machine `{m}`: bad answer: {e}")))?;
+            all.extend(tails);
+        }
+        all.sort_by(|a, b| (&a.machine, &a.file).cmp(&(&b.machine, &b.file)));
+        Ok(all)
+    }
+
+    /// Stop run `run_id` on every machine (a broadcast on the run's control key).
+    pub fn stop(&self, run_id: &str) -> Result<(), RuntimeError> {
+        let publisher = crate::transport::ZenohPublisher::create(
+            &self.session,
+            &crate::node::control_key(run_id, "stop"),
+        )?;
+        for _ in 0..5 {
+            std::thread::sleep(Duration::from_millis(100));
+            publisher.send(0, Vec::new())?;
+        }
+        Ok(())
+    }
+
+    /// Shut every reachable daemon down (their running flows are stopped first); the machines
+    /// that acknowledged.
+    pub fn down(&self) -> Result<Vec<String>, RuntimeError> {
+        let mut machines: Vec<String> = self
+            .ask("*", "down", Vec::new())?
+            .into_iter()
+            .filter(|(_, a)| a.is_ok())
+            .map(|(m, _)| m)
+            .collect();
+        machines.sort();
+        Ok(machines)
+    }
+
+    /// Wait until run `run_id` is no longer running on any machine; its final entries.
+    pub fn wait(&self, run_id: &str, poll: Duration) -> Result<Vec<RunEntry>, RuntimeError> {
+        loop {
+            let entries: Vec<RunEntry> = self
+                .runs()?
+                .into_iter()
+                .filter(|e| e.run_id == run_id)
+                .collect();
+            if entries.is_empty() {
+                return Err(RuntimeError::Other(format!("no daemon knows run {run_id}")));
+            }
+            if entries.iter().all(|e| e.state != RunState::Running) {
+                return Ok(entries);
+            }
+            std::thread::sleep(poll);
+        }
+    }
+}
+
+impl Drop for DaemonClient {
+    fn drop(&mut self) {
+        let _ = self.session.close().wait();
+    }
+}
+
+/// A launcher outcome as a run state: failed when the flow stopped on a failure or a node crashed.
+fn state_of(nodes: &BTreeMap<String, (NodeExit, u32)>, failure: Option<&str>) -> RunState {
+    match failure {
+        Some(why) => RunState::Failed(why.to_string()),
+        None if nodes
+            .values()
+            .any(|(e, _)| matches!(e, NodeExit::Crashed(_))) =>
+        {
+            RunState::Failed("a node crashed".into())
+        }
+        None => RunState::Finished,
+    }
+}
