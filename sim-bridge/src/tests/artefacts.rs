@@ -34,7 +34,11 @@ fn save(frame: &RgbdFrame, dir: &Path, stem: &str) {
 #[test]
 #[ignore = "writes PNGs under /work/tgt/sim/frames (development aid)"]
 fn save_rendered_frames() {
-    let dir = Path::new("/work/tgt/sim/frames");
+    // FRAMES_DIR picks the folder; by default a folder in the system's temp dir.
+    let dir = std::env::var_os("FRAMES_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::env::temp_dir().join("activemap-frames"));
+    let dir = dir.as_path();
     std::fs::create_dir_all(dir).unwrap();
     for seed in [1u64, 2] {
         let house = generate(seed, &HouseConfig::default()).unwrap();
