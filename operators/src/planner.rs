@@ -12,7 +12,7 @@ use activemap_planning::fbe::{FbePolicy, choose_frontier};
 use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
 use activemap_planning::grid::{Cell, CellState};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
 use activemap_schemas::{
     Frontiers, Goal, MessageKind as K, OccupancyGridView, ReplanReason, ReplanRequest,
@@ -59,13 +59,7 @@ fn default_exclusion() -> f64 {
 }
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
-    check_config_as::<Config>(value)?;
-    let config: Config = serde_json::from_value(if value.is_null() {
-        serde_json::json!({})
-    } else {
-        value.clone()
-    })
-    .map_err(|e| e.to_string())?;
+    let config: Config = activemap_runtime::catalog::config_from_value(value)?;
     if config.policy != "fbe" {
         return Err(format!(
             "policy `{}` is not built yet: only `fbe` (the LLM policy of SPEC §7 comes later)",

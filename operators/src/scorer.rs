@@ -11,7 +11,7 @@ use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
 use activemap_planning::grid::Cell;
 use activemap_planning::shortcut::shortcut;
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
 use activemap_schemas::{
     Frontiers, Goal, MessageKind as K, OccupancyGridView, Path, PlanarPose2, PoseEstimate,
@@ -36,13 +36,7 @@ fn default_mode() -> String {
 }
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
-    check_config_as::<Config>(value)?;
-    let config: Config = serde_json::from_value(if value.is_null() {
-        serde_json::json!({})
-    } else {
-        value.clone()
-    })
-    .map_err(|e| e.to_string())?;
+    let config: Config = activemap_runtime::catalog::config_from_value(value)?;
     if config.mode != "shortest" {
         return Err(format!(
             "mode `{}` is not built yet: only `shortest` (the Fisher scorer of SPEC §5 comes later)",

@@ -21,7 +21,7 @@ use zenoh::query::{ConsolidationMode, QueryTarget};
 use crate::RuntimeError;
 use crate::catalog::OperatorDescriptor;
 use crate::dataflow::Dataflow;
-use crate::launch::{LaunchOptions, NodeExit, new_run_id, run_local, tail};
+use crate::launch::{LaunchOptions, NodeExit, broadcast_stop, new_run_id, run_local, tail};
 use crate::node::logs_dir;
 use crate::transport::{ZenohSettings, open_zenoh};
 
@@ -487,15 +487,7 @@ impl DaemonClient {
 
     /// Stop run `run_id` on every machine (a broadcast on the run's control key).
     pub fn stop(&self, run_id: &str) -> Result<(), RuntimeError> {
-        let publisher = crate::transport::ZenohPublisher::create(
-            &self.session,
-            &crate::node::control_key(run_id, "stop"),
-        )?;
-        for _ in 0..5 {
-            std::thread::sleep(Duration::from_millis(100));
-            publisher.send(0, Vec::new())?;
-        }
-        Ok(())
+        broadcast_stop(&self.session, run_id)
     }
 
     /// Shut every reachable daemon down (their running flows are stopped first); the machines

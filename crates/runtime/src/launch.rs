@@ -560,13 +560,20 @@ pub fn stop_run(run_id: &str, connect: &[String]) -> Result<(), RuntimeError> {
         connect: connect.to_vec(),
         tls: None,
     })?;
-    let publisher = ZenohPublisher::create(&session, &control_key(run_id, "stop"))?;
+    let sent = broadcast_stop(&session, run_id);
+    let _ = zenoh::Wait::wait(session.close());
+    sent
+}
+
+/// Publish run `run_id`'s stop on an open session: every node, launcher and daemon of the run
+/// hears it.
+pub fn broadcast_stop(session: &zenoh::Session, run_id: &str) -> Result<(), RuntimeError> {
+    let publisher = ZenohPublisher::create(session, &control_key(run_id, "stop"))?;
     // Give the declaration time to reach the router, then repeat to be safe.
     for _ in 0..5 {
         std::thread::sleep(Duration::from_millis(100));
         publisher.send(0, Vec::new())?;
     }
-    let _ = zenoh::Wait::wait(session.close());
     Ok(())
 }
 
