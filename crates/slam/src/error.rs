@@ -51,3 +51,17 @@ pub enum SlamError {
     #[error("simulator: {0}")]
     Sim(#[from] activemap_sim::SimError),
 }
+
+impl SlamError {
+    /// The first `(field, value)` that is not finite and > 0, as a [`SlamError::Config`] naming it.
+    pub(crate) fn require_positive(fields: &[(&'static str, f64)]) -> Result<(), SlamError> {
+        match fields.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            Some(&(field, v)) => Err(SlamError::Config {
+                field,
+                value: v.to_string(),
+                reason: "must be finite and > 0",
+            }),
+            None => Ok(()),
+        }
+    }
+}

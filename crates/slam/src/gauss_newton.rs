@@ -88,15 +88,7 @@ impl GaussNewtonConfig {
             ("gauss_newton.initial_damping", self.initial_damping),
             ("gauss_newton.convergence", self.convergence),
         ];
-        for (field, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SlamError::Config {
-                    field,
-                    value: v.to_string(),
-                    reason: "must be finite and > 0",
-                });
-            }
-        }
+        SlamError::require_positive(&positive)?;
         for (field, v) in [
             ("gauss_newton.colour_weight", self.colour_weight),
             ("gauss_newton.depth_weight", self.depth_weight),

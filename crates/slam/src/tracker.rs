@@ -99,15 +99,7 @@ impl TrackerConfig {
             ("lr_exposure", self.lr_exposure),
             ("convergence", self.convergence),
         ];
-        for (field, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SlamError::Config {
-                    field,
-                    value: v.to_string(),
-                    reason: "must be finite and > 0",
-                });
-            }
-        }
+        SlamError::require_positive(&positive)?;
         if !(0.0..=1.0).contains(&self.alpha) {
             return Err(SlamError::Config {
                 field: "alpha",
