@@ -360,6 +360,12 @@ impl DaemonClient {
             listen: vec![],
             connect: connect.to_vec(),
             tls: None,
+        })
+        .map_err(|e| {
+            RuntimeError::Other(format!(
+                "no daemon reachable at {} (is `activemap up --listen ...` running there?): {e}",
+                connect.join(", ")
+            ))
         })?;
         Ok(Self { session, timeout })
     }
@@ -419,15 +425,25 @@ impl DaemonClient {
         let mut machines: Vec<&str> = flow.nodes.iter().map(|n| n.machine.as_str()).collect();
         machines.sort_unstable();
         machines.dedup();
-        let mut started = Vec::new();
+        // Every machine's daemon must answer before any of them starts: a flow is never left
+        // half-started because one daemon is still coming up.
         let mut problems = Vec::new();
+        for m in &machines {
+            if self.ask(m, "runs", Vec::new())?.is_empty() {
+                problems.push(no_answer(m, self.timeout));
+            }
+        }
+        if !problems.is_empty() {
+            return Err(RuntimeError::Other(format!(
+                "run {run_id} not started:\n  {}",
+                problems.join("\n  ")
+            )));
+        }
+        let mut started = Vec::new();
         for m in machines {
             let answers = self.ask(m, "start", payload.clone())?;
             match answers.into_iter().next() {
-                None => problems.push(format!(
-                    "machine `{m}`: no daemon answered within {:?} (is `activemap up --machine {m}` running and connected?)",
-                    self.timeout
-                )),
+                None => problems.push(no_answer(m, self.timeout)),
                 Some((_, Err(why))) => problems.push(format!("machine `{m}`: {why}")),
                 Some((_, Ok(bytes))) => match serde_json::from_slice::<RunEntry>(&bytes) {
                     Ok(entry) => started.push(entry),
@@ -520,6 +536,13 @@ impl DaemonClient {
             std::thread::sleep(poll);
         }
     }
+}
+
+/// The error text for a machine whose daemon did not answer a request.
+fn no_answer(machine: &str, timeout: Duration) -> String {
+    format!(
+        "machine `{machine}`: no daemon answered within {timeout:?} (is `activemap up --machine {machine}` running and connected?)"
+    )
 }
 
 impl Drop for DaemonClient {
