@@ -17,6 +17,7 @@ use activemap_runtime::{
 use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
 };
+use activemap_slam::dense::DenseReference;
 use activemap_slam::{Frame, TrackerConfig, TrackingStatus as SlamStatus, track};
 use activemap_splat::Gaussians;
 
@@ -51,6 +52,14 @@ pub struct Config {
     /// Maximum Adam iterations per frame (SPEC §4: 100).
     #[serde(default)]
     pub max_iterations: Option<usize>,
+    /// The dense tracker re-references (the tracked frame becomes its reference keyframe)
+    /// once the overlap with the current reference falls below this fraction.
+    #[serde(default = "default_rereference")]
+    pub rereference_below: f64,
+}
+
+fn default_rereference() -> f64 {
+    0.85
 }
 
 fn default_height() -> f64 {
@@ -87,6 +96,8 @@ pub struct Tracker {
     pose: Isometry3<f64>,
     velocity: Isometry3<f64>,
     exposure: [f64; 2],
+    /// The dense tracker's reference keyframe (a past tracked frame at its estimate).
+    reference: Option<DenseReference>,
 }
 
 impl Tracker {
@@ -95,6 +106,11 @@ impl Tracker {
         anyhow::ensure!(
             config.camera_height.is_finite() && config.camera_height > 0.0,
             "tracker: camera_height must be > 0"
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&config.rereference_below),
+            "tracker: rereference_below must be in [0, 1], got {}",
+            config.rereference_below
         );
         let mut tracker = TrackerConfig::default();
         if let Some(d) = config.downscale {
@@ -115,6 +131,7 @@ impl Tracker {
             next: 0,
             velocity: Isometry3::identity(),
             exposure: [0.0, 0.0],
+            reference: None,
         })
     }
 
@@ -140,6 +157,8 @@ impl Tracker {
         while let Some(frame) = self.frames.get(&self.next) {
             let k = self.next;
             if k == 0 {
+                let small = frame.downscale(self.tracker.downscale);
+                self.reference = Some(DenseReference::new(&small, self.pose, &self.tracker.dense));
                 out.push(estimate(
                     k,
                     frame.stamp,
@@ -163,7 +182,14 @@ impl Tracker {
                     Prior::None => previous,
                 };
                 let small = frame.downscale(self.tracker.downscale);
-                let t = track(&self.tracker, &self.map, &small, &predicted, self.exposure)?;
+                let t = track(
+                    &self.tracker,
+                    &self.map,
+                    &small,
+                    &predicted,
+                    self.exposure,
+                    self.reference.as_ref(),
+                )?;
                 let status = match t.status {
                     SlamStatus::Ok => TrackingStatus::Ok,
                     SlamStatus::Lost => TrackingStatus::Lost,
@@ -173,6 +199,10 @@ impl Tracker {
                 if status == TrackingStatus::Ok {
                     self.velocity = previous.inverse() * t.pose;
                     self.exposure = t.exposure;
+                    if t.reference_overlap < self.config.rereference_below {
+                        self.reference =
+                            Some(DenseReference::new(&small, t.pose, &self.tracker.dense));
+                    }
                 }
                 out.push(estimate(
                     k,

@@ -54,9 +54,20 @@ pub fn log(pose: &Isometry3<f64>) -> Vector6<f64> {
     Vector6::new(rho.x, rho.y, rho.z, theta.x, theta.y, theta.z)
 }
 
-/// Applies the left update `T ← Exp(τ)·T` of SPEC §2.
+/// Applies the left update `T ← Exp(τ)·T` of SPEC §2. The rotation is renormalised: a
+/// product of unit quaternions drifts off unit norm by rounding, and `inverse()` (the
+/// conjugate) then no longer inverts it, so chains of relative poses would amplify the
+/// drift geometrically.
 pub fn left_update(pose: &Isometry3<f64>, tau: &Vector6<f64>) -> Isometry3<f64> {
-    exp(tau) * pose
+    normalized(&(exp(tau) * pose))
+}
+
+/// `pose` with its rotation quaternion rescaled to unit norm (see [`left_update`]).
+pub fn normalized(pose: &Isometry3<f64>) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        pose.translation,
+        UnitQuaternion::new_normalize(*pose.rotation.quaternion()),
+    )
 }
 
 /// Translation distance (metres) and rotation angle (radians) between two poses.
@@ -72,6 +83,24 @@ mod tests {
     fn close(a: &Isometry3<f64>, b: &Isometry3<f64>, tol: f64) -> bool {
         let (t, r) = pose_error(a, b);
         t < tol && r < tol
+    }
+
+    #[test]
+    fn chained_relative_poses_stay_rigid() {
+        // The tracker's pattern: T_k = R·(R⁻¹·T_{k−1}·Δ) updated in place, with R = T_{k−1}.
+        // Without renormalisation the quaternion norm error triples per frame and the
+        // "rotation" starts scaling vectors after a few dozen frames.
+        let delta = exp(&Vector6::new(0.0, 0.0, 0.05, 0.001, 0.002, -0.001));
+        let mut pose = exp(&Vector6::new(1.0, 2.0, 0.5, 0.3, -1.2, 2.0));
+        for _ in 0..200 {
+            let reference = pose;
+            let relative = reference.inverse() * pose * delta;
+            let relative = left_update(&relative, &Vector6::new(1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0));
+            pose = reference * relative;
+        }
+        assert!((pose.rotation.quaternion().norm() - 1.0).abs() < 1e-12);
+        let unit = pose * nalgebra::Point3::new(1.0, 0.0, 0.0) - pose * nalgebra::Point3::origin();
+        assert!((unit.norm() - 1.0).abs() < 1e-12);
     }
 
     #[test]

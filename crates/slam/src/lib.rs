@@ -28,6 +28,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod bench;
+pub mod dense;
 pub mod error;
 pub mod frame;
 pub mod gauss_newton;

@@ -40,6 +40,9 @@ pub struct LoopConfig {
     pub held_out_every: usize,
     /// SLAM settings.
     pub slam: SlamConfig,
+    /// Print one line per frame to stderr (status, iterations, keyframe, pose error against the
+    /// truth in the shared start-anchored frame), for diagnosis.
+    pub trace: bool,
 }
 
 impl LoopConfig {
@@ -55,6 +58,7 @@ impl LoopConfig {
             margin: 0.7,
             held_out_every: 10,
             slam,
+            trace: false,
         }
     }
 }
@@ -201,6 +205,22 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
         map_seconds += out.map_seconds;
         if out.status == TrackingStatus::Lost {
             lost += 1;
+        }
+        if config.trace {
+            let (t, a) = activemap_geometry::se3::pose_error(&out.pose, &sim.true_pose());
+            eprintln!(
+                "frame {i:4} {:?} it {:2} kf {} track {:.3}s map {:.2}s err {:.2} cm {:.2}° truth {:.3?} est {:.3?} {:?}",
+                out.status,
+                out.iterations,
+                out.map_updated,
+                out.track_seconds,
+                out.map_seconds,
+                t * 100.0,
+                a.to_degrees(),
+                sim.true_pose().translation.vector.as_slice(),
+                out.pose.translation.vector.as_slice(),
+                out.residuals
+            );
         }
         truth.push(frame.stamp, sim.true_pose());
         estimate.push(frame.stamp, out.pose);

@@ -9,6 +9,7 @@
 //! lost frames the frame is mapped at the tracker's pose so the system cannot stay lost
 //! forever; `Skipped` frames take the prediction.
 
+use crate::dense::DenseReference;
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::keyframe::{KeyframeConfig, KeyframeDecision, decide};
@@ -90,6 +91,8 @@ pub struct SlamOutput {
 #[derive(Debug, Clone)]
 struct LastKeyframe {
     pose: Isometry3<f64>,
+    /// The keyframe prepared as the dense tracker's reference.
+    reference: DenseReference,
     median_depth: f64,
     visible_ids: Vec<u64>,
 }
@@ -206,6 +209,7 @@ impl Slam {
             &track_frame,
             &predicted,
             self.exposure,
+            self.last_keyframe.as_ref().map(|k| &k.reference),
         )?;
         let track_seconds = start.elapsed().as_secs_f64();
         let mut output = SlamOutput {
@@ -329,6 +333,7 @@ impl Slam {
         visible_ids.sort_unstable();
         self.last_keyframe = Some(LastKeyframe {
             pose,
+            reference: DenseReference::new(track_frame, pose, &self.config.tracker.dense),
             median_depth,
             visible_ids,
         });

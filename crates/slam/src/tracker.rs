@@ -1,13 +1,20 @@
-//! Frame-to-map tracking (SPEC §4): Adam on the pose increment τ = [ρ, θ] of the left update
+//! Tracking. The default ([`TrackerMethod::Dense`]) aligns the frame densely to the last
+//! keyframe's RGB-D image ([`crate::dense`]); the alternatives track against renders of the
+//! map. SPEC §4's frame-to-map tracking: Adam on the pose increment τ = [ρ, θ] of the left update
 //! `T_cw ← Exp(τ)·T_cw` and on the exposure (a, b), minimising the tracking loss of
 //! [`crate::loss::tracking_loss`]. Like MonoGS, τ is folded into the pose after every step
 //! (and reset to 0) while the Adam moments persist; the loop stops once |τ| < `convergence`.
 //!
-//! The tracking-quality signal: after optimisation the render is compared with the frame
-//! ([`Residuals`]). The frame is `Lost` when the map covers too little of it, or when the
-//! covered part disagrees in depth or colour beyond the configured limits: the map no longer
-//! explains it. Unknown-space Gaussians (SPEC §5) are never rendered for tracking.
+//! The tracking-quality signal. With [`TrackerMethod::Dense`] it comes from the alignment to
+//! the reference keyframe (one of the map's observations): the frame is `Lost` when too few of
+//! its depth pixels associate with the keyframe (`lost_min_coverage`) or their RMS
+//! point-to-plane distance exceeds `dense.lost_max_rms`. A frame that sees new, unmapped space
+//! but aligns well is not lost: it must be mapped, which is what exploration is for. With the
+//! render-based methods, the render is compared with the frame ([`Residuals`]): `Lost` when
+//! the map covers too little of it, or when the covered part disagrees in depth or colour
+//! beyond the configured limits. The map residuals are reported in every case. Unknown-space Gaussians (SPEC §5) are never rendered for tracking.
 
+use crate::dense::{DenseConfig, DenseReference, align};
 use crate::error::SlamError;
 use crate::frame::{Frame, SkipReason};
 use crate::gauss_newton::{GaussNewtonConfig, refine};
@@ -26,6 +33,10 @@ pub enum TrackerMethod {
     Adam,
     /// Coarse-to-fine Levenberg–Marquardt on τ ([`crate::gauss_newton`]): a handful of renders.
     GaussNewton,
+    /// Dense RGB-D alignment (point-to-plane ICP plus photometric) to the last keyframe
+    /// ([`crate::dense`]), one render for the status; the default. Without a reference
+    /// keyframe it falls back to [`TrackerMethod::GaussNewton`].
+    Dense,
 }
 
 /// Tracker settings; defaults are SPEC §4's except the optimiser (see [`TrackerMethod`]).
@@ -35,6 +46,8 @@ pub struct TrackerConfig {
     pub method: TrackerMethod,
     /// Settings of [`TrackerMethod::GaussNewton`].
     pub gauss_newton: GaussNewtonConfig,
+    /// Settings of [`TrackerMethod::Dense`].
+    pub dense: DenseConfig,
     /// Adam learning rate of the translation part ρ (0.001).
     pub lr_translation: f64,
     /// Adam learning rate of the rotation part θ (0.003).
@@ -70,8 +83,9 @@ pub struct TrackerConfig {
 impl Default for TrackerConfig {
     fn default() -> Self {
         Self {
-            method: TrackerMethod::GaussNewton,
+            method: TrackerMethod::Dense,
             gauss_newton: GaussNewtonConfig::default(),
+            dense: DenseConfig::default(),
             lr_translation: 0.001,
             lr_rotation: 0.003,
             lr_exposure: 0.01,
@@ -108,6 +122,7 @@ impl TrackerConfig {
             });
         }
         self.gauss_newton.validate()?;
+        self.dense.validate()?;
         if self.downscale == 0 {
             return Err(SlamError::Config {
                 field: "downscale",
@@ -149,6 +164,9 @@ pub struct TrackOutput {
     pub loss: f64,
     /// Which map Gaussians the final render saw (index into the map), for co-visibility.
     pub visible: Vec<bool>,
+    /// [`TrackerMethod::Dense`]: the fraction of the frame's valid-depth pixels associated
+    /// with the reference keyframe (a falling overlap asks for a new reference); 1 otherwise.
+    pub reference_overlap: f64,
 }
 
 /// Decides the status from residuals (see the module doc).
@@ -165,7 +183,8 @@ pub fn classify(config: &TrackerConfig, r: &Residuals, median_depth: f64) -> Tra
     }
 }
 
-/// Tracks `frame` (already at tracking resolution) against `map`, starting from the predicted
+/// Tracks `frame` (already at tracking resolution) against `map` (and, for
+/// [`TrackerMethod::Dense`], the `reference` keyframe), starting from the predicted
 /// `T_world_camera` and exposure. Unusable frames return `Skipped` with the prediction.
 pub fn track(
     config: &TrackerConfig,
@@ -173,6 +192,7 @@ pub fn track(
     frame: &Frame,
     predicted_pose: &Isometry3<f64>,
     predicted_exposure: [f64; 2],
+    reference: Option<&DenseReference>,
 ) -> Result<TrackOutput, SlamError> {
     config.validate()?;
     let pose_ok = predicted_pose
@@ -196,6 +216,7 @@ pub fn track(
         converged: false,
         loss: f64::NAN,
         visible: vec![false; map.len()],
+        reference_overlap: 0.0,
     };
     if let Err(reason) = frame.usability() {
         return Ok(skipped(reason));
@@ -206,8 +227,29 @@ pub fn track(
         exposure,
         exclude_flags: FLAG_UNKNOWN_SPACE,
     };
-    let (camera_from_world, exposure, iterations, converged) = match config.method {
-        TrackerMethod::Adam => adam_refine(
+    let mut inlier_fraction = 1.0;
+    let mut dense_status = None;
+    let (camera_from_world, exposure, iterations, converged) = match (config.method, reference) {
+        (TrackerMethod::Dense, Some(reference)) => {
+            let a = align(&config.dense, reference, frame, predicted_pose)?;
+            inlier_fraction = a.inlier_fraction;
+            dense_status = Some(
+                if a.inlier_fraction >= config.lost_min_coverage
+                    && a.rms_distance <= config.dense.lost_max_rms
+                {
+                    TrackingStatus::Ok
+                } else {
+                    TrackingStatus::Lost
+                },
+            );
+            (
+                a.pose.inverse(),
+                predicted_exposure,
+                a.iterations,
+                a.converged,
+            )
+        }
+        (TrackerMethod::Adam, _) => adam_refine(
             config,
             map,
             frame,
@@ -215,7 +257,7 @@ pub fn track(
             predicted_pose,
             predicted_exposure,
         )?,
-        TrackerMethod::GaussNewton => {
+        (TrackerMethod::GaussNewton | TrackerMethod::Dense, _) => {
             let r = refine(
                 &config.gauss_newton,
                 map,
@@ -253,7 +295,8 @@ pub fn track(
         .chain(pose.rotation.coords.iter())
         .all(|v| v.is_finite());
     let (pose, status) = if finite {
-        (pose, classify(config, &res, median_depth))
+        let status = dense_status.unwrap_or_else(|| classify(config, &res, median_depth));
+        (pose, status)
     } else {
         (*predicted_pose, TrackingStatus::Lost)
     };
@@ -266,6 +309,7 @@ pub fn track(
         converged,
         loss,
         visible: final_render.context.visible,
+        reference_overlap: inlier_fraction,
     })
 }
 
