@@ -162,7 +162,7 @@ impl<T: Real> BackSink<T> for BackwardSink<'_, T> {
     }
 
     #[inline(always)]
-    fn step(&mut self, base: usize, ln: &Lanes<T>) {
+    fn step(&mut self, base: usize, _chunk: usize, ln: &Lanes<T>) {
         let s = &self.splat;
         let g_col = [
             *lanes(&self.g_col[0], base),

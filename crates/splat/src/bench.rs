@@ -319,6 +319,80 @@ mod tests {
             .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect())
     }
 
+    /// CPU time of the whole process (all threads), nanoseconds, from /proc (Linux).
+    fn process_cpu_ns() -> u64 {
+        let mut total = 0;
+        if let Ok(dir) = std::fs::read_dir("/proc/self/task") {
+            for task in dir.flatten() {
+                if let Ok(s) = std::fs::read_to_string(task.path().join("schedstat")) {
+                    total += s
+                        .split_whitespace()
+                        .next()
+                        .and_then(|v| v.parse::<u64>().ok())
+                        .unwrap_or(0);
+                }
+            }
+        }
+        total
+    }
+
+    /// Development driver for the Fisher/backward cost ratio in CPU time (less sensitive to
+    /// other processes than wall time); forward, backward and Fisher alternate, medians:
+    /// `SPLAT_PROFILE_CASES=800x100000,200x10000 RAYON_NUM_THREADS=1 cargo test -p
+    /// activemap-splat --release --lib profile_fisher_ratio -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn profile_fisher_ratio() {
+        let cases = std::env::var("SPLAT_PROFILE_CASES").unwrap_or("200x10000".into());
+        let repeats: usize = std::env::var("SPLAT_BENCH_REPEATS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(5);
+        let cpu_ms = |f: &mut dyn FnMut()| {
+            let t = process_cpu_ns();
+            f();
+            (process_cpu_ns() - t) as f64 * 1e-6
+        };
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(|a, b| a.total_cmp(b));
+            v[v.len() / 2]
+        };
+        for case in cases.split(',') {
+            let (size, n) = case.split_once('x').expect("SIZExCOUNT");
+            let (size, n): (u32, usize) = (size.parse().unwrap(), n.parse().unwrap());
+            let g = scene(n);
+            let cam = camera(size);
+            let opts = RenderOptions::default();
+            let out = render(&g, &cam, &opts).unwrap();
+            let mut dl = PixelGrads::zeros(out.colour.len());
+            for (i, c) in dl.colour.iter_mut().enumerate() {
+                *c = [((i % 7) as f32 - 3.0) * 0.01; 3];
+            }
+            let (mut fwd, mut back, mut fish) = (Vec::new(), Vec::new(), Vec::new());
+            for r in 0..=repeats {
+                let tr = cpu_ms(&mut || {
+                    let _ = render(&g, &cam, &opts);
+                });
+                let tb = cpu_ms(&mut || {
+                    let _ = backward(&g, &out, &dl);
+                });
+                let tf = cpu_ms(&mut || {
+                    let _ = fisher(&g, &out, FisherMode::PerChannel);
+                });
+                if r > 0 {
+                    fwd.push(tr);
+                    back.push(tb);
+                    fish.push(tf);
+                }
+            }
+            let (r, b, f) = (median(fwd), median(back), median(fish));
+            println!(
+                "profile {case}: forward cpu_ms {r:.2} backward cpu_ms {b:.2} fisher cpu_ms {f:.2} fisher/backward {:.3}",
+                f / b
+            );
+        }
+    }
+
     #[test]
     #[ignore]
     fn run_benchmark() {
@@ -338,6 +412,25 @@ mod tests {
                 BenchConfig::default().extra_cases
             },
             ..Default::default()
+        };
+        // SPLAT_BENCH_CASES=800x100000,200x10000 runs only those (size, count) cases.
+        let cfg = match std::env::var("SPLAT_BENCH_CASES") {
+            Ok(v) => {
+                let cases: Vec<(u32, usize)> = v
+                    .split(',')
+                    .filter_map(|c| {
+                        let (s, n) = c.split_once('x')?;
+                        Some((s.parse().ok()?, n.parse().ok()?))
+                    })
+                    .collect();
+                BenchConfig {
+                    sizes: Vec::new(),
+                    counts: Vec::new(),
+                    extra_cases: cases,
+                    ..cfg
+                }
+            }
+            Err(_) => cfg,
         };
         for row in run(&cfg) {
             println!("{row}");

@@ -220,6 +220,38 @@ pub(crate) fn project_vjp<T: Real>(
     cam: &CameraT<T>,
     up: &[T; 6],
 ) -> ProjectionGrads<T> {
+    project_vjp_with(c, &ConicPrep::new(c), cam, up)
+}
+
+/// Products of the projection chain that every vector-Jacobian product through the conic
+/// reuses: `A = J·W`, `B = A·M` and `C = J·Σ_c` (2×3 each), so that with `G = ∂L/∂Σ'`:
+/// `∂L/∂Σ_c = JᵀGJ`, `Wᵀ(JᵀGJ)W·M = AᵀG·B`, `Σ_c·JᵀGJ = CᵀG·J` and `G·J·Σ_c = G·C`.
+pub(crate) struct ConicPrep<T: Real> {
+    a: Matrix2x3<T>,
+    b: Matrix2x3<T>,
+    c: Matrix2x3<T>,
+}
+
+impl<T: Real> ConicPrep<T> {
+    /// The products of chain `c`.
+    pub(crate) fn new(c: &Chain<T>) -> Self {
+        let a = c.j * c.w;
+        Self {
+            a,
+            b: a * c.m,
+            c: c.j * c.sigma_c,
+        }
+    }
+}
+
+/// [`project_vjp`] with the chain products `prep` computed once (the Fisher pass asks for
+/// several upstream vectors per Gaussian).
+pub(crate) fn project_vjp_with<T: Real>(
+    c: &Chain<T>,
+    prep: &ConicPrep<T>,
+    cam: &CameraT<T>,
+    up: &[T; 6],
+) -> ProjectionGrads<T> {
     let two = T::of(2.0);
     let half = T::of(0.5);
     let (fx, fy) = (cam.fx, cam.fy);
@@ -227,17 +259,28 @@ pub(crate) fn project_vjp<T: Real>(
     let iz = T::one() / z;
     let iz2 = iz * iz;
     let iz3 = iz2 * iz;
-    // Conic → 2D covariance: dQ = −Q dΣ' Q.
-    let gq = Matrix2::new(up[2], up[3] * half, up[3] * half, up[4]);
-    let gs = -(c.conic * gq * c.conic);
-    // Σ' = J Σ_c Jᵀ.
-    let g_c = c.j.transpose() * gs * c.j;
-    let dj = gs * c.j * c.sigma_c * two;
     let mut dp = Vector3::new(
         up[0] * fx * iz,
         up[1] * fy * iz,
         -up[0] * fx * x * iz2 - up[1] * fy * y * iz2 + up[5],
     );
+    if up[2] == T::zero() && up[3] == T::zero() && up[4] == T::zero() {
+        // No gradient on the conic: every covariance term below is zero, only the mean path
+        // remains (the Fisher pass asks for such unit rows).
+        let mean_grad = c.w.transpose() * dp;
+        let cross = c.p_c.cross(&dp);
+        return ProjectionGrads {
+            mean: [mean_grad.x, mean_grad.y, mean_grad.z],
+            rotation: [T::zero(); 4],
+            log_scale: [T::zero(); 3],
+            pose: [dp.x, dp.y, dp.z, cross.x, cross.y, cross.z],
+        };
+    }
+    // Conic → 2D covariance: dQ = −Q dΣ' Q.
+    let gq = Matrix2::new(up[2], up[3] * half, up[3] * half, up[4]);
+    let gs = -(c.conic * gq * c.conic);
+    // Σ' = J Σ_c Jᵀ: ∂L/∂Σ_c = Jᵀ·gs·J, ∂L/∂J = 2·gs·J·Σ_c.
+    let dj = gs * prep.c * two;
     dp.z += dj[(0, 0)] * (-fx * iz2) + dj[(1, 1)] * (-fy * iz2);
     let focal = [fx, fy];
     for k in 0..2 {
@@ -251,8 +294,8 @@ pub(crate) fn project_vjp<T: Real>(
     }
     let mean_grad = c.w.transpose() * dp;
     // Σ_c = W Σ Wᵀ, Σ = M Mᵀ, M = R(q) S.
-    let d_sigma = c.w.transpose() * g_c * c.w;
-    let dm = d_sigma * c.m * two;
+    // ∂L/∂Σ = Wᵀ(∂L/∂Σ_c)W = Aᵀ·gs·A; ∂L/∂M = 2·(∂L/∂Σ)·M = 2·Aᵀ·gs·B.
+    let dm = prep.a.transpose() * (gs * prep.b) * two;
     let mut d_rq = Matrix3::zeros();
     let mut log_scale = [T::zero(); 3];
     for jj in 0..3 {
@@ -288,7 +331,8 @@ pub(crate) fn project_vjp<T: Real>(
     let rotation = [0, 1, 2, 3].map(|k| (dqn[k] - c.q_n[k] * dot) / c.q_norm);
     // Pose: ∂p_c/∂ρ = I, ∂p_c/∂θ = −[p_c]×, Σ_c = W Σ Wᵀ with ∂(W v)/∂θ = −[W v]×.
     let cross = c.p_c.cross(&dp);
-    let p = c.sigma_c * g_c;
+    // Σ_c·(∂L/∂Σ_c) = Σ_c·Jᵀ·gs·J = Cᵀ·gs·J.
+    let p = prep.c.transpose() * (gs * c.j);
     let pose = [
         dp.x,
         dp.y,

@@ -23,6 +23,8 @@ use rayon::prelude::*;
 
 /// Pixels processed together along a row (8 × f32 = one AVX2 register).
 pub(crate) const LANES: usize = 8;
+/// Most chunks of [`LANES`] pixels a pair's row can have (a box row inside a tile).
+pub(crate) const ROW_CHUNKS: usize = TILE.div_ceil(LANES);
 /// Pixels of a tile.
 pub(crate) const TILE_PIXELS: usize = TILE * TILE;
 /// Length of the per-tile state buffers: a chunk may start at any pixel of the tile.
@@ -100,12 +102,15 @@ pub(crate) trait BackSink<T: Real> {
     fn begin_pair(&mut self, id: usize, splat: &Splat<T>);
     /// A new pixel row at vertical offset `dy = mean_y − pixel_y`.
     fn begin_row(&mut self, dy: T);
-    /// `LANES` pixels starting at tile-local pixel `base`.
-    fn step(&mut self, base: usize, lanes: &Lanes<T>);
+    /// `LANES` pixels starting at tile-local pixel `base`, the `chunk`-th (`< ROW_CHUNKS`) of
+    /// the pair's row: chunk `c` starts at the same column (`dx`) on every row of a pair.
+    fn step(&mut self, base: usize, chunk: usize, lanes: &Lanes<T>);
     /// End of the row begun with `dy`.
     fn end_row(&mut self, dy: T);
     /// End of the pair at position `k` of the tile's list.
     fn end_pair(&mut self, k: usize);
+    /// End of the tile: per-tile work that should run in the same (SIMD) build as the walk.
+    fn end_tile(&mut self) {}
 }
 
 /// Whether the AVX2 builds may be used: always, except in the test that compares them with the
@@ -130,7 +135,10 @@ pub(crate) fn walk_back<T: Real, S: BackSink<T>>(
     sink: &mut S,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+    if simd_allowed()
+        && std::arch::is_x86_feature_detected!("avx2")
+        && std::arch::is_x86_feature_detected!("fma")
+    {
         // SAFETY: the CPU supports AVX2 and FMA, checked just above.
         unsafe { walk_back_avx2(ctx, tile, sink) };
         return;
@@ -226,7 +234,17 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
                     ln.t_i[l] = t_i;
                     ln.weight[l] = alpha * t_i;
                 }
-                sink.step(base, &ln);
+                if !ln
+                    .alpha
+                    .iter()
+                    .fold(false, |any, a| any | (*a != T::zero()))
+                {
+                    // No lane composites this Gaussian: nothing to accumulate, and the
+                    // transmittance and the colour behind stay as they are.
+                    x += LANES;
+                    continue;
+                }
+                sink.step(base, (x - bx0) / LANES, &ln);
                 *t_l = ln.t_i;
                 for ch in 0..3 {
                     let sc = lanes_mut(&mut s_col[ch], base);
@@ -244,6 +262,7 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
         }
         sink.end_pair(k);
     }
+    sink.end_tile();
 }
 
 /// Sum of the lanes in a fixed order (deterministic).
@@ -274,26 +293,54 @@ pub(crate) fn walk_tiles<T: Real, R: Send>(
     (slots, results)
 }
 
-/// Sums the pair slots of [`walk_tiles`] per Gaussian, in pair order (deterministic).
+/// Sums the pair slots of [`walk_tiles`] per Gaussian, in pair (tile) order, so the result
+/// does not depend on the thread count. The pairs of each Gaussian are first listed (counting
+/// sort over the Gaussian ids), then the Gaussians are summed in parallel.
 pub(crate) fn reduce_slots<T: Real, const N: usize>(
     ctx: &ForwardContext<T>,
     slots: &[T],
     gaussians: usize,
 ) -> Vec<[T; N]> {
-    let mut out = vec![[T::zero(); N]; gaussians];
-    for t in 0..ctx.bins.tile_count() {
-        let walked = ctx.walked_offsets[t + 1] - ctx.walked_offsets[t];
-        let ids = &ctx.bins.tile(t)[..walked];
-        let first = ctx.walked_offsets[t];
-        for (k, &id) in ids.iter().enumerate() {
-            let src = &slots[(first + k) * N..(first + k + 1) * N];
-            for (d, v) in out[id as usize].iter_mut().zip(src) {
-                *d += *v;
-            }
+    let tiles = ctx.bins.tile_count();
+    let walked_ids = |t: usize| &ctx.bins.tile(t)[..ctx.walked(t)];
+    let mut starts = vec![0usize; gaussians + 1];
+    for t in 0..tiles {
+        for &id in walked_ids(t) {
+            starts[id as usize + 1] += 1;
         }
     }
+    for i in 0..gaussians {
+        starts[i + 1] += starts[i];
+    }
+    let mut fill = starts.clone();
+    let mut pairs = vec![0usize; starts[gaussians]];
+    for t in 0..tiles {
+        let first = ctx.walked_offsets[t];
+        for (k, &id) in walked_ids(t).iter().enumerate() {
+            let at = &mut fill[id as usize];
+            pairs[*at] = first + k;
+            *at += 1;
+        }
+    }
+    let mut out = vec![[T::zero(); N]; gaussians];
+    out.par_chunks_mut(REDUCE_CHUNK)
+        .enumerate()
+        .for_each(|(chunk, part)| {
+            for (j, sum) in part.iter_mut().enumerate() {
+                let i = chunk * REDUCE_CHUNK + j;
+                for &pair in &pairs[starts[i]..starts[i + 1]] {
+                    let src = &slots[pair * N..(pair + 1) * N];
+                    for (d, v) in sum.iter_mut().zip(src) {
+                        *d += *v;
+                    }
+                }
+            }
+        });
     out
 }
+
+/// Gaussians per parallel task of [`reduce_slots`].
+const REDUCE_CHUNK: usize = 1024;
 
 #[cfg(test)]
 mod tests {
