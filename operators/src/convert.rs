@@ -3,6 +3,7 @@
 //! settings shared by the `sim` and `evaluator` operators.
 
 use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_planning::clearance::ClearanceConfig;
 use activemap_planning::grid::{CellState as PlanCell, GridGeometry, OccupancyGrid as PlanGrid};
 use activemap_schemas::{
     CellState as WireCell, GaussianMapHeader, GaussianMapMut, GaussianMapView,
@@ -14,6 +15,20 @@ use nalgebra::{Quaternion, Translation3, UnitQuaternion};
 /// Camera height above the floor, metres (SPEC §1, the simulator's robot): the robot knows its
 /// own mount, so the SLAM world is anchored at the start pose with the floor at z = 0.
 pub const CAMERA_HEIGHT_M: f64 = 0.88;
+
+/// The robot's radius, metres: the simulator's cylinder agent (`activemap_sim` houses are built
+/// so every room is reachable for it). Planning keeps this disc off every blocked cell
+/// ([`robot_clearance`]), and the occupancy marks it free around the robot.
+pub const ROBOT_RADIUS_M: f64 = 0.1;
+
+/// The collision check every planning operator shares (frontier reachability, A*, replan
+/// triggers): the robot width for which a [`ROBOT_RADIUS_M`] disc centred on a clear cell never
+/// overlaps a blocked cell of a grid with `resolution_m` cells (≈ 4.47 cells at 5 cm; SPEC §6's
+/// 3 cells would let the agent touch mapped walls). One width everywhere, so a frontier's
+/// closest reachable cell is a goal A* accepts.
+pub fn robot_clearance(resolution_m: f64) -> anyhow::Result<ClearanceConfig> {
+    Ok(ClearanceConfig::for_disc(ROBOT_RADIUS_M, resolution_m)?)
+}
 
 /// The SLAM world anchor: the camera pose of a robot at the planar origin (the start pose
 /// defines the world frame; the robot is never told where it is in the scene).
@@ -205,5 +220,19 @@ mod tests {
             let (a, b) = (grid.geometry.center(c), back.geometry.center(c));
             assert!((a - b).norm() < 1e-12, "{c:?}: {a} vs {b}");
         }
+    }
+
+    /// The planning footprint is the simulator's agent: same radius, and at 5 cm cells the
+    /// shared clearance is wider than SPEC §6's 3 cells (which let the agent touch walls).
+    #[test]
+    fn robot_footprint_matches_the_simulator_agent() {
+        let agent = activemap_sim::house::HouseConfig::default().agent_radius;
+        assert_eq!(ROBOT_RADIUS_M, agent);
+        let c = robot_clearance(0.05).unwrap();
+        assert!(
+            c.robot_width_cells > 4.4 && c.robot_width_cells < 4.5,
+            "{c:?}"
+        );
+        assert!(c.unknown_is_blocked);
     }
 }

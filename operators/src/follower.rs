@@ -26,7 +26,7 @@ use activemap_schemas::{
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{pose_from_wire, read_grid};
+use crate::convert::{pose_from_wire, read_grid, robot_clearance};
 use crate::join::FrameJoin;
 
 /// Config.
@@ -225,7 +225,7 @@ impl FollowerCore {
                         grid,
                         &ClearanceConfig {
                             unknown_is_blocked: false,
-                            ..ClearanceConfig::default()
+                            ..robot_clearance(grid.geometry.resolution)?
                         },
                     )?;
                     let plan_grid = self.plan_grid.get_or_insert_with(|| grid.clone());
@@ -544,7 +544,8 @@ mod tests {
         // A path to the farthest reachable cell of the mapped area (re-made whenever the
         // follower asks before the box appears: the map grows as the robot drives).
         let replan_far = |core: &mut FollowerCore, pose: &PlanarPose, grid: &PlanGrid| -> f64 {
-            let map = ClearanceMap::new(grid, &ClearanceConfig::default()).unwrap();
+            let clearance = crate::convert::robot_clearance(grid.geometry.resolution).unwrap();
+            let map = ClearanceMap::new(grid, &clearance).unwrap();
             let here = Point2::new(pose.x, pose.y);
             let distances = path_distances(&map, grid.geometry.cell_of(here));
             let (far, d) = distances

@@ -25,16 +25,14 @@ pub struct Config {
     /// Regions need more than this many cells (SPEC §6: 5).
     #[serde(default = "default_min")]
     pub min_region_cells: usize,
-    /// Robot width in cells for reachability (SPEC §6: 3).
-    #[serde(default = "default_width")]
-    pub robot_width_cells: f64,
+    /// Robot width in cells for reachability; default: the width that keeps the robot's disc
+    /// off blocked cells ([`crate::convert::robot_clearance`], the one A* and the follower use).
+    #[serde(default)]
+    pub robot_width_cells: Option<f64>,
 }
 
 fn default_min() -> usize {
     5
-}
-fn default_width() -> f64 {
-    3.0
 }
 
 /// The reachable frontier regions of `grid` seen from `robot`, largest first (ties: the
@@ -44,9 +42,10 @@ pub fn frontier_regions(
     robot: Point2<f64>,
     config: &Config,
 ) -> anyhow::Result<Vec<FrontierRegion>> {
+    let shared = crate::convert::robot_clearance(grid.geometry.resolution)?;
     let clearance = ClearanceConfig {
-        robot_width_cells: config.robot_width_cells,
-        ..ClearanceConfig::default()
+        robot_width_cells: config.robot_width_cells.unwrap_or(shared.robot_width_cells),
+        ..shared
     };
     let map = ClearanceMap::new(grid, &clearance)?;
     let fc = FrontierConfig {
@@ -186,7 +185,7 @@ mod tests {
         let robot = grid.geometry.center(activemap_planning::Cell::new(3, 4));
         let config = Config {
             min_region_cells: 5,
-            robot_width_cells: 3.0,
+            robot_width_cells: Some(3.0),
         };
         let regions = frontier_regions(&grid, robot, &config).unwrap();
         assert_eq!(regions.len(), 1, "{regions:?}");

@@ -54,6 +54,16 @@ impl<S: Default> FrameJoin<S> {
         self.slots.pop_first()
     }
 
+    /// Like [`Self::pop_ready`], with the frame id passed to `ready` as well (for inputs kept
+    /// outside the slot, e.g. a lagged map snapshot).
+    pub fn pop_ready_by(&mut self, ready: impl Fn(u64, &S) -> bool) -> Option<(u64, S)> {
+        let (&k, first) = self.slots.first_key_value()?;
+        if !ready(k, first) {
+            return None;
+        }
+        self.slots.pop_first()
+    }
+
     /// Drops every slot of a frame older than `frame` (inputs that are no longer needed).
     pub fn discard_before(&mut self, frame: u64) {
         self.slots = self.slots.split_off(&frame);

@@ -1,8 +1,10 @@
 //! `occupancy`: the 2D grid on the motion plane (SPEC §6) from the Gaussian map and the depth
 //! rays of each frame at its ESTIMATED pose, wrapping `activemap_planning::occupancy`. The
 //! robot's own footprint is marked free. One grid per frame, once the frame, its pose estimate
-//! and the map snapshot of that frame have all arrived (lockstep order, [`FrameJoin`]). Frames
-//! the tracker reports lost cast no depth rays.
+//! and the map snapshot of frame k − 1 − L (L = `map_lag`,
+//! [`crate::mapper::required_snapshot`]) have all arrived (lockstep order, [`FrameJoin`]): the
+//! map part lags, the depth rays of the current frame keep the grid current. Frames the
+//! tracker reports lost cast no depth rays.
 
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::{Intrinsics, Isometry3};
@@ -19,6 +21,7 @@ use nalgebra::Point2;
 use crate::Registered;
 use crate::convert::{frame_intrinsics, grid_to_wire, pose_from_wire};
 use crate::join::FrameJoin;
+use crate::mapper::required_snapshot;
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -36,6 +39,10 @@ pub struct Config {
     /// Use every n-th depth pixel per row and column.
     #[serde(default = "default_stride")]
     pub pixel_stride: usize,
+    /// Map lag L in frames: frame k uses the map snapshot of frame k − 1 − L. Must equal the
+    /// mapper's `map_lag`.
+    #[serde(default)]
+    pub map_lag: u64,
 }
 
 fn default_cell() -> f64 {
@@ -45,7 +52,7 @@ fn default_threshold() -> u32 {
     25
 }
 fn default_footprint() -> f64 {
-    0.15
+    crate::convert::ROBOT_RADIUS_M
 }
 fn default_stride() -> usize {
     1
@@ -56,21 +63,27 @@ fn default_stride() -> usize {
 struct Slot {
     depth: Option<(Vec<f32>, Intrinsics, f64)>,
     pose: Option<(Isometry3<f64>, TrackingStatus)>,
-    /// Map points in the height band (means, opacities after the sigmoid).
-    map: Option<(Vec<[f32; 3]>, Vec<f32>)>,
 }
 
 impl Slot {
     fn complete(&self) -> bool {
-        self.depth.is_some() && self.pose.is_some() && self.map.is_some()
+        self.depth.is_some() && self.pose.is_some()
     }
 }
+
+/// Map points of one snapshot (means, opacities after the sigmoid).
+type MapPoints = (Vec<[f32; 3]>, Vec<f32>);
 
 /// The operator's state.
 pub struct Occupancy {
     mapper: OccupancyMapper,
     footprint: f64,
     join: FrameJoin<Slot>,
+    lag: u64,
+    /// Map snapshots by the frame they include, from the one the next frame needs on.
+    maps: std::collections::BTreeMap<u64, MapPoints>,
+    /// The snapshot last loaded into the occupancy mapper (an unchanged map is not reloaded).
+    loaded: Option<(usize, u64)>,
     /// Frames whose depth was not integrated because tracking was lost.
     pub skipped_lost: usize,
 }
@@ -93,6 +106,9 @@ impl Occupancy {
             mapper: OccupancyMapper::new(occ, Point2::new(-2.0, -2.0), Point2::new(2.0, 2.0))?,
             footprint: config.footprint_radius,
             join: FrameJoin::new(),
+            lag: config.map_lag,
+            maps: std::collections::BTreeMap::new(),
+            loaded: None,
             skipped_lost: 0,
         })
     }
@@ -109,7 +125,7 @@ impl Occupancy {
 
     /// Stores the map snapshot of frame `k` as Gaussian means and opacities (post-sigmoid).
     pub fn add_map(&mut self, k: u64, means: Vec<[f32; 3]>, opacities: Vec<f32>) {
-        self.join.slot(k).map = Some((means, opacities));
+        self.maps.insert(k, (means, opacities));
     }
 
     /// Integrates every frame whose depth, pose and map have arrived, in frame order; returns
@@ -117,11 +133,25 @@ impl Occupancy {
     /// (its pose is only a prediction, and rays from a wrong pose would free walls).
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<activemap_schemas::OccupancyGrid>> {
         let mut out = Vec::new();
-        while let Some((k, slot)) = self.join.pop_ready(Slot::complete) {
+        loop {
+            let maps = &self.maps;
+            let lag = self.lag;
+            let Some((k, slot)) = self
+                .join
+                .pop_ready_by(|k, s| s.complete() && maps.contains_key(&required_snapshot(k, lag)))
+            else {
+                break;
+            };
             let (depth, intrinsics, stamp) = slot.depth.expect("complete");
             let (pose, status) = slot.pose.expect("complete");
-            let (means, opacities) = slot.map.expect("complete");
-            self.mapper.set_map_points(&means, &opacities)?;
+            let needed = required_snapshot(k, lag);
+            self.maps = self.maps.split_off(&needed);
+            let (means, opacities) = &self.maps[&needed];
+            let fingerprint = (means.len(), points_fingerprint(means, opacities));
+            if self.loaded != Some(fingerprint) {
+                self.mapper.set_map_points(means, opacities)?;
+                self.loaded = Some(fingerprint);
+            }
             if status == TrackingStatus::Lost {
                 self.skipped_lost += 1;
             } else {
@@ -134,6 +164,17 @@ impl Occupancy {
         }
         Ok(out)
     }
+}
+
+/// A cheap content hash of map points (FNV-1a over their bits), so an unchanged snapshot (no
+/// keyframe since the last one) is not binned again.
+fn points_fingerprint(means: &[[f32; 3]], opacities: &[f32]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for v in means.iter().flatten().chain(opacities) {
+        h ^= u64::from(v.to_bits());
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
 }
 
 /// The means and opacities (after the sigmoid) of a wire map, the only fields the occupancy
@@ -225,5 +266,70 @@ pub fn registered() -> Registered {
             check_config: check_config_as::<Config>,
         },
         implementation: Some(OperatorImpl::of::<Occupancy>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::convert::start_anchor;
+
+    /// The state of the wire cell holding world point (x, y).
+    fn state_at(grid: &activemap_schemas::OccupancyGrid, x: f64, y: f64) -> u8 {
+        let ix = ((x - grid.origin[0]) / grid.resolution).round() as u32;
+        let iy = ((y - grid.origin[1]) / grid.resolution).round() as u32;
+        grid.cells[(iy * grid.width + ix) as usize]
+    }
+
+    /// With map lag L = 1, frame k is gridded against the snapshot of frame k − 2 exactly:
+    /// a wall cluster that first appears in snapshot 1 is absent from the grids of frames 0–2
+    /// (snapshot 0) and present from frame 3 on; frame 3 waits until snapshot 1 arrives, and a
+    /// newer snapshot that is already there does not leak into an older frame's grid.
+    #[test]
+    fn frames_use_exactly_the_lagged_snapshot() {
+        let mut occ = Occupancy::from_config(Config {
+            cell_size: 0.05,
+            point_threshold: 25,
+            footprint_radius: 0.15,
+            pixel_stride: 1,
+            map_lag: 1,
+        })
+        .unwrap();
+        let intrinsics = Intrinsics::from_hfov(8, 8, std::f64::consts::FRAC_PI_2);
+        let pose = start_anchor(0.88);
+        // 30 points in each cell of a 3×3 block (the opening of SPEC §6 removes lone cells).
+        let wall: Vec<[f32; 3]> = (0..9 * 30)
+            .map(|i| {
+                let (cell, j) = (i / 30, i % 30);
+                let x = 1.01 + 0.05 * (cell % 3) as f32 + 0.001 * j as f32;
+                let y = 1.01 + 0.05 * (cell / 3) as f32;
+                [x, y, 0.5]
+            })
+            .collect();
+        // Snapshots 0 (empty) and 1 (the wall) both arrive before any frame.
+        occ.add_map(0, vec![], vec![]);
+        occ.add_map(1, wall.clone(), vec![0.9; wall.len()]);
+        let mut grids = Vec::new();
+        for k in 0..5u64 {
+            occ.add_depth(k, vec![0.0; 64], intrinsics, k as f64);
+            occ.add_pose(k, pose, TrackingStatus::Ok);
+            grids.extend(occ.process_ready().unwrap());
+        }
+        // Frame 4 needs snapshot 2, which has not arrived.
+        assert_eq!(grids.len(), 4);
+        let occupied = activemap_schemas::CellState::Occupied as u8;
+        for g in &grids {
+            let has_wall = state_at(g, 1.075, 1.075) == occupied;
+            assert_eq!(has_wall, g.frame_id >= 3, "frame {}", g.frame_id);
+        }
+        occ.add_map(2, vec![], vec![]);
+        let last = occ.process_ready().unwrap();
+        assert_eq!(last.len(), 1);
+        assert_eq!(last[0].frame_id, 4);
+        assert_ne!(
+            state_at(&last[0], 1.075, 1.075),
+            occupied,
+            "snapshot 2 has no wall"
+        );
     }
 }

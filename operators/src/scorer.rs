@@ -7,7 +7,7 @@
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::astar::{AstarConfig, plan};
-use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
+use activemap_planning::clearance::ClearanceMap;
 use activemap_planning::grid::Cell;
 use activemap_planning::shortcut::shortcut;
 use activemap_runtime::{
@@ -19,7 +19,7 @@ use activemap_schemas::{
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{pose_from_wire, read_grid};
+use crate::convert::{pose_from_wire, read_grid, robot_clearance};
 use crate::join::FrameJoin;
 
 /// Config.
@@ -54,7 +54,7 @@ pub fn shortest_path(
     goal: Cell,
     look_at: Point2<f64>,
 ) -> anyhow::Result<Option<(Vec<PlanarPose2>, f64)>> {
-    let map = ClearanceMap::new(grid, &ClearanceConfig::default())?;
+    let map = ClearanceMap::new(grid, &robot_clearance(grid.geometry.resolution)?)?;
     let start = grid.geometry.require_cell(robot, "robot position")?;
     let Some(path) = plan(&map, start, goal, &AstarConfig::default())? else {
         return Ok(None);

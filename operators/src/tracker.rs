@@ -3,9 +3,12 @@
 //! (floor at z = 0, [`crate::convert::start_anchor`]) and each frame is predicted from the
 //! previous estimate and the commanded action (or constant velocity).
 //!
-//! Lockstep determinism: frame k is tracked only once the map snapshot of frame k − 1 (the
-//! mapper publishes one per frame) and the action of step k − 1 have arrived, so the result
-//! never depends on message timing. Exactly one pose estimate per frame.
+//! Lockstep determinism: frame k is tracked only once the map snapshot of frame k − 1 − L (the
+//! mapper publishes one per frame; L = `map_lag`, [`crate::mapper::required_snapshot`]) and the
+//! action of step k − 1 have arrived, and always against exactly that snapshot, so the result
+//! never depends on message timing. Exactly one pose estimate per frame. The dense tracker
+//! aligns to its own reference keyframe and needs the map only for its Lost signal, so a lag
+//! of a few frames costs little while mapping runs in the background.
 
 use std::collections::BTreeMap;
 
@@ -23,6 +26,7 @@ use activemap_splat::Gaussians;
 
 use crate::Registered;
 use crate::convert::{CAMERA_HEIGHT_M, pose_to_wire, read_map, slam_frame, start_anchor};
+use crate::mapper::required_snapshot;
 
 /// How the tracker predicts the next pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -56,6 +60,10 @@ pub struct Config {
     /// once the overlap with the current reference falls below this fraction.
     #[serde(default = "default_rereference")]
     pub rereference_below: f64,
+    /// Map lag L in frames: frame k is tracked against the snapshot of frame k − 1 − L. Must
+    /// equal the mapper's `map_lag`.
+    #[serde(default)]
+    pub map_lag: u64,
 }
 
 fn default_rereference() -> f64 {
@@ -88,8 +96,8 @@ pub fn action_motion(action: ActionKind, camera_height: f64) -> Isometry3<f64> {
 pub struct Tracker {
     config: Config,
     tracker: TrackerConfig,
-    map: Gaussians<f32>,
-    map_frame: Option<u64>,
+    /// Map snapshots by the frame they include, from the one the next frame needs on.
+    maps: BTreeMap<u64, Gaussians<f32>>,
     frames: BTreeMap<u64, Frame>,
     actions: BTreeMap<u64, ActionKind>,
     next: u64,
@@ -124,8 +132,7 @@ impl Tracker {
             pose: start_anchor(config.camera_height),
             config,
             tracker,
-            map: Gaussians::new(),
-            map_frame: None,
+            maps: BTreeMap::new(),
             frames: BTreeMap::new(),
             actions: BTreeMap::new(),
             next: 0,
@@ -137,8 +144,7 @@ impl Tracker {
 
     /// Stores a map snapshot (of frame `frame_id`).
     pub fn set_map(&mut self, frame_id: u64, map: Gaussians<f32>) {
-        self.map = map;
-        self.map_frame = Some(frame_id);
+        self.maps.insert(frame_id, map);
     }
 
     /// Stores an RGB-D frame to track.
@@ -169,9 +175,10 @@ impl Tracker {
                     0,
                 ));
             } else {
-                if self.map_frame.is_none_or(|m| m + 1 < k) {
+                let needed = required_snapshot(k, self.config.map_lag);
+                let Some(map) = self.maps.get(&needed) else {
                     break;
-                }
+                };
                 let Some(&action) = self.actions.get(&(k - 1)) else {
                     break;
                 };
@@ -184,7 +191,7 @@ impl Tracker {
                 let small = frame.downscale(self.tracker.downscale);
                 let t = track(
                     &self.tracker,
-                    &self.map,
+                    map,
                     &small,
                     &predicted,
                     self.exposure,
@@ -214,6 +221,7 @@ impl Tracker {
                     t.iterations as u32,
                 ));
                 self.actions.remove(&(k - 1));
+                self.maps = self.maps.split_off(&needed);
             }
             self.frames.remove(&k);
             self.next += 1;
@@ -330,5 +338,47 @@ mod tests {
         );
         let r = action_motion(ActionKind::TurnRight, 0.88);
         assert!((r * l).rotation.angle() < 1e-12);
+    }
+
+    /// With map lag L = 3, frame k is tracked once the snapshot of frame k − 4 is there: with
+    /// only snapshot 0, frames 0–4 come out and frame 5 waits; snapshot 1 releases it. Each
+    /// frame is tracked exactly once, in order.
+    #[test]
+    fn tracking_waits_only_for_the_lagged_snapshot() {
+        let frames = crate::mapper::tests::sequence(6);
+        let mut tracker = Tracker::from_config(Config {
+            camera_height: CAMERA_HEIGHT_M,
+            motion_prior: Prior::None,
+            downscale: Some(1),
+            max_iterations: Some(5),
+            rereference_below: 0.85,
+            map_lag: 3,
+        })
+        .unwrap();
+        for (k, (frame, _)) in frames.iter().enumerate() {
+            tracker.add_frame(k as u64, frame.clone());
+            tracker.add_action(k as u64, ActionKind::TurnLeft);
+        }
+        assert!(
+            tracker.process_ready().unwrap().len() == 1,
+            "frame 0 needs no map"
+        );
+        tracker.set_map(0, Gaussians::new());
+        let ids: Vec<u64> = tracker
+            .process_ready()
+            .unwrap()
+            .iter()
+            .map(|e| e.frame_id)
+            .collect();
+        assert_eq!(ids, vec![1, 2, 3, 4]);
+        tracker.set_map(1, Gaussians::new());
+        let ids: Vec<u64> = tracker
+            .process_ready()
+            .unwrap()
+            .iter()
+            .map(|e| e.frame_id)
+            .collect();
+        assert_eq!(ids, vec![5]);
+        assert!(tracker.process_ready().unwrap().is_empty());
     }
 }

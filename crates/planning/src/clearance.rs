@@ -31,6 +31,43 @@ impl Default for ClearanceConfig {
 }
 
 impl ClearanceConfig {
+    /// The narrowest robot width (in cells) for which a robot DISC of `radius_m` centred on any
+    /// clear cell overlaps no blocked cell's square, on a grid of `resolution_m` cells (unknown
+    /// cells block). A blocked cell at integer offset (dx, dy) from the robot's cell comes as
+    /// close as √(max(|dx|−½,0)² + max(|dy|−½,0)²) cells to the robot's centre; every offset
+    /// closer than the radius must lie within the clearance radius, so the clearance radius is
+    /// the largest centre distance √(dx²+dy²) among those offsets (plus a hair for rounding).
+    /// Why: SPEC §6's 3 cells (0.15 m) lets the centre come within 2 cells (0.10 m) of a
+    /// blocked cell's centre, i.e. 0.075 m of its edge, so the simulator's 0.1 m-radius agent
+    /// would touch walls the map shows; 0.1 m at 5 cm cells gives √5·2 ≈ 4.47 cells.
+    pub fn for_disc(radius_m: f64, resolution_m: f64) -> Result<Self, PlanningError> {
+        require(
+            radius_m.is_finite() && radius_m >= 0.0,
+            "ClearanceConfig::for_disc radius",
+            "must be finite and non-negative",
+        )?;
+        require(
+            resolution_m.is_finite() && resolution_m > 0.0,
+            "ClearanceConfig::for_disc resolution",
+            "must be finite and positive",
+        )?;
+        let r = radius_m / resolution_m;
+        let reach = r.ceil() as i64 + 1;
+        let mut radius_cells = 0.0f64;
+        for dx in 0..=reach {
+            for dy in 0..=reach {
+                let gap = |d: i64| (d as f64 - 0.5).max(0.0);
+                if gap(dx).hypot(gap(dy)) < r {
+                    radius_cells = radius_cells.max((dx as f64).hypot(dy as f64));
+                }
+            }
+        }
+        Ok(Self {
+            robot_width_cells: 2.0 * (radius_cells + 1e-6),
+            unknown_is_blocked: true,
+        })
+    }
+
     /// Checks the ranges of every field.
     pub fn validate(&self) -> Result<(), PlanningError> {
         require(
@@ -146,6 +183,71 @@ mod tests {
         assert!(!map.is_clear(Cell::new(-1, 0)));
         assert!(map.segment_is_clear(Cell::new(0, 0), Cell::new(6, 0)));
         assert!(!map.segment_is_clear(Cell::new(0, 2), Cell::new(6, 2)));
+    }
+
+    /// Independent geometric check of [`ClearanceConfig::for_disc`]: on seeded random grids, a
+    /// 0.1 m disc around every clear cell's centre misses every blocked cell's square (exact
+    /// point-to-square distance), while the SPEC's 3-cell width lets the disc touch walls, and
+    /// the width is the narrowest that works (the next smaller offset distance fails).
+    #[test]
+    fn disc_clearance_keeps_the_agent_disc_off_every_blocked_cell() {
+        use rand::{Rng, SeedableRng};
+        let (radius, res) = (0.1, 0.05);
+        let config = ClearanceConfig::for_disc(radius, res).unwrap();
+        assert!((config.robot_width_cells - 2.0 * 5f64.sqrt()).abs() < 1e-5);
+        let touches = |map: &ClearanceMap, grid: &OccupancyGrid| {
+            let g = grid.geometry;
+            let mut touched = false;
+            for y in 0..g.height as i64 {
+                for x in 0..g.width as i64 {
+                    if !map.is_clear(Cell::new(x as i32, y as i32)) {
+                        continue;
+                    }
+                    for by in 0..g.height as i64 {
+                        for bx in 0..g.width as i64 {
+                            if !map.is_blocked(Cell::new(bx as i32, by as i32)) {
+                                continue;
+                            }
+                            let gap = |d: i64| ((d.abs() as f64) - 0.5).max(0.0) * res;
+                            if gap(bx - x).hypot(gap(by - y)) < radius - 1e-12 {
+                                touched = true;
+                            }
+                        }
+                    }
+                }
+            }
+            touched
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(6);
+        let mut narrow_touched = 0;
+        for _ in 0..20 {
+            let rows: Vec<String> = (0..14)
+                .map(|_| {
+                    (0..14)
+                        .map(|_| if rng.random::<f64>() < 0.03 { '#' } else { '.' })
+                        .collect()
+                })
+                .collect();
+            let rows: Vec<&str> = rows.iter().map(|r| r.as_str()).collect();
+            let grid = OccupancyGrid::from_ascii(&rows, res).unwrap();
+            let map = ClearanceMap::new(&grid, &config).unwrap();
+            assert!(
+                !touches(&map, &grid),
+                "disc touches a blocked cell:\n{rows:?}"
+            );
+            let narrow = ClearanceConfig {
+                robot_width_cells: 2.0 * 2.0,
+                ..config
+            };
+            if touches(&ClearanceMap::new(&grid, &narrow).unwrap(), &grid) {
+                narrow_touched += 1;
+            }
+            let spec = ClearanceMap::new(&grid, &ClearanceConfig::default()).unwrap();
+            assert!(touches(&spec, &grid) || rows.iter().all(|r| !r.contains('#')));
+        }
+        assert!(narrow_touched > 0, "a radius of 2 cells must be too small");
+        assert!(ClearanceConfig::for_disc(-1.0, res).is_err());
+        assert!(ClearanceConfig::for_disc(radius, 0.0).is_err());
     }
 
     #[test]

@@ -10,10 +10,13 @@ use activemap_geometry::Isometry3;
 /// Keyframe rule settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct KeyframeConfig {
-    /// Co-visibility (IoU of visible Gaussian sets) below which a keyframe is taken (0.9).
+    /// Co-visibility (IoU of visible Gaussian sets) below which a keyframe is taken (0.8;
+    /// MonoGS 0.9, see `translation_fraction`).
     pub min_covisibility: f64,
     /// Translation, as a fraction of the last keyframe's median depth, above which a keyframe
-    /// is taken (MonoGS `kf_translation` 0.08).
+    /// is taken (0.12; MonoGS `kf_translation` 0.08). With 0.12 / 0.8 the scripted loop at
+    /// 200² takes 45 instead of 71 keyframes in 200 frames, for −44 % total mapping CPU and
+    /// −0.2 dB held-out PSNR (mapper at true poses, tests/mapping_quality.rs).
     pub translation_fraction: f64,
     /// Minimum number of frames between keyframes (1 = any frame may be one).
     pub min_interval: usize,
@@ -24,8 +27,8 @@ pub struct KeyframeConfig {
 impl Default for KeyframeConfig {
     fn default() -> Self {
         Self {
-            min_covisibility: 0.9,
-            translation_fraction: 0.08,
+            min_covisibility: 0.8,
+            translation_fraction: 0.12,
             min_interval: 2,
             max_interval: 30,
         }
@@ -105,14 +108,14 @@ mod tests {
         let c = KeyframeConfig::default();
         let p0 = Isometry3::identity();
         let ids: Vec<u64> = (0..100).collect();
-        let shifted: Vec<u64> = (20..120).collect(); // IoU 80/120 < 0.9
+        let shifted: Vec<u64> = (20..120).collect(); // IoU 80/120 < 0.8
         let near = Isometry3::from_parts(Translation3::new(0.05, 0.0, 0.0), Default::default());
         let far = Isometry3::from_parts(Translation3::new(0.3, 0.0, 0.0), Default::default());
-        // Same view, small motion (0.05 < 0.08·2 m): no keyframe.
+        // Same view, small motion (0.05 < 0.12·2 m): no keyframe.
         assert!(!decide(&c, &near, &p0, 2.0, &ids, &ids, 5).is_keyframe);
         // Overlap drop: keyframe.
         assert!(decide(&c, &near, &p0, 2.0, &shifted, &ids, 5).is_keyframe);
-        // Large motion (0.3 > 0.16): keyframe even with full overlap.
+        // Large motion (0.3 > 0.24): keyframe even with full overlap.
         assert!(decide(&c, &far, &p0, 2.0, &ids, &ids, 5).is_keyframe);
         // Too soon after the last keyframe: no.
         assert!(!decide(&c, &far, &p0, 2.0, &shifted, &ids, 1).is_keyframe);

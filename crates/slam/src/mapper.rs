@@ -6,10 +6,18 @@
 //!
 //! Pruning: after every keyframe's optimisation, Gaussians with opacity below
 //! `prune_opacity_early` (0.005) go; Gaussians visible in the window that have had at least
-//! `prune_min_age` optimisation steps and still have opacity below `prune_opacity_window`
-//! (0.7, MonoGS `gaussian_th`) go too, as do Gaussians larger than `prune_max_scale`.
+//! `prune_min_age` (30) optimisation steps and still have opacity below
+//! `prune_opacity_window` go too, as do Gaussians larger than `prune_max_scale`. The window
+//! threshold is 0.1, not MonoGS's `gaussian_th` 0.7: MonoGS applies 0.7 only at its periodic
+//! densify/prune steps after hundreds of GPU iterations; with ~10 CPU iterations per keyframe a
+//! Gaussian inserted below 0.7 has not yet climbed there, and 0.7 deleted most of the young
+//! map (measured: held-out PSNR 26.6 → 27.4 dB and depth residual 3.8 → 1.5 cm at 160² over
+//! 40 frames when lowered to 0.1; `tests/mapping_quality.rs`).
+//!
+//! Each iteration renders the newest keyframe plus `views_per_iteration − 1` (2) views drawn at
+//! random from the rest of the window (MonoGS also samples its window), not every window view.
 //! Densification (3DGS): Gaussians whose mean screen-space gradient (in NDC units, i.e. the
-//! pixel gradient × width/2) exceeds `densify_grad` (2e-4) are cloned when small
+//! pixel gradient × width/2) exceeds `densify_grad` (6e-4) are cloned when small
 //! (max scale ≤ `densify_split_scale`) and split in two (scales / 1.6, means sampled from the
 //! Gaussian) when large. Unknown-space Gaussians are never optimised, pruned or densified.
 //! Keyframe poses are the tracker's (they are not refined here).
@@ -40,8 +48,16 @@ pub struct MapperConfig {
     pub window: usize,
     /// Random older keyframes added to the window (2).
     pub random_older: usize,
-    /// Optimisation iterations per keyframe (each renders every window view once).
+    /// Optimisation iterations per keyframe.
     pub iterations: usize,
+    /// Views rendered per iteration: the newest keyframe plus `views_per_iteration − 1` views
+    /// drawn at random from the rest of the window (MonoGS samples its window the same way);
+    /// 0 renders every window view in every iteration.
+    pub views_per_iteration: usize,
+    /// Of the `iterations`, how many run first on the keyframes at half resolution
+    /// (coarse-to-fine: a quarter of the pixels; 0 = all at full resolution). Default 5 of 10:
+    /// measured −20 % CPU per keyframe and +0.2 dB held-out at 160² (tests/mapping_quality.rs).
+    pub coarse_iterations: usize,
     /// Weight α of the colour term of the mapping loss.
     pub alpha: f32,
     /// `Σ RGB` threshold of the colour mask.
@@ -52,13 +68,15 @@ pub struct MapperConfig {
     pub learning_rates: AdamConfig,
     /// Opacity below which any Gaussian is pruned (0.005).
     pub prune_opacity_early: f64,
-    /// Opacity below which an old-enough Gaussian visible in the window is pruned (0.7).
+    /// Opacity below which an old-enough Gaussian visible in the window is pruned (0.1; see
+    /// the module doc for why not MonoGS's 0.7).
     pub prune_opacity_window: f64,
     /// Optimisation steps a Gaussian must have had before the window threshold applies.
     pub prune_min_age: u32,
     /// Largest allowed scale, metres.
     pub prune_max_scale: f64,
-    /// Densification threshold on the mean NDC-space gradient of the projected mean (2e-4).
+    /// Densification threshold on the mean NDC-space gradient of the projected mean (6e-4;
+    /// 3DGS uses 2e-4, which with the dense insertion here doubled the map for +0.3 dB).
     pub densify_grad: f64,
     /// Split (rather than clone) Gaussians whose largest scale exceeds this, metres.
     pub densify_split_scale: f64,
@@ -76,6 +94,8 @@ impl Default for MapperConfig {
             window: 10,
             random_older: 2,
             iterations: 10,
+            views_per_iteration: 3,
+            coarse_iterations: 5,
             alpha: 0.95,
             rgb_boundary: 0.01,
             isotropic_weight: 10.0,
@@ -88,10 +108,10 @@ impl Default for MapperConfig {
                 ..AdamConfig::default()
             },
             prune_opacity_early: 0.005,
-            prune_opacity_window: 0.7,
+            prune_opacity_window: 0.1,
             prune_min_age: 30,
             prune_max_scale: 0.5,
-            densify_grad: 2e-4,
+            densify_grad: 6e-4,
             densify_split_scale: 0.05,
             max_gaussians: 150_000,
             seed: 0,
@@ -139,6 +159,8 @@ pub struct Keyframe {
     pub exposure: [f64; 2],
     /// Colour mask of the mapping loss.
     pub rgb_mask: Vec<bool>,
+    /// The frame at half resolution and its colour mask, for the coarse iterations.
+    pub coarse: Option<(Frame, Vec<bool>)>,
 }
 
 /// What one keyframe's mapping did.
@@ -303,11 +325,17 @@ impl Mapper {
         };
         report.inserted = self.insert_from(&frame, &pose)?;
         let mask = rgb_mask(&frame, self.config.rgb_boundary, 0.0);
+        let coarse = (self.config.coarse_iterations > 0).then(|| {
+            let small = frame.downscale(2);
+            let small_mask = rgb_mask(&small, self.config.rgb_boundary, 0.0);
+            (small, small_mask)
+        });
         self.keyframes.push(Keyframe {
             frame,
             pose,
             exposure,
             rgb_mask: mask,
+            coarse,
         });
         let refined = self.optimise(self.config.iterations)?;
         report.window_views = refined.window_views;
@@ -332,9 +360,16 @@ impl Mapper {
         let mut grad_sum = vec![0f64; self.map.len()];
         let mut grad_count = vec![0u32; self.map.len()];
         let mut in_window = vec![false; self.map.len()];
-        for _ in 0..iterations {
-            report.final_loss =
-                self.optimise_once(&window, &mut grad_sum, &mut grad_count, &mut in_window)?;
+        for iteration in 0..iterations {
+            let views = self.iteration_views(&window);
+            let coarse = iteration < self.config.coarse_iterations;
+            report.final_loss = self.optimise_once(
+                &views,
+                coarse,
+                &mut grad_sum,
+                &mut grad_count,
+                &mut in_window,
+            )?;
         }
         if iterations > 0 {
             let (pruned, densified) = self.prune_and_densify(&grad_sum, &grad_count, &in_window)?;
@@ -358,10 +393,29 @@ impl Mapper {
         out
     }
 
-    /// One optimisation step over the window views; returns the mean loss over the views.
+    /// The views of one iteration: the newest keyframe (last of the recent part of `window`)
+    /// plus `views_per_iteration − 1` others drawn without replacement from the window.
+    fn iteration_views(&mut self, window: &[usize]) -> Vec<usize> {
+        let per_iteration = self.config.views_per_iteration;
+        if per_iteration == 0 || per_iteration >= window.len() {
+            return window.to_vec();
+        }
+        let newest = self.keyframes.len() - 1;
+        let mut others: Vec<usize> = window.iter().copied().filter(|&k| k != newest).collect();
+        let mut out = vec![newest];
+        for _ in 0..(per_iteration - 1).min(others.len()) {
+            let j = self.rng.random_range(0..others.len());
+            out.push(others.swap_remove(j));
+        }
+        out
+    }
+
+    /// One optimisation step over the given views (at half resolution when `coarse` and the
+    /// keyframe has a coarse copy); returns the mean loss over the views.
     fn optimise_once(
         &mut self,
         window: &[usize],
+        coarse: bool,
         grad_sum: &mut [f64],
         grad_count: &mut [u32],
         in_window: &mut [bool],
@@ -372,21 +426,20 @@ impl Mapper {
         let mut loss_sum = 0.0;
         for &kf in window {
             let keyframe = &self.keyframes[kf];
-            let camera = Camera::from_world_pose(keyframe.frame.intrinsics, &keyframe.pose);
+            let (frame, mask) = match (&keyframe.coarse, coarse) {
+                (Some((small, small_mask)), true) => (small, small_mask),
+                _ => (&keyframe.frame, &keyframe.rgb_mask),
+            };
+            let camera = Camera::from_world_pose(frame.intrinsics, &keyframe.pose);
             let options = RenderOptions {
                 exposure: keyframe.exposure,
                 exclude_flags: FLAG_UNKNOWN_SPACE,
             };
             let rendered = render(&self.map, &camera, &options)?;
-            let loss = mapping_loss(
-                &rendered,
-                &keyframe.frame,
-                &keyframe.rgb_mask,
-                self.config.alpha,
-            );
+            let loss = mapping_loss(&rendered, frame, mask, self.config.alpha);
             loss_sum += loss.value;
             let grads = backward(&self.map, &rendered, &loss.grads)?;
-            let ndc = 0.5 * keyframe.frame.width() as f64;
+            let ndc = 0.5 * frame.width() as f64;
             for i in 0..n {
                 if rendered.context.visible[i] {
                     active[i] = true;
@@ -625,7 +678,17 @@ mod tests {
         );
         assert_eq!(mapper.unknown_count(), 200);
         assert!(report.pruned >= 1 && mapper.map().len() < n + report.densified);
-        // Once old enough, Gaussians below 0.7 in the window are pruned too.
+        // A weak (0.05) but young Gaussian survives the window rule: with 1 Adam step it is
+        // far below `prune_min_age` (the old rule deleted Gaussians before they could fit).
+        let mut young_mapper = Mapper::new(dense_config()).unwrap();
+        young_mapper
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        let young = young_mapper.ids()[5];
+        young_mapper.map.opacity_logits[5] = activemap_splat::gaussians::logit(0.05) as f32;
+        young_mapper.optimise(1).unwrap();
+        assert!(young_mapper.ids().contains(&young));
+        // Once old enough, Gaussians below the window threshold (0.1) are pruned.
         let cfg = MapperConfig {
             prune_min_age: 1,
             ..dense_config()
@@ -635,14 +698,14 @@ mod tests {
             .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
             .unwrap();
         let weak = mapper2.ids()[5];
-        mapper2.map.opacity_logits[5] = activemap_splat::gaussians::logit(0.3) as f32;
+        mapper2.map.opacity_logits[5] = activemap_splat::gaussians::logit(0.05) as f32;
         mapper2.optimise(1).unwrap();
         assert!(!mapper2.ids().contains(&weak));
-        let strong_survivors = (0..mapper2.map().len())
-            .filter(|&i| mapper2.map().opacity(i) >= 0.7)
+        let above_threshold = (0..mapper2.map().len())
+            .filter(|&i| mapper2.map().opacity(i) >= 0.1)
             .count();
         assert_eq!(
-            strong_survivors,
+            above_threshold,
             mapper2.map().len() - mapper2.unknown_count()
         );
     }

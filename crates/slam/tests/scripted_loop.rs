@@ -36,15 +36,10 @@ fn scripted_loop_driver() {
 }
 
 /// Issue 5: a 300-frame scripted loop through procedural house 3 at 160×160, tracked with no
-/// ground truth (the truth goes to the ATE only), ends with ATE RMSE ≤ 2 cm. The mapper runs
-/// a short schedule (2 iterations per keyframe) to keep the test fast: tracking aligns to
-/// keyframe images and only its `Lost` signal reads the map; map quality has its own tests.
+/// ground truth (the truth goes to the ATE only), ends with ATE RMSE ≤ 2 cm and no lost frame.
 #[test]
-#[ignore = "slow until the mapper meets its per-keyframe time; run with --ignored"]
 fn a_300_frame_loop_at_160px_tracks_within_2cm() {
-    let mut c = LoopConfig::new(160, 300);
-    c.slam.mapper.iterations = 2;
-    c.slam.mapper.insert.sample_fraction = 0.25;
+    let c = LoopConfig::new(160, 300);
     let r = run_loop(&c).unwrap();
     eprintln!("{r:?}");
     assert!(r.ate_cm <= 2.0, "{r:?}");

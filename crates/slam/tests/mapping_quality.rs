@@ -1,0 +1,298 @@
+//! Mapping quality, independent of tracking (issue 5, mapper half).
+//!
+//! The procedural house (seed 3) and the rectangle loop of `activemap_slam::scripted` are
+//! rendered by the simulator; the [`Mapper`] receives keyframes at their TRUE poses (like the
+//! ICL test that maps frames with their given poses). The tracker is never run: this measures
+//! the mapper alone. Keyframes are chosen by the keyframe rule of `activemap_slam::keyframe`
+//! applied to the true poses (the visible set is the map's projected set at the frame's pose,
+//! as in `Slam`). Metrics: held-out PSNR at poses never mapped (every 10th loop pose shifted
+//! 2.5 cm forward and turned 2.5°, as in `scripted.rs`), training PSNR at the keyframes, the
+//! median depth residual `|D̂/o − D|` over covered keyframe pixels, the Gaussian count and the
+//! mapping wall time per keyframe.
+
+use activemap_geometry::{Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_sim::house::{HouseConfig, generate};
+use activemap_sim::{SimConfig, Simulator};
+use activemap_slam::keyframe::decide;
+use activemap_slam::scripted::rectangle_loop;
+use activemap_slam::{Frame, KeyframeConfig, Mapper, MapperConfig};
+use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, Render, RenderOptions, render};
+use std::time::Instant;
+
+/// One mapping-quality run.
+struct QualityConfig {
+    resolution: u32,
+    frames: usize,
+    /// Stop after this many keyframes.
+    max_keyframes: usize,
+    keyframe: KeyframeConfig,
+    mapper: MapperConfig,
+}
+
+/// What one run measured.
+#[derive(Debug)]
+#[allow(dead_code)] // Fields are read through Debug in the drivers.
+struct QualityResult {
+    frames: usize,
+    keyframes: usize,
+    psnr_train: f64,
+    psnr_test: f64,
+    held_out_views: usize,
+    depth_median_residual_m: f64,
+    gaussians: usize,
+    seconds_per_keyframe: f64,
+    /// Process CPU seconds (all threads) per keyframe: with the machine shared, CPU/2 is
+    /// closer to the wall time on a quiet 2-core machine than the loaded wall time.
+    cpu_seconds_per_keyframe: f64,
+    inserted: usize,
+    pruned: usize,
+    densified: usize,
+}
+
+fn render_clean(map: &Gaussians<f32>, frame: &Frame, pose: &Isometry3<f64>) -> Render<f32> {
+    let camera = Camera::from_world_pose(frame.intrinsics, pose);
+    render(
+        map,
+        &camera,
+        &RenderOptions {
+            exposure: [0.0, 0.0],
+            exclude_flags: FLAG_UNKNOWN_SPACE,
+        },
+    )
+    .expect("render")
+}
+
+/// PSNR (peak 1) of the rendered colour, clamped to [0, 1], against the frame.
+fn psnr(rendered: &Render<f32>, frame: &Frame) -> f64 {
+    let mut se = 0.0f64;
+    for (r, t) in rendered.colour.iter().zip(&frame.rgb) {
+        for c in 0..3 {
+            let d = (r[c].clamp(0.0, 1.0) - t[c]) as f64;
+            se += d * d;
+        }
+    }
+    let mse = se / (3 * frame.rgb.len()) as f64;
+    -10.0 * mse.log10()
+}
+
+fn frame_of(sim: &mut Simulator, pose: Option<&Isometry3<f64>>) -> Frame {
+    let rgbd = match pose {
+        Some(p) => sim.render_at(p),
+        None => sim.render(),
+    };
+    Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, 0.0).expect("frame")
+}
+
+fn run(config: &QualityConfig) -> QualityResult {
+    let house = generate(3, &HouseConfig::default()).expect("house");
+    let room = *house
+        .rooms
+        .iter()
+        .find(|r| {
+            (r.min[0]..=r.max[0]).contains(&house.start.x)
+                && (r.min[1]..=r.max[1]).contains(&house.start.y)
+        })
+        .unwrap_or(&house.rooms[0]);
+    let (start, actions) = rectangle_loop(room.min, room.max, 0.7, config.frames);
+    let sim_config = SimConfig {
+        start: Some(start),
+        ..SimConfig::with_resolution(config.resolution, config.resolution)
+    };
+    let mut sim = Simulator::new(house.scene, sim_config).expect("simulator");
+    let mut mapper = Mapper::new(config.mapper.clone()).expect("mapper");
+    let mut map_seconds = 0.0;
+    let mut cpu_seconds = 0.0;
+    let mut last: Option<(Isometry3<f64>, f64, Vec<u64>)> = None;
+    let mut frames_since = 0usize;
+    let mut held_out = Vec::new();
+    let mut frames = 0;
+    let mut totals = [0usize; 3];
+    for i in 0..config.frames {
+        if i > 0 {
+            sim.step(actions[(i - 1).min(actions.len() - 1)]);
+        }
+        frames += 1;
+        let frame = frame_of(&mut sim, None);
+        let pose = sim.true_pose();
+        if i % 10 == 5 {
+            let p = sim.true_planar_pose();
+            let shifted = PlanarPose::new(
+                p.x + 0.025 * p.yaw.cos(),
+                p.y + 0.025 * p.yaw.sin(),
+                p.yaw + 2.5f64.to_radians(),
+            );
+            held_out.push(camera_pose_from_planar(
+                &shifted,
+                sim.navigation().floor_z(),
+                sim.config().camera_height,
+            ));
+        }
+        frames_since += 1;
+        let is_keyframe = match &last {
+            None => true,
+            Some((last_pose, last_depth, last_visible)) => {
+                let visible = visible_ids(&mapper, &frame, &pose);
+                decide(
+                    &config.keyframe,
+                    &pose,
+                    last_pose,
+                    *last_depth,
+                    &visible,
+                    last_visible,
+                    frames_since,
+                )
+                .is_keyframe
+            }
+        };
+        if !is_keyframe {
+            continue;
+        }
+        let median_depth = frame.median_depth().unwrap_or(1.0);
+        let t = Instant::now();
+        let cpu_start = process_cpu_seconds();
+        let report = mapper
+            .add_keyframe(frame.clone(), pose, [0.0, 0.0])
+            .expect("mapping");
+        totals[0] += report.inserted;
+        totals[1] += report.pruned;
+        totals[2] += report.densified;
+        map_seconds += t.elapsed().as_secs_f64();
+        cpu_seconds += process_cpu_seconds() - cpu_start;
+        last = Some((pose, median_depth, visible_ids(&mapper, &frame, &pose)));
+        frames_since = 0;
+        if mapper.keyframes().len() >= config.max_keyframes {
+            break;
+        }
+    }
+    let map = mapper.map();
+    let mut train = Vec::new();
+    let mut residuals = Vec::new();
+    for kf in mapper.keyframes() {
+        let r = render_clean(map, &kf.frame, &kf.pose);
+        train.push(psnr(&r, &kf.frame));
+        for p in 0..kf.frame.depth.len() {
+            let (d, o) = (kf.frame.depth[p], r.opacity[p]);
+            if d > 0.01 && o > 0.5 {
+                residuals.push((r.depth[p] / o - d).abs());
+            }
+        }
+    }
+    let mut test = Vec::new();
+    for pose in &held_out {
+        let frame = frame_of(&mut sim, Some(pose));
+        test.push(psnr(&render_clean(map, &frame, pose), &frame));
+    }
+    residuals.sort_by(f32::total_cmp);
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    QualityResult {
+        frames,
+        keyframes: mapper.keyframes().len(),
+        psnr_train: mean(&train),
+        psnr_test: mean(&test),
+        held_out_views: test.len(),
+        depth_median_residual_m: residuals
+            .get(residuals.len() / 2)
+            .map_or(f64::NAN, |&r| r as f64),
+        gaussians: map.len(),
+        seconds_per_keyframe: map_seconds / mapper.keyframes().len().max(1) as f64,
+        cpu_seconds_per_keyframe: cpu_seconds / mapper.keyframes().len().max(1) as f64,
+        inserted: totals[0],
+        pruned: totals[1],
+        densified: totals[2],
+    }
+}
+
+/// User + system CPU time of this process so far, seconds (Linux `/proc/self/stat`, clock
+/// ticks of 1/100 s); NaN elsewhere.
+fn process_cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let ticks = |k: usize| fields.get(k).and_then(|v| v.parse::<f64>().ok());
+    match (ticks(11), ticks(12)) {
+        (Some(u), Some(s)) => (u + s) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
+/// Sorted ids of the Gaussians the map projects into `frame` at `pose`.
+fn visible_ids(mapper: &Mapper, frame: &Frame, pose: &Isometry3<f64>) -> Vec<u64> {
+    let r = render_clean(mapper.map(), frame, pose);
+    let mut ids: Vec<u64> = mapper
+        .ids()
+        .iter()
+        .zip(&r.context.visible)
+        .filter(|(_, v)| **v)
+        .map(|(id, _)| *id)
+        .collect();
+    ids.sort_unstable();
+    ids
+}
+
+fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Development driver: `RES=160 FRAMES=120 cargo test -p activemap-slam --test
+/// mapping_quality -- --ignored --nocapture`.
+#[test]
+#[ignore = "development driver; run with --ignored --nocapture"]
+fn mapping_quality_driver() {
+    let mut mapper = MapperConfig::default();
+    mapper.iterations = env("MITS", mapper.iterations);
+    mapper.insert.sample_fraction = env("FRAC", mapper.insert.sample_fraction);
+    mapper.prune_opacity_window = env("PRUNE", mapper.prune_opacity_window);
+    mapper.window = env("WINDOW", mapper.window);
+    mapper.prune_min_age = env("MIN_AGE", mapper.prune_min_age);
+    mapper.views_per_iteration = env("VIEWS", mapper.views_per_iteration);
+    mapper.insert.target_samples = env("TARGET", mapper.insert.target_samples);
+    mapper.densify_grad = env("DENSIFY", mapper.densify_grad);
+    mapper.coarse_iterations = env("COARSE", mapper.coarse_iterations);
+    mapper.insert.scale_factor = env("SCALE", mapper.insert.scale_factor);
+    mapper.insert.opacity = env("OPACITY", mapper.insert.opacity);
+    let mut keyframe = KeyframeConfig::default();
+    keyframe.min_covisibility = env("COVIS", keyframe.min_covisibility);
+    keyframe.translation_fraction = env("KF_T", keyframe.translation_fraction);
+    let config = QualityConfig {
+        resolution: env("RES", 160),
+        frames: env("FRAMES", 120),
+        max_keyframes: env("MAX_KF", usize::MAX),
+        keyframe,
+        mapper,
+    };
+    let r = run(&config);
+    eprintln!("res {} {r:?}", config.resolution);
+}
+
+/// Quality floor on a short sequence at 80×80 with the default mapper (10 keyframes, 44
+/// frames). Measured (this seed, deterministic): held-out PSNR 27.0 dB and depth median
+/// residual 2.5 cm with the session-3 defaults. The session-2 mapper defaults (opacity 0.5,
+/// scale 1× the 1/64 spacing, window prune at 0.7, every window view per iteration, densify at
+/// 2e-4) gave 25.0 dB and 17.6 cm on the same frames, and the 0.7 window prune applied to
+/// young Gaussians (age 10) emptied the map (4.4 dB). The floors below (25.8 dB, 6 cm) fail
+/// on those maps and leave 1.2 dB of margin to the current one.
+#[test]
+fn short_sequence_meets_a_quality_floor() {
+    let config = QualityConfig {
+        resolution: 80,
+        frames: 60,
+        max_keyframes: 10,
+        keyframe: KeyframeConfig::default(),
+        mapper: MapperConfig::default(),
+    };
+    let r = run(&config);
+    eprintln!("{r:?}");
+    assert!(r.keyframes >= 5, "{r:?}");
+    assert!(r.held_out_views >= 2, "{r:?}");
+    assert!(r.psnr_test >= 25.8, "held-out PSNR below the floor: {r:?}");
+    assert!(
+        r.depth_median_residual_m <= 0.06,
+        "depth residual above the ceiling: {r:?}"
+    );
+}
