@@ -159,6 +159,22 @@ fn colour_psnr(
     )?)
 }
 
+/// The held-out view near the simulator's current pose: 2.5 cm forward and turned 2.5° left
+/// (a `T_world_camera` SLAM never saw), for held-out PSNR.
+pub fn held_out_pose(sim: &Simulator) -> Isometry3<f64> {
+    let p = sim.true_planar_pose();
+    let shifted = PlanarPose::new(
+        p.x + 0.025 * p.yaw.cos(),
+        p.y + 0.025 * p.yaw.sin(),
+        p.yaw + 2.5f64.to_radians(),
+    );
+    camera_pose_from_planar(
+        &shifted,
+        sim.navigation().floor_z(),
+        sim.config().camera_height,
+    )
+}
+
 /// Runs the scripted loop and measures it (see the module doc).
 pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
     let house = generate(config.house_seed, &HouseConfig::default())?;
@@ -225,17 +241,7 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
         truth.push(frame.stamp, sim.true_pose());
         estimate.push(frame.stamp, out.pose);
         if i % config.held_out_every.max(1) == config.held_out_every / 2 {
-            let p = sim.true_planar_pose();
-            let shifted = PlanarPose::new(
-                p.x + 0.025 * p.yaw.cos(),
-                p.y + 0.025 * p.yaw.sin(),
-                p.yaw + 2.5f64.to_radians(),
-            );
-            held_out.push(camera_pose_from_planar(
-                &shifted,
-                sim.navigation().floor_z(),
-                sim.config().camera_height,
-            ));
+            held_out.push(held_out_pose(&sim));
         }
     }
     let ate_rmse = activemap_eval::ate(&truth, &estimate, AteOptions::default())?.rmse;

@@ -10,11 +10,11 @@
 //! median depth residual `|D̂/o − D|` over covered keyframe pixels, the Gaussian count and the
 //! mapping wall time per keyframe.
 
-use activemap_geometry::{Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_geometry::Isometry3;
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{SimConfig, Simulator};
 use activemap_slam::keyframe::decide;
-use activemap_slam::scripted::rectangle_loop;
+use activemap_slam::scripted::{held_out_pose, rectangle_loop};
 use activemap_slam::{Frame, KeyframeConfig, Mapper, MapperConfig};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, Render, RenderOptions, render};
 use std::time::Instant;
@@ -115,17 +115,7 @@ fn run(config: &QualityConfig) -> QualityResult {
         let frame = frame_of(&mut sim, None);
         let pose = sim.true_pose();
         if i % 10 == 5 {
-            let p = sim.true_planar_pose();
-            let shifted = PlanarPose::new(
-                p.x + 0.025 * p.yaw.cos(),
-                p.y + 0.025 * p.yaw.sin(),
-                p.yaw + 2.5f64.to_radians(),
-            );
-            held_out.push(camera_pose_from_planar(
-                &shifted,
-                sim.navigation().floor_z(),
-                sim.config().camera_height,
-            ));
+            held_out.push(held_out_pose(&sim));
         }
         frames_since += 1;
         let is_keyframe = match &last {
