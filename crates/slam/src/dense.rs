@@ -30,6 +30,7 @@
 
 use crate::error::SlamError;
 use crate::frame::Frame;
+use crate::gauss_newton::prior_information;
 use activemap_geometry::{Intrinsics, Isometry3, se3};
 use nalgebra::{Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
@@ -126,16 +127,6 @@ impl DenseConfig {
             });
         }
         Ok(())
-    }
-
-    /// The prior's diagonal information `Λ` (zero where a sigma is 0).
-    fn prior_information(&self) -> Vector6<f64> {
-        let inv = |s: f64| if s > 0.0 { 1.0 / (s * s) } else { 0.0 };
-        let (t, r) = (
-            inv(self.prior_translation_sigma),
-            inv(self.prior_rotation_sigma),
-        );
-        Vector6::new(t, t, t, r, r, r)
     }
 }
 
@@ -432,7 +423,8 @@ pub fn align(
             ),
         });
     }
-    let information = config.prior_information();
+    let information =
+        prior_information(config.prior_translation_sigma, config.prior_rotation_sigma);
     let to_reference = se3::normalized(&reference.pose).inverse();
     let predicted_rel = se3::normalized(&(to_reference * se3::normalized(predicted)));
     let mut t = predicted_rel;

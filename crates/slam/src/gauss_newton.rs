@@ -190,13 +190,12 @@ pub fn paired_costs(
     (a, b)
 }
 
-/// Information (inverse covariance, diagonal) of the motion prior on τ; zero where disabled.
-fn prior_information(config: &GaussNewtonConfig) -> Vector6<f64> {
+/// Information (inverse covariance, diagonal) of a motion prior on τ = [ρ, θ] with the given
+/// standard deviations (metres, radians); zero where a sigma is 0 (disabled). Shared by the
+/// Gauss–Newton and dense trackers.
+pub(crate) fn prior_information(translation_sigma: f64, rotation_sigma: f64) -> Vector6<f64> {
     let inv = |s: f64| if s > 0.0 { 1.0 / (s * s) } else { 0.0 };
-    let (t, r) = (
-        inv(config.prior_translation_sigma),
-        inv(config.prior_rotation_sigma),
-    );
+    let (t, r) = (inv(translation_sigma), inv(rotation_sigma));
     Vector6::new(t, t, t, r, r, r)
 }
 
@@ -334,7 +333,8 @@ pub fn refine(
     };
     let mut pose = camera_from_world;
     let predicted = camera_from_world;
-    let information = prior_information(config);
+    let information =
+        prior_information(config.prior_translation_sigma, config.prior_rotation_sigma);
     let mut iterations = 0;
     let mut converged = false;
     for &factor in &config.pyramid {
