@@ -300,7 +300,10 @@ fn start_names_the_machine_whose_daemon_is_missing() {
             &root(),
             Duration::from_secs(60),
         );
-        if !o.stderr.contains("machine `a`: no daemon answered") {
+        // Daemon a may not listen yet (no session at all) or not answer yet: both mean retry.
+        let a_not_up = o.stderr.contains("no daemon reachable")
+            || o.stderr.contains("machine `a`: no daemon answered");
+        if !a_not_up {
             out = Some(o);
             break;
         }
@@ -313,7 +316,7 @@ fn start_names_the_machine_whose_daemon_is_missing() {
         "{}",
         out.stderr
     );
-    // What machine a started was stopped again, and the daemon still serves.
+    // Nothing was started on machine a, and its daemon still serves.
     let down = run(
         &["down", "--connect", &control_a],
         &root(),
