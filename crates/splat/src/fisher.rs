@@ -437,21 +437,30 @@ impl<T: Real, const PER_CHANNEL: bool> BackSink<T> for FisherSink<'_, T, PER_CHA
         let mut mom_dep = [[T::zero(); LANES]; MOMENTS];
         let mut cross = [[T::zero(); LANES]; 6];
         for c in 0..self.chunks_used {
-            let dx = self.chunk_dx[c];
+            let dx = &self.chunk_dx[c];
             let (col, dep, crs) = (&self.col_sums[c], &self.dep_sums[c], &self.cross_sums[c]);
+            // dx^i per lane, i = 0..4; the lane loops innermost so that they vectorise.
+            let mut dx_pow = [[T::one(); LANES]; 5];
             for l in 0..LANES {
                 let dx2 = dx[l] * dx[l];
-                let dx_pow = [T::one(), dx[l], dx2, dx2 * dx[l], dx2 * dx2];
-                for i in 0..5 {
-                    for j in 0..5 - i {
-                        let m = moment_index(i, j);
-                        mom_col[m][l] = col[j][l].mul_add(dx_pow[i], mom_col[m][l]);
-                        mom_dep[m][l] = dep[j][l].mul_add(dx_pow[i], mom_dep[m][l]);
+                dx_pow[1][l] = dx[l];
+                dx_pow[2][l] = dx2;
+                dx_pow[3][l] = dx2 * dx[l];
+                dx_pow[4][l] = dx2 * dx2;
+            }
+            for i in 0..5 {
+                for j in 0..5 - i {
+                    let m = moment_index(i, j);
+                    for l in 0..LANES {
+                        mom_col[m][l] = col[j][l].mul_add(dx_pow[i][l], mom_col[m][l]);
+                        mom_dep[m][l] = dep[j][l].mul_add(dx_pow[i][l], mom_dep[m][l]);
                     }
                 }
-                // cross over m = (1, dx, dy, dx², dx·dy, dy²).
-                for (m, (i, j)) in MONO_EXP.iter().enumerate() {
-                    cross[m][l] = crs[*j][l].mul_add(dx_pow[*i], cross[m][l]);
+            }
+            // cross over m = (1, dx, dy, dx², dx·dy, dy²).
+            for (m, (i, j)) in MONO_EXP.iter().enumerate() {
+                for l in 0..LANES {
+                    cross[m][l] = crs[*j][l].mul_add(dx_pow[*i][l], cross[m][l]);
                 }
             }
         }
