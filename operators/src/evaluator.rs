@@ -27,7 +27,8 @@ use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid, read_map};
-use crate::sim::SceneConfig;
+use crate::sim::up_axis_from_name;
+use activemap_sim::{SceneSpec, UpAxis};
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -42,6 +43,9 @@ pub struct Config {
     /// As in `sim`.
     #[serde(default)]
     pub max_area: Option<f64>,
+    /// As in `sim` (`y` or `z`, for scene files).
+    #[serde(default, deserialize_with = "up_axis_from_name")]
+    pub up_axis: Option<UpAxis>,
     /// Output folder; default the run folder (`ACTIVEMAP_RUN_DIR`), else the working directory.
     #[serde(default)]
     pub out: Option<PathBuf>,
@@ -80,6 +84,9 @@ pub struct Summary {
     pub max_rooms: Option<u32>,
     /// As in the `sim` config.
     pub max_area: Option<f64>,
+    /// As in the `sim` config: `y` or `z` (absent = the scene format's default).
+    #[serde(default)]
+    pub up_axis: Option<String>,
 }
 
 /// Ground-truth coverage: the reachable navigable floor of the scene.
@@ -123,7 +130,7 @@ impl CoverageTruth {
 /// The operator.
 pub struct Evaluator {
     out: PathBuf,
-    scene: SceneConfig,
+    scene: SceneSpec,
     scale: u32,
     truth: Option<(CoverageTruth, PlanarPose, Isometry3<f64>)>,
     estimated: Trajectory,
@@ -194,6 +201,7 @@ impl Evaluator {
             scene: self.scene.scene.clone(),
             max_rooms: self.scene.max_rooms,
             max_area: self.scene.max_area,
+            up_axis: self.scene.up_axis.map(|up| up.name().to_string()),
         };
         std::fs::write(
             self.out.join("summary.json"),
@@ -313,10 +321,11 @@ impl Operator for Evaluator {
             .unwrap_or_else(|| PathBuf::from("."));
         Ok(Self {
             out,
-            scene: SceneConfig {
+            scene: SceneSpec {
                 scene: config.scene,
                 max_rooms: config.max_rooms,
                 max_area: config.max_area,
+                up_axis: config.up_axis,
             },
             scale: config.bev_pixels_per_cell,
             truth: None,
@@ -345,7 +354,7 @@ impl Operator for Evaluator {
                     let pose = pose_from_wire(&t.t_world_camera)?;
                     if self.truth.is_none() {
                         let start = planar_from_camera_pose(&pose);
-                        let sim = self.scene.simulator(16, 16, 90.0)?;
+                        let sim = crate::sim::simulator(&self.scene, 16, 16, 90.0)?;
                         let nav = activemap_sim::ground_truth::navigable_map(sim.navigation());
                         let truth = CoverageTruth::new(nav, Point2::new(start.x, start.y));
                         let anchor = crate::convert::start_anchor(

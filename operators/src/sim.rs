@@ -16,85 +16,37 @@ use activemap_schemas::{
     Action, ActionKind, EpisodeState, EpisodeStatus, MessageKind as K, RgbdFrameHeader,
     RgbdFrameMut, TruePose,
 };
-use activemap_sim::load::{LoadOptions, UpAxis, load_scene};
-use activemap_sim::{Action as SimAction, SimConfig, Simulator, house};
+use activemap_sim::{Action as SimAction, SceneSpec, SimConfig, Simulator, UpAxis};
 
 use crate::Registered;
 use crate::convert::pose_to_wire;
 
-/// Which scene to load.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SceneConfig {
-    /// `house:<seed>` for a procedural house, or a path to a glTF/GLB, OBJ or PLY scene.
-    pub scene: String,
-    /// Largest number of rooms of a procedural house (fewer = smaller house).
-    pub max_rooms: Option<u32>,
-    /// Largest floor area of a procedural house, m².
-    pub max_area: Option<f64>,
+/// The simulator of `scene` at `width`×`height` pixels and `hfov_deg` (the `sim` node's
+/// camera; the evaluator builds the same scene for its ground truth).
+pub fn simulator(
+    scene: &SceneSpec,
+    width: u32,
+    height: u32,
+    hfov_deg: f64,
+) -> anyhow::Result<Simulator> {
+    anyhow::ensure!(
+        width > 0 && height > 0 && width <= 4096 && height <= 4096,
+        "sim: width/height must be in 1..=4096, got {width}×{height}"
+    );
+    anyhow::ensure!(
+        hfov_deg.is_finite() && hfov_deg > 1.0 && hfov_deg < 179.0,
+        "sim: hfov_deg must be in (1, 179), got {hfov_deg}"
+    );
+    let mut config = SimConfig::with_resolution(width, height);
+    config.intrinsics =
+        activemap_geometry::Intrinsics::from_hfov(width, height, hfov_deg.to_radians());
+    scene
+        .simulator(config)
+        .map_err(|e| anyhow::anyhow!("sim: scene `{}`: {e}", scene.scene))
 }
 
 fn default_scene() -> String {
     "house:7".into()
-}
-
-impl SceneConfig {
-    /// Builds the simulator for this scene at `width`×`height` pixels and `hfov_deg`.
-    pub fn simulator(&self, width: u32, height: u32, hfov_deg: f64) -> anyhow::Result<Simulator> {
-        self.simulator_with_up_axis(width, height, hfov_deg, None)
-    }
-
-    /// As [`SceneConfig::simulator`], reading a scene file with the given up axis (`None` = the
-    /// format's default: y for glTF and OBJ, z for PLY). Refused for procedural houses.
-    pub fn simulator_with_up_axis(
-        &self,
-        width: u32,
-        height: u32,
-        hfov_deg: f64,
-        up_axis: Option<UpAxis>,
-    ) -> anyhow::Result<Simulator> {
-        anyhow::ensure!(
-            width > 0 && height > 0 && width <= 4096 && height <= 4096,
-            "sim: width/height must be in 1..=4096, got {width}×{height}"
-        );
-        anyhow::ensure!(
-            hfov_deg.is_finite() && hfov_deg > 1.0 && hfov_deg < 179.0,
-            "sim: hfov_deg must be in (1, 179), got {hfov_deg}"
-        );
-        let mut config = SimConfig::with_resolution(width, height);
-        config.intrinsics =
-            activemap_geometry::Intrinsics::from_hfov(width, height, hfov_deg.to_radians());
-        let scene = if let Some(seed) = self.scene.strip_prefix("house:") {
-            anyhow::ensure!(
-                up_axis.is_none(),
-                "sim: up_axis applies to scene files, not to the procedural house `{}`",
-                self.scene
-            );
-            let seed: u64 = seed
-                .trim()
-                .parse()
-                .map_err(|e| anyhow::anyhow!("sim: scene `{}`: bad house seed: {e}", self.scene))?;
-            let mut hc = house::HouseConfig::default();
-            if let Some(r) = self.max_rooms {
-                anyhow::ensure!(r >= 1, "sim: max_rooms must be ≥ 1");
-                hc.max_rooms = r;
-                hc.min_rooms = hc.min_rooms.min(r);
-            }
-            if let Some(a) = self.max_area {
-                anyhow::ensure!(a.is_finite() && a > 0.0, "sim: max_area must be > 0");
-                hc.max_area = a;
-                hc.min_area = hc.min_area.min(a);
-            }
-            house::generate(seed, &hc)?.scene
-        } else {
-            let path = std::path::Path::new(&self.scene);
-            let loaded = load_scene(path, &LoadOptions { up_axis })?;
-            for w in &loaded.warnings {
-                eprintln!("{w}");
-            }
-            loaded.scene
-        };
-        Ok(Simulator::new(scene, config)?)
-    }
 }
 
 /// Config of the `sim` node.
@@ -132,11 +84,12 @@ pub struct Config {
 
 impl Config {
     /// The scene part of the config.
-    pub fn scene_config(&self) -> SceneConfig {
-        SceneConfig {
+    pub fn scene_spec(&self) -> SceneSpec {
+        SceneSpec {
             scene: self.scene.clone(),
             max_rooms: self.max_rooms,
             max_area: self.max_area,
+            up_axis: self.up_axis,
         }
     }
 }
@@ -267,11 +220,11 @@ impl Operator for Sim {
     type Config = Config;
 
     fn new(config: Config, ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        let sim = config.scene_config().simulator_with_up_axis(
+        let sim = simulator(
+            &config.scene_spec(),
             config.width,
             config.height,
             config.hfov_deg,
-            config.up_axis,
         )?;
         let max_steps = ctx.max_steps().unwrap_or(config.max_steps);
         anyhow::ensure!(max_steps >= 1, "sim: max_steps must be ≥ 1");
@@ -391,15 +344,14 @@ mod tests {
 
     #[test]
     fn up_axis_is_refused_for_procedural_houses() {
-        let scene = SceneConfig {
-            scene: "house:1".into(),
-            max_rooms: None,
-            max_area: None,
+        let scene = SceneSpec {
+            up_axis: Some(UpAxis::Z),
+            ..SceneSpec::new("house:1")
         };
-        let err = scene
-            .simulator_with_up_axis(8, 8, 90.0, Some(UpAxis::Z))
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("up_axis applies to scene files"), "{err}");
+        let err = simulator(&scene, 8, 8, 90.0).unwrap_err().to_string();
+        assert!(
+            err.contains("up_axis") && err.contains("applies to scene files"),
+            "{err}"
+        );
     }
 }

@@ -5,7 +5,9 @@
 //!
 //! - Scenes: [`Scene::load`] / [`load::load_scene`] read glTF/GLB, OBJ+MTL and PLY (converted
 //!   to the z-up world frame; glTF is y-up); [`house::generate`] builds seeded multi-room houses
-//!   and [`export::write_glb`] saves any scene as GLB.
+//!   and [`export::write_glb`] saves any scene as GLB. [`SceneSpec`] names either (a
+//!   `house:<seed>` or a file, with its size limits or up axis), so that every consumer builds the
+//!   same scene.
 //! - Rendering: [`render::Renderer`] rasterises RGB8 colour and z-depth (metres, f32, 0 = no
 //!   reading) for any [`Intrinsics`] and pose `T_world_camera` (OpenCV optical frame);
 //!   [`Simulator::render_into`] / [`Renderer::render_into`] write straight into caller buffers
@@ -42,14 +44,17 @@ pub mod noise;
 pub mod procedural_texture;
 pub mod render;
 pub mod scene;
+pub mod scene_spec;
 pub mod simulator;
 
 pub use activemap_geometry::{Intrinsics, PlanarPose};
 pub use error::{Result, SimError};
+pub use load::UpAxis;
 pub use navigation::{AgentShape, NavigableMap, Navigation};
 pub use noise::SensorNoise;
 pub use render::{DepthRange, Renderer, RgbdFrame};
 pub use scene::{Material, Scene, Texture, Triangle, Vertex, Wrap};
+pub use scene_spec::SceneSpec;
 pub use simulator::{Action, SimConfig, Simulator, StepResult};
 
 #[cfg(test)]

@@ -1,7 +1,8 @@
 //! `activemap eval RUN_DIR` as a library (SPEC §8): the metrics of one finished run.
 //!
-//! 1. Regenerates the scene of the run ([`SceneSpec`]: `summary.json` field `scene`, else the
-//!    `scene:` lines of the run's `dataflow.yaml`, else [`EvalOptions::scene`] which also overrides).
+//! 1. Regenerates the scene of the run ([`scene_from_run`]: `summary.json`'s `scene`,
+//!    `max_rooms`, `max_area` and `up_axis`, else the same keys in the run's `dataflow.yaml`;
+//!    [`EvalOptions::scene`] overrides both).
 //! 2. Draws the seeded test poses uniformly on the navigable floor reachable from the robot's
 //!    true start (the floor the run could map; [`crate::sample_test_poses`]), random yaw.
 //! 3. Renders the final map (`map.ply`, without Gaussians flagged as unknown space) and the
@@ -29,7 +30,7 @@ use crate::{AteOptions, EvalError, ImageView, MetricsReport, ate, completeness};
 use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
 };
-use activemap_sim::{Renderer, SimConfig, Simulator, house};
+use activemap_sim::{Renderer, SimConfig, Simulator, UpAxis};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use nalgebra::Point3;
 use rayon::prelude::*;
@@ -40,107 +41,75 @@ pub const TEST_POSE_SEED: u64 = 2025;
 /// Ground-truth mesh samples for completeness (≈200k as Active Neural Mapping, SPEC §8).
 pub const COMPLETENESS_SAMPLES: usize = 200_000;
 
-/// Which scene a run used (the `sim` node's `scene`, `max_rooms`, `max_area`).
-#[derive(Debug, Clone, PartialEq)]
-pub struct SceneSpec {
-    /// `house:<seed>` or a scene file path.
-    pub scene: String,
-    /// Largest number of rooms of a procedural house.
-    pub max_rooms: Option<u32>,
-    /// Largest floor area of a procedural house, m².
-    pub max_area: Option<f64>,
+pub use activemap_sim::SceneSpec;
+
+/// The simulator of `spec` with camera `intrinsics` (the scene and floor the run's `sim` node
+/// built).
+pub fn scene_simulator(spec: &SceneSpec, intrinsics: Intrinsics) -> Result<Simulator, RunError> {
+    let config = SimConfig {
+        intrinsics,
+        ..SimConfig::default()
+    };
+    spec.simulator(config)
+        .map_err(|e| RunError::Scene(format!("`{}`: {e}", spec.scene)))
 }
 
-impl SceneSpec {
-    /// A scene with the generator defaults.
-    pub fn new(scene: impl Into<String>) -> Self {
-        Self {
-            scene: scene.into(),
-            max_rooms: None,
-            max_area: None,
-        }
-    }
-
-    /// The house generator settings for `house:` scenes, clamped as the `sim` node does.
-    pub fn house_config(&self) -> house::HouseConfig {
-        let mut hc = house::HouseConfig::default();
-        if let Some(r) = self.max_rooms {
-            hc.max_rooms = r.max(1);
-            hc.min_rooms = hc.min_rooms.min(hc.max_rooms);
-        }
-        if let Some(a) = self.max_area {
-            hc.max_area = a;
-            hc.min_area = hc.min_area.min(a);
-        }
-        hc
-    }
-
-    /// Builds the simulator for this scene with camera `intrinsics` (the same scene and floor the
-    /// run's `sim` node built).
-    pub fn simulator(&self, intrinsics: Intrinsics) -> Result<Simulator, RunError> {
-        let scene = if let Some(seed) = self.scene.strip_prefix("house:") {
-            let seed: u64 = seed
-                .trim()
-                .parse()
-                .map_err(|e| RunError::Scene(format!("`{}`: bad house seed: {e}", self.scene)))?;
-            house::generate(seed, &self.house_config())
-                .map_err(|e| RunError::Scene(format!("`{}`: {e}", self.scene)))?
-                .scene
-        } else {
-            activemap_sim::Scene::load(Path::new(&self.scene))
-                .map_err(|e| RunError::Scene(format!("`{}`: {e}", self.scene)))?
-        };
-        let config = SimConfig {
-            intrinsics,
-            ..SimConfig::default()
-        };
-        Simulator::new(scene, config).map_err(|e| RunError::Scene(format!("`{}`: {e}", self.scene)))
-    }
-
-    /// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area`), else
-    /// one consistent `scene:` value in `dataflow.yaml`.
-    pub fn from_run(dir: &Path, summary: &serde_json::Value) -> Result<Self, RunError> {
-        if let Some(scene) = summary.get("scene").and_then(|s| s.as_str()) {
-            return Ok(Self {
-                scene: scene.to_string(),
-                max_rooms: summary
-                    .get("max_rooms")
-                    .and_then(|v| v.as_u64())
-                    .map(|v| v.min(u32::MAX as u64) as u32),
-                max_area: summary.get("max_area").and_then(|v| v.as_f64()),
-            });
-        }
-        let path = dir.join(files::DATAFLOW);
-        let text = std::fs::read_to_string(&path).map_err(|_| {
-            RunError::Scene(format!(
-                "{} has no `scene` and {} cannot be read; pass the scene explicitly",
-                dir.join(files::SUMMARY).display(),
-                path.display()
-            ))
-        })?;
-        let scene = yaml_scalar(&text, "scene", &path)?.ok_or_else(|| {
-            RunError::Scene(format!(
-                "neither {} nor {} names the scene; pass it explicitly",
-                dir.join(files::SUMMARY).display(),
-                path.display()
-            ))
-        })?;
-        let parse_num = |key: &str| -> Result<Option<f64>, RunError> {
-            yaml_scalar(&text, key, &path)?
-                .map(|v| {
-                    v.parse::<f64>().map_err(|e| RunError::Malformed {
-                        path: path.clone(),
-                        detail: format!("`{key}: {v}`: {e}"),
-                    })
+/// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area`,
+/// `up_axis`), else one consistent value of each key in `dataflow.yaml`.
+pub fn scene_from_run(dir: &Path, summary: &serde_json::Value) -> Result<SceneSpec, RunError> {
+    let up_axis = |value: Option<String>, source: &Path| -> Result<Option<UpAxis>, RunError> {
+        value
+            .map(|v| {
+                UpAxis::from_name(&v).ok_or_else(|| RunError::Malformed {
+                    path: source.to_path_buf(),
+                    detail: format!("`up_axis: {v}`: expected `y` or `z`"),
                 })
-                .transpose()
-        };
-        Ok(Self {
-            scene,
-            max_rooms: parse_num("max_rooms")?.map(|v| v.max(1.0) as u32),
-            max_area: parse_num("max_area")?,
-        })
+            })
+            .transpose()
+    };
+    if let Some(scene) = summary.get("scene").and_then(|s| s.as_str()) {
+        let text = |key: &str| summary.get(key).and_then(|v| v.as_str()).map(String::from);
+        return Ok(SceneSpec {
+            scene: scene.to_string(),
+            max_rooms: summary
+                .get("max_rooms")
+                .and_then(|v| v.as_u64())
+                .map(|v| v.min(u32::MAX as u64) as u32),
+            max_area: summary.get("max_area").and_then(|v| v.as_f64()),
+            up_axis: up_axis(text("up_axis"), &dir.join(files::SUMMARY))?,
+        });
     }
+    let path = dir.join(files::DATAFLOW);
+    let text = std::fs::read_to_string(&path).map_err(|_| {
+        RunError::Scene(format!(
+            "{} has no `scene` and {} cannot be read; pass the scene explicitly",
+            dir.join(files::SUMMARY).display(),
+            path.display()
+        ))
+    })?;
+    let scene = yaml_scalar(&text, "scene", &path)?.ok_or_else(|| {
+        RunError::Scene(format!(
+            "neither {} nor {} names the scene; pass it explicitly",
+            dir.join(files::SUMMARY).display(),
+            path.display()
+        ))
+    })?;
+    let parse_num = |key: &str| -> Result<Option<f64>, RunError> {
+        yaml_scalar(&text, key, &path)?
+            .map(|v| {
+                v.parse::<f64>().map_err(|e| RunError::Malformed {
+                    path: path.clone(),
+                    detail: format!("`{key}: {v}`: {e}"),
+                })
+            })
+            .transpose()
+    };
+    Ok(SceneSpec {
+        scene,
+        max_rooms: parse_num("max_rooms")?.map(|v| v.clamp(0.0, u32::MAX as f64) as u32),
+        max_area: parse_num("max_area")?,
+        up_axis: up_axis(yaml_scalar(&text, "up_axis", &path)?, &path)?,
+    })
 }
 
 /// The value of `key:` lines of a YAML text (any indentation, quotes and trailing comments
@@ -240,7 +209,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let coverage = read_coverage(dir)?;
     let spec = match &options.scene {
         Some(s) => s.clone(),
-        None => SceneSpec::from_run(dir, &summary)?,
+        None => scene_from_run(dir, &summary)?,
     };
     if options.width < 8 || options.height < 8 || !(1.0..179.0).contains(&options.hfov_deg) {
         return Err(RunError::Metric(EvalError::InvalidParameter {
@@ -252,7 +221,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         }));
     }
     let k = Intrinsics::from_hfov(options.width, options.height, options.hfov_deg.to_radians());
-    let sim = spec.simulator(k)?;
+    let sim = scene_simulator(&spec, k)?;
     let floor_z = sim.navigation().floor_z();
     let camera_height = sim.config().camera_height;
     let true_start = truth.poses[0];
@@ -610,7 +579,7 @@ mod tests {
         let e = evaluate_run(dir.path(), &bad_scene)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("bad house seed"), "{e}");
+        assert!(e.contains("scene = house:x"), "{e}");
     }
 
     #[test]
@@ -622,19 +591,44 @@ mod tests {
             "nodes:\n  - id: sim\n    config:\n      scene: \"house:3\"  # the house\n      max_rooms: 1\n      max_area: 12\n  - id: evaluator\n    config:\n      scene: house:3\n",
         )
         .unwrap();
-        assert_eq!(
-            SceneSpec::from_run(dir.path(), &summary).unwrap(),
-            small_house()
-        );
+        assert_eq!(scene_from_run(dir.path(), &summary).unwrap(), small_house());
         std::fs::write(
             dir.path().join(files::DATAFLOW),
             "a:\n  scene: house:3\nb:\n  scene: house:4\n",
         )
         .unwrap();
-        let e = SceneSpec::from_run(dir.path(), &summary)
+        let e = scene_from_run(dir.path(), &summary)
             .unwrap_err()
             .to_string();
         assert!(e.contains("dataflow.yaml") && e.contains("house:4"), "{e}");
+    }
+
+    #[test]
+    fn the_up_axis_of_a_scene_file_comes_from_the_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let summary = serde_json::json!({"scene": "room.glb", "up_axis": "z"});
+        let spec = scene_from_run(dir.path(), &summary).unwrap();
+        assert_eq!(
+            (spec.scene.as_str(), spec.up_axis),
+            ("room.glb", Some(UpAxis::Z))
+        );
+        let summary = serde_json::json!({"steps": 1});
+        let flow = |up: &str| {
+            format!(
+                "nodes:\n  - id: sim\n    config:\n      scene: room.glb\n      up_axis: {up}\n"
+            )
+        };
+        std::fs::write(dir.path().join(files::DATAFLOW), flow("y")).unwrap();
+        let spec = scene_from_run(dir.path(), &summary).unwrap();
+        assert_eq!(spec.up_axis, Some(UpAxis::Y));
+        std::fs::write(dir.path().join(files::DATAFLOW), flow("x")).unwrap();
+        let e = scene_from_run(dir.path(), &summary)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("dataflow.yaml") && e.contains("up_axis: x"),
+            "{e}"
+        );
     }
 
     #[test]

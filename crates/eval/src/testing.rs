@@ -1,7 +1,7 @@
 //! Test fixtures: small synthetic run folders on a one-room procedural house, laid out as the
 //! `evaluator` operator writes them.
 
-use crate::run_eval::{SceneSpec, start_from_world};
+use crate::run_eval::{SceneSpec, scene_simulator, start_from_world};
 use crate::run_folder::files;
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Intrinsics, Isometry3};
@@ -12,21 +12,19 @@ use std::path::Path;
 /// A one-room house, small enough for fast tests.
 pub fn small_house() -> SceneSpec {
     SceneSpec {
-        scene: "house:3".into(),
         max_rooms: Some(1),
         max_area: Some(12.0),
+        ..SceneSpec::new("house:3")
     }
 }
 
 /// The simulator of [`small_house`] with a `size`² camera at 90°.
 pub fn simulator(size: u32) -> Simulator {
-    small_house()
-        .simulator(Intrinsics::from_hfov(
-            size,
-            size,
-            std::f64::consts::FRAC_PI_2,
-        ))
-        .unwrap()
+    scene_simulator(
+        &small_house(),
+        Intrinsics::from_hfov(size, size, std::f64::consts::FRAC_PI_2),
+    )
+    .unwrap()
 }
 
 /// What map a synthetic run holds.

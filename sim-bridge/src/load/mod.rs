@@ -37,6 +37,14 @@ impl UpAxis {
         }
     }
 
+    /// The name [`UpAxis::from_name`] reads back: `"y"` or `"z"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            UpAxis::Y => "y",
+            UpAxis::Z => "z",
+        }
+    }
+
     /// Maps a point of a file with this up axis to the z-up world frame.
     pub fn to_world(self, p: [f32; 3]) -> [f32; 3] {
         match self {
