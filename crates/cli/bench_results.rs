@@ -31,8 +31,8 @@ pub struct ResultsArgs {
     /// Procedural houses (the seeds of `house:<n>` scenes).
     #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
     houses: Vec<u64>,
-    /// Seeds per method and house (set on every node whose config declares `seed`; otherwise
-    /// repetitions, whose spread is the run-to-run variation).
+    /// Seeds per method and house, set on every node whose config declares `seed` (the `sim`
+    /// node of dataflow.yaml: a seeded start pose, so each seed is a different episode).
     #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
     seeds: Vec<u64>,
     /// Step budget of each episode.

@@ -80,6 +80,11 @@ pub struct Config {
     /// Step budget; `--max-steps` overrides it.
     #[serde(default = "default_max_steps")]
     pub max_steps: u64,
+    /// Episode seed: 0 starts at the scene's own start pose; any other value starts at a
+    /// seeded random pose on the floor reachable from it (`activemap bench results` sets it
+    /// per cell, so that seeds are different episodes).
+    #[serde(default)]
+    pub seed: u64,
 }
 
 impl Config {
@@ -220,12 +225,19 @@ impl Operator for Sim {
     type Config = Config;
 
     fn new(config: Config, ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        let sim = simulator(
+        let mut sim = simulator(
             &config.scene_spec(),
             config.width,
             config.height,
             config.hfov_deg,
         )?;
+        if config.seed != 0 {
+            let start = sim
+                .navigation()
+                .random_start(&sim.true_planar_pose(), config.seed)
+                .ok_or_else(|| anyhow::anyhow!("sim: the scene's start is not navigable"))?;
+            sim.set_planar_pose(start)?;
+        }
         let max_steps = ctx.max_steps().unwrap_or(config.max_steps);
         anyhow::ensure!(max_steps >= 1, "sim: max_steps must be ≥ 1");
         Ok(Self {

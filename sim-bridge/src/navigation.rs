@@ -515,6 +515,25 @@ impl Navigation {
         let (x, y) = f.centre(c % f.width, c / f.width);
         Ok(PlanarPose::new(x, y, 0.0))
     }
+
+    /// A seeded episode start: the centre of a navigable cell drawn uniformly among those
+    /// reachable from `anchor` (so the episode explores the same connected floor), with a yaw
+    /// uniform in [−π, π). Different seeds give different episodes of one scene; `None` when
+    /// `anchor` is not on the navigable map.
+    pub fn random_start(&self, anchor: &PlanarPose, seed: u64) -> Option<PlanarPose> {
+        use rand::{Rng, SeedableRng};
+        let reachable = self.map.reachable_from(anchor.x, anchor.y);
+        let cells: Vec<usize> = (0..reachable.len()).filter(|&c| reachable[c]).collect();
+        if cells.is_empty() {
+            return None;
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let c = cells[rng.random_range(0..cells.len())];
+        let f = &self.map.frame;
+        let (x, y) = f.centre(c % f.width, c / f.width);
+        let yaw = (rng.random::<f64>() * 2.0 - 1.0) * std::f64::consts::PI;
+        Some(PlanarPose::new(x, y, yaw))
+    }
 }
 
 /// Inclusive cell index range of the bounding box of `t` grown by `grow`, clamped to the grid.

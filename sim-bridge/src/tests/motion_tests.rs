@@ -207,3 +207,33 @@ fn a_huge_footprint_is_refused_not_allocated() {
     let err = Navigation::build(&scene, 0.0, AgentShape::default(), 0.05).unwrap_err();
     assert!(err.to_string().contains("nav_cell_size"), "{err}");
 }
+
+#[test]
+fn seeded_starts_are_uniform_on_the_floor_reachable_from_the_anchor() {
+    // Two separate rooms: [0, 4] × [0, 3] and [5, 7] × [0, 3].
+    let mut scene = box_room([0.0, 0.0, 0.0], [4.0, 3.0, 2.5]);
+    let m: Vec<u32> = (0..6).map(|_| flat(&mut scene, [0.5, 0.5, 0.5])).collect();
+    add_box_faces(&mut scene, [5.0, 0.0, 0.0], [7.0, 3.0, 2.5], &m);
+    let nav = Navigation::build(&scene, 0.0, AgentShape::default(), 0.05).unwrap();
+    let in_first = PlanarPose::new(1.0, 1.0, 0.0);
+    let in_second = PlanarPose::new(6.0, 1.5, 0.0);
+    let starts: Vec<PlanarPose> = (1..=400)
+        .map(|seed| nav.random_start(&in_first, seed).unwrap())
+        .collect();
+    assert_eq!(nav.random_start(&in_first, 7), Some(starts[6]));
+    assert_ne!(starts[0], starts[1]);
+    for s in &starts {
+        assert!(nav.is_navigable(s.x, s.y) && s.x < 4.0, "{s:?}");
+        assert!((-std::f64::consts::PI..std::f64::consts::PI).contains(&s.yaw));
+    }
+    // Uniform over the first room's navigable cells (x in 0.125 … 3.875): mean x ≈ 2 within
+    // 4 standard errors (σ ≈ 1.08 m, 400 draws).
+    let mean_x = starts.iter().map(|s| s.x).sum::<f64>() / starts.len() as f64;
+    assert!((mean_x - 2.0).abs() < 4.0 * 1.08 / 20.0, "mean x {mean_x}");
+    let other = nav.random_start(&in_second, 3).unwrap();
+    assert!(
+        other.x > 5.0 && nav.is_navigable(other.x, other.y),
+        "{other:?}"
+    );
+    assert_eq!(nav.random_start(&PlanarPose::new(4.5, 1.0, 0.0), 3), None);
+}
