@@ -485,8 +485,15 @@ impl<T: Real, const PER_CHANNEL: bool> BackSink<T> for FisherSink<'_, T, PER_CHA
 /// [`lane_sum`], which matters in the per-row reductions).
 #[inline(always)]
 fn lane_tree_sum<T: Real>(v: &[T; LANES]) -> T {
-    let quad: [T; 4] = std::array::from_fn(|l| v[l] + v[l + 4]);
-    (quad[0] + quad[2]) + (quad[1] + quad[3])
+    let mut acc = *v;
+    let mut width = LANES;
+    while width > 1 {
+        width /= 2;
+        for l in 0..width {
+            acc[l] += acc[l + width];
+        }
+    }
+    acc[0]
 }
 
 /// Walks every tile with a [`FisherSink`]: the pair slots and the per-tile pose matrices.

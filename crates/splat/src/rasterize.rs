@@ -10,7 +10,7 @@ use crate::gaussians::Gaussians;
 use crate::project::{SigmaRow, Splat, T_MIN, project_one};
 use crate::real::Real;
 use crate::tiles::{TILE, TileBins, bin};
-use crate::walk::{LANES, PADDED, TILE_PIXELS, alpha_at, lane_offsets, lanes_mut};
+use crate::walk::{FORWARD_LANES, PADDED, TILE_PIXELS, alpha_at, lane_offsets, lanes_n_mut};
 use rayon::prelude::*;
 
 /// Options of one render.
@@ -90,21 +90,36 @@ struct TileOut<'a, T: Real> {
     contributors: &'a mut [u32],
 }
 
-/// Composites tile `rect` front to back (dispatches to an AVX2 build when the CPU has it; both
+/// Composites tile `rect` front to back (dispatches to the best SIMD build the CPU runs; all
 /// builds give identical results, see [`crate::walk`]).
 fn raster_tile<T: Real>(splats: &[Splat<T>], list: &[u32], rect: [usize; 4], out: TileOut<'_, T>) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::walk::simd_allowed() && std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
-        unsafe { raster_tile_avx2(splats, list, rect, out) };
-        return;
+    use crate::walk::SimdLevel;
+    match crate::walk::simd_level() {
+        // SAFETY: the CPU supports AVX-512 F and VL, AVX2 and FMA (checked by `simd_level`).
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx512 => unsafe { raster_tile_avx512(splats, list, rect, out) },
+        // SAFETY: the CPU supports AVX2 and FMA (checked by `simd_level`).
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx2 => unsafe { raster_tile_avx2(splats, list, rect, out) },
+        _ => raster_tile_impl(splats, list, rect, out),
     }
+}
+
+/// [`raster_tile_impl`] compiled with AVX-512 (F and VL), AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+unsafe fn raster_tile_avx512<T: Real>(
+    splats: &[Splat<T>],
+    list: &[u32],
+    rect: [usize; 4],
+    out: TileOut<'_, T>,
+) {
     raster_tile_impl(splats, list, rect, out);
 }
 
-/// [`raster_tile_impl`] compiled with AVX2.
+/// [`raster_tile_impl`] compiled with AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 unsafe fn raster_tile_avx2<T: Real>(
     splats: &[Splat<T>],
     list: &[u32],
@@ -128,7 +143,7 @@ fn raster_tile_impl<T: Real>(
     // 1 once the pixel has stopped (its next Gaussian would drop T below 1e-4).
     let mut done = [0u32; PADDED];
     let mut remaining = (rect[1] - rect[0]) * (rect[3] - rect[2]);
-    let offsets = lane_offsets::<T>();
+    let offsets = lane_offsets::<T, FORWARD_LANES>();
     let t_min = T::of(T_MIN);
     for (k, &id) in list.iter().enumerate() {
         let s = &splats[id as usize];
@@ -142,19 +157,19 @@ fn raster_tile_impl<T: Real>(
             let mut x = bx0;
             while x <= bx1 {
                 let base = (py - rect[2]) * TILE + x - rect[0];
-                let valid = (bx1 + 1 - x).min(LANES);
+                let valid = (bx1 + 1 - x).min(FORWARD_LANES);
                 let dx0 = s.mean[0] - T::of(x as f64);
-                let done_l = lanes_mut(&mut done, base);
+                let done_l = lanes_n_mut::<_, FORWARD_LANES>(&mut done, base);
                 if done_l.iter().fold(1, |all, &d| all & d) == 1 {
                     // Every pixel of the chunk has stopped.
-                    x += LANES;
+                    x += FORWARD_LANES;
                     continue;
                 }
-                let t_l = lanes_mut(&mut t, base);
-                let contrib_l = lanes_mut(&mut contributors, base);
-                let mut weight = [T::zero(); LANES];
+                let t_l = lanes_n_mut::<_, FORWARD_LANES>(&mut t, base);
+                let contrib_l = lanes_n_mut::<_, FORWARD_LANES>(&mut contributors, base);
+                let mut weight = [T::zero(); FORWARD_LANES];
                 let mut stopped = 0u32;
-                for l in 0..LANES {
+                for l in 0..FORWARD_LANES {
                     let (_, _, alpha, composited) = alpha_at(&row, s.opacity, dx0 - offsets[l]);
                     let on = composited && l < valid && done_l[l] == 0;
                     let t_next = t_l[l] * (T::one() - alpha);
@@ -167,17 +182,17 @@ fn raster_tile_impl<T: Real>(
                     stopped += stop as u32;
                 }
                 for ch in 0..3 {
-                    let c = lanes_mut(&mut colour[ch], base);
-                    for l in 0..LANES {
+                    let c = lanes_n_mut::<_, FORWARD_LANES>(&mut colour[ch], base);
+                    for l in 0..FORWARD_LANES {
                         c[l] += s.colour[ch] * weight[l];
                     }
                 }
-                let d = lanes_mut(&mut depth, base);
-                for l in 0..LANES {
+                let d = lanes_n_mut::<_, FORWARD_LANES>(&mut depth, base);
+                for l in 0..FORWARD_LANES {
                     d[l] += s.depth * weight[l];
                 }
                 remaining -= stopped as usize;
-                x += LANES;
+                x += FORWARD_LANES;
             }
         }
         if remaining == 0 {
