@@ -138,7 +138,7 @@ struct BackwardSink<'a, T: Real> {
     slots: &'a mut [T],
 }
 
-impl<T: Real> BackSink<T> for BackwardSink<'_, T> {
+impl<T: Real> BackSink<T, LANES> for BackwardSink<'_, T> {
     #[inline(always)]
     fn init_pixel(&mut self, local: usize, pixel: usize) {
         let g = self.pixel_grads.colour[pixel];
@@ -162,7 +162,7 @@ impl<T: Real> BackSink<T> for BackwardSink<'_, T> {
     }
 
     #[inline(always)]
-    fn step(&mut self, base: usize, _chunk: usize, ln: &Lanes<T>) {
+    fn step(&mut self, base: usize, _chunk: usize, ln: &Lanes<T, LANES>) {
         let s = &self.splat;
         let g_col = [
             *lanes(&self.g_col[0], base),

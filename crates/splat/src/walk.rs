@@ -23,9 +23,10 @@ use crate::real::Real;
 use crate::tiles::{TILE, split_by_offsets};
 use rayon::prelude::*;
 
-/// Pixels the back-to-front walks (backward, Fisher) process together along a row (8 × f32 =
-/// one AVX2 register). Their boxes are often narrower than a tile row at the mapping
-/// resolutions (160–200 px), where 16 lanes made the backward pass 18 % slower.
+/// Pixels the backward pass processes together along a row (8 × f32 = one AVX2 register). Its
+/// boxes are often narrower than a tile row at the mapping resolutions (160–200 px), where 16
+/// lanes made it 18 % slower. The walk is generic over the lane count (the Fisher pass uses
+/// its own).
 pub(crate) const LANES: usize = 8;
 /// Pixels the forward pass processes together: a whole tile row (16 × f32 = one AVX-512
 /// register). It has fewer accumulators per lane, and 16 lanes made it 18 % (200 px, 10k
@@ -33,8 +34,6 @@ pub(crate) const LANES: usize = 8;
 /// independent pixels, so the images do not depend on the lane count.
 pub(crate) const FORWARD_LANES: usize = 16;
 const _: () = assert!(LANES.is_power_of_two(), "lane sums halve the lanes");
-/// Most chunks of [`LANES`] pixels a pair's row can have (a box row inside a tile).
-pub(crate) const ROW_CHUNKS: usize = TILE.div_ceil(LANES);
 /// Pixels of a tile.
 pub(crate) const TILE_PIXELS: usize = TILE * TILE;
 /// Length of the per-tile state buffers: a chunk of either lane count may start at any pixel
@@ -49,18 +48,18 @@ pub(crate) fn lanes_n_mut<V, const N: usize>(buffer: &mut [V; PADDED], base: usi
         .expect("chunk starts inside the tile")
 }
 
-/// [`lanes_n_mut`] with the walks' [`LANES`].
+/// Read-only version of [`lanes_n_mut`].
 #[inline(always)]
-pub(crate) fn lanes_mut<V>(buffer: &mut [V; PADDED], base: usize) -> &mut [V; LANES] {
-    lanes_n_mut(buffer, base)
-}
-
-/// Read-only version of [`lanes_mut`].
-#[inline(always)]
-pub(crate) fn lanes<V>(buffer: &[V; PADDED], base: usize) -> &[V; LANES] {
-    (&buffer[base..base + LANES])
+pub(crate) fn lanes_n<V, const N: usize>(buffer: &[V; PADDED], base: usize) -> &[V; N] {
+    (&buffer[base..base + N])
         .try_into()
         .expect("chunk starts inside the tile")
+}
+
+/// [`lanes_n`] with the walks' [`LANES`].
+#[inline(always)]
+pub(crate) fn lanes<V>(buffer: &[V; PADDED], base: usize) -> &[V; LANES] {
+    lanes_n(buffer, base)
 }
 
 /// `[0, 1, …, N − 1]` in `T`: pixel offsets of the lanes.
@@ -86,42 +85,42 @@ pub(crate) fn alpha_at<T: Real>(row: &SigmaRow<T>, opacity: T, dx: T) -> (T, T, 
     )
 }
 
-/// Per-lane quantities of one Gaussian at `LANES` pixels of a row, back-to-front. Lanes the
+/// Per-lane quantities of one Gaussian at `L` pixels of a row, back-to-front. Lanes the
 /// Gaussian does not composite into have `alpha = gauss = weight = grad = 0`, `inv = 1`, so
 /// that sinks can use them unmasked.
 #[derive(Clone, Copy)]
-pub(crate) struct Lanes<T: Real> {
+pub(crate) struct Lanes<T: Real, const L: usize> {
     /// `mean_x − pixel_x`.
-    pub dx: [T; LANES],
+    pub dx: [T; L],
     /// `α_i`.
-    pub alpha: [T; LANES],
+    pub alpha: [T; L],
     /// `e^{−σ}`.
-    pub gauss: [T; LANES],
+    pub gauss: [T; L],
     /// 1 where `α_i` is composited and below the 0.99 clamp (gradients flow through it), else 0.
-    pub grad: [T; LANES],
+    pub grad: [T; L],
     /// `1/(1 − α_i)`.
-    pub inv: [T; LANES],
+    pub inv: [T; L],
     /// Transmittance in front of the Gaussian, `T_i`.
-    pub t_i: [T; LANES],
+    pub t_i: [T; L],
     /// `α_i T_i`.
-    pub weight: [T; LANES],
+    pub weight: [T; L],
     /// Colour composited behind the Gaussian.
-    pub s_col: [[T; LANES]; 3],
+    pub s_col: [[T; L]; 3],
     /// Depth composited behind the Gaussian.
-    pub s_dep: [T; LANES],
+    pub s_dep: [T; L],
 }
 
 /// What a back-to-front walk accumulates (the backward pass, the Fisher pass).
-pub(crate) trait BackSink<T: Real> {
+pub(crate) trait BackSink<T: Real, const L: usize> {
     /// Initialises the sink's state of tile-local pixel `local` = image pixel `pixel`.
     fn init_pixel(&mut self, local: usize, pixel: usize);
     /// A new (tile, Gaussian) pair: Gaussian `id`, projected as `splat`.
     fn begin_pair(&mut self, id: usize, splat: &Splat<T>);
     /// A new pixel row at vertical offset `dy = mean_y − pixel_y`.
     fn begin_row(&mut self, dy: T);
-    /// `LANES` pixels starting at tile-local pixel `base`, the `chunk`-th (`< ROW_CHUNKS`) of
-    /// the pair's row: chunk `c` starts at the same column (`dx`) on every row of a pair.
-    fn step(&mut self, base: usize, chunk: usize, lanes: &Lanes<T>);
+    /// `L` pixels starting at tile-local pixel `base`, the `chunk`-th (`< 16 / L`, rounded up)
+    /// of the pair's row: chunk `c` starts at the same column (`dx`) on every row of a pair.
+    fn step(&mut self, base: usize, chunk: usize, lanes: &Lanes<T, L>);
     /// End of the row begun with `dy`.
     fn end_row(&mut self, dy: T);
     /// End of the pair at position `k` of the tile's list.
@@ -172,7 +171,7 @@ pub(crate) fn simd_level() -> SimdLevel {
 
 /// Walks tile `tile` of the render in `ctx` back to front (from each pixel's last composited
 /// Gaussian), feeding `sink`.
-pub(crate) fn walk_back<T: Real, S: BackSink<T>>(
+pub(crate) fn walk_back<T: Real, S: BackSink<T, L>, const L: usize>(
     ctx: &ForwardContext<T>,
     tile: usize,
     sink: &mut S,
@@ -191,7 +190,7 @@ pub(crate) fn walk_back<T: Real, S: BackSink<T>>(
 /// [`walk_back_impl`] compiled with AVX-512 (F and VL), AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
-unsafe fn walk_back_avx512<T: Real, S: BackSink<T>>(
+unsafe fn walk_back_avx512<T: Real, S: BackSink<T, L>, const L: usize>(
     ctx: &ForwardContext<T>,
     tile: usize,
     sink: &mut S,
@@ -202,7 +201,7 @@ unsafe fn walk_back_avx512<T: Real, S: BackSink<T>>(
 /// [`walk_back_impl`] compiled with AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn walk_back_avx2<T: Real, S: BackSink<T>>(
+unsafe fn walk_back_avx2<T: Real, S: BackSink<T, L>, const L: usize>(
     ctx: &ForwardContext<T>,
     tile: usize,
     sink: &mut S,
@@ -211,7 +210,11 @@ unsafe fn walk_back_avx2<T: Real, S: BackSink<T>>(
 }
 
 #[inline(always)]
-fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize, sink: &mut S) {
+fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
+    ctx: &ForwardContext<T>,
+    tile: usize,
+    sink: &mut S,
+) {
     let (width, height) = (ctx.cam.width, ctx.cam.height);
     let rect = ctx.bins.tile_rect(tile, width, height);
     let list = ctx.bins.tile(tile);
@@ -228,7 +231,7 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
             sink.init_pixel(local, pixel);
         }
     }
-    let offsets = lane_offsets::<T, LANES>();
+    let offsets = lane_offsets::<T, L>();
     for k in (0..ctx.walked(tile)).rev() {
         let id = list[k] as usize;
         let s = &ctx.splats[id];
@@ -244,31 +247,31 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
             let mut x = bx0;
             while x <= bx1 {
                 let base = (py - rect[2]) * TILE + x - rect[0];
-                let valid = (bx1 + 1 - x).min(LANES);
+                let valid = (bx1 + 1 - x).min(L);
                 let dx0 = s.mean[0] - T::of(x as f64);
-                let last_l = lanes(&last, base);
+                let last_l: &[u32; L] = lanes_n(&last, base);
                 if last_l.iter().fold(0, |most, &c| most.max(c)) <= k_u32 {
                     // The Gaussian is behind every pixel's last composited one.
-                    x += LANES;
+                    x += L;
                     continue;
                 }
-                let t_l = lanes_mut(&mut t, base);
+                let t_l = lanes_n_mut::<_, L>(&mut t, base);
                 let mut ln = Lanes {
-                    dx: [T::zero(); LANES],
-                    alpha: [T::zero(); LANES],
-                    gauss: [T::zero(); LANES],
-                    grad: [T::zero(); LANES],
-                    inv: [T::one(); LANES],
-                    t_i: [T::zero(); LANES],
-                    weight: [T::zero(); LANES],
+                    dx: [T::zero(); L],
+                    alpha: [T::zero(); L],
+                    gauss: [T::zero(); L],
+                    grad: [T::zero(); L],
+                    inv: [T::one(); L],
+                    t_i: [T::zero(); L],
+                    weight: [T::zero(); L],
                     s_col: [
-                        *lanes(&s_col[0], base),
-                        *lanes(&s_col[1], base),
-                        *lanes(&s_col[2], base),
+                        *lanes_n(&s_col[0], base),
+                        *lanes_n(&s_col[1], base),
+                        *lanes_n(&s_col[2], base),
                     ],
-                    s_dep: *lanes(&s_dep, base),
+                    s_dep: *lanes_n(&s_dep, base),
                 };
-                for l in 0..LANES {
+                for l in 0..L {
                     let dx = dx0 - offsets[l];
                     let (gauss, raw, alpha, composited) = alpha_at(&row, s.opacity, dx);
                     let on = composited && l < valid && k_u32 < last_l[l];
@@ -294,22 +297,22 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
                 {
                     // No lane composites this Gaussian: nothing to accumulate, and the
                     // transmittance and the colour behind stay as they are.
-                    x += LANES;
+                    x += L;
                     continue;
                 }
-                sink.step(base, (x - bx0) / LANES, &ln);
+                sink.step(base, (x - bx0) / L, &ln);
                 *t_l = ln.t_i;
                 for ch in 0..3 {
-                    let sc = lanes_mut(&mut s_col[ch], base);
-                    for l in 0..LANES {
+                    let sc = lanes_n_mut::<_, L>(&mut s_col[ch], base);
+                    for l in 0..L {
                         sc[l] += s.colour[ch] * ln.weight[l];
                     }
                 }
-                let sd = lanes_mut(&mut s_dep, base);
-                for l in 0..LANES {
+                let sd = lanes_n_mut::<_, L>(&mut s_dep, base);
+                for l in 0..L {
                     sd[l] += s.depth * ln.weight[l];
                 }
-                x += LANES;
+                x += L;
             }
             sink.end_row(dy);
         }
@@ -320,7 +323,7 @@ fn walk_back_impl<T: Real, S: BackSink<T>>(ctx: &ForwardContext<T>, tile: usize,
 
 /// Sum of the lanes in a fixed order (deterministic).
 #[inline(always)]
-pub(crate) fn lane_sum<T: Real>(v: &[T; LANES]) -> T {
+pub(crate) fn lane_sum<T: Real, const L: usize>(v: &[T; L]) -> T {
     let mut acc = T::zero();
     for x in v {
         acc += *x;
@@ -463,8 +466,9 @@ mod tests {
             }
             let grads = backward(&g, &out, &dl).unwrap();
             let info = fisher(&g, &out, FisherMode::PerChannel).unwrap();
+            let wide = crate::fisher::fisher_with_lanes(&g, &out, FisherMode::PerChannel, true);
             SIMD_CAP.store(2, Ordering::Relaxed);
-            (out.colour, out.depth, grads, info)
+            (out.colour, out.depth, grads, (info, wide.unwrap()))
         };
         eprintln!("this CPU runs the {:?} build", super::simd_level());
         let simd = run(2);
@@ -474,7 +478,7 @@ mod tests {
         assert_eq!(simd.1, avx2.1);
         assert_eq!(simd.2, avx2.2);
         assert_eq!(simd.3, avx2.3);
-        assert!(simd.2.pose.norm() > 0.0 && simd.3.pose_colour.trace() > 0.0);
+        assert!(simd.2.pose.norm() > 0.0 && simd.3.0.pose_colour.trace() > 0.0);
         assert_eq!(simd.0, portable.0);
         assert_eq!(simd.1, portable.1);
         assert_eq!(simd.2, portable.2);
