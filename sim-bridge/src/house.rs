@@ -117,6 +117,17 @@ pub struct House {
     pub start: PlanarPose,
 }
 
+impl House {
+    /// The room the start pose stands in (`None` only for a house without rooms).
+    pub fn start_room(&self) -> Option<&Room> {
+        let (x, y) = (self.start.x, self.start.y);
+        self.rooms
+            .iter()
+            .find(|r| (r.min[0]..=r.max[0]).contains(&x) && (r.min[1]..=r.max[1]).contains(&y))
+            .or(self.rooms.first())
+    }
+}
+
 /// Integer rectangle in layout units: [x0, y0, x1, y1].
 type Rect = [i64; 4];
 

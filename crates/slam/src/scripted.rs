@@ -178,18 +178,10 @@ pub fn held_out_pose(sim: &Simulator) -> Isometry3<f64> {
 /// Runs the scripted loop and measures it (see the module doc).
 pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
     let house = generate(config.house_seed, &HouseConfig::default())?;
-    let room = *house
-        .rooms
-        .iter()
-        .find(|r| {
-            (r.min[0]..=r.max[0]).contains(&house.start.x)
-                && (r.min[1]..=r.max[1]).contains(&house.start.y)
-        })
-        .or(house.rooms.first())
-        .ok_or_else(|| SlamError::Input {
-            what: "house",
-            reason: "no room".into(),
-        })?;
+    let room = *house.start_room().ok_or_else(|| SlamError::Input {
+        what: "house",
+        reason: "no room".into(),
+    })?;
     let (start, actions) = rectangle_loop(room.min, room.max, config.margin, config.frames);
     let sim_config = SimConfig {
         start: Some(start),
@@ -279,4 +271,13 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
         keyframes: keyframes.len(),
         lost,
     })
+}
+
+/// The value of environment variable `name` parsed as `T`, else `default`: the knobs of the
+/// development drivers (`RES`, `FRAMES`, …) in the scripted-loop and mapping-quality tests.
+pub fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }

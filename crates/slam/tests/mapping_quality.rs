@@ -14,7 +14,7 @@ use activemap_geometry::Isometry3;
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{SimConfig, Simulator};
 use activemap_slam::keyframe::decide;
-use activemap_slam::scripted::{held_out_pose, rectangle_loop};
+use activemap_slam::scripted::{env_or, held_out_pose, rectangle_loop};
 use activemap_slam::{Frame, KeyframeConfig, Mapper, MapperConfig};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, Render, RenderOptions, render};
 use std::time::Instant;
@@ -85,14 +85,7 @@ fn frame_of(sim: &mut Simulator, pose: Option<&Isometry3<f64>>) -> Frame {
 
 fn run(config: &QualityConfig) -> QualityResult {
     let house = generate(3, &HouseConfig::default()).expect("house");
-    let room = *house
-        .rooms
-        .iter()
-        .find(|r| {
-            (r.min[0]..=r.max[0]).contains(&house.start.x)
-                && (r.min[1]..=r.max[1]).contains(&house.start.y)
-        })
-        .unwrap_or(&house.rooms[0]);
+    let room = *house.start_room().expect("the house has rooms");
     let (start, actions) = rectangle_loop(room.min, room.max, 0.7, config.frames);
     let sim_config = SimConfig {
         start: Some(start),
@@ -222,37 +215,30 @@ fn visible_ids(mapper: &Mapper, frame: &Frame, pose: &Isometry3<f64>) -> Vec<u64
     ids
 }
 
-fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
 /// Development driver: `RES=160 FRAMES=120 cargo test -p activemap-slam --test
 /// mapping_quality -- --ignored --nocapture`.
 #[test]
 #[ignore = "development driver; run with --ignored --nocapture"]
 fn mapping_quality_driver() {
     let mut mapper = MapperConfig::default();
-    mapper.iterations = env("MITS", mapper.iterations);
-    mapper.insert.sample_fraction = env("FRAC", mapper.insert.sample_fraction);
-    mapper.prune_opacity_window = env("PRUNE", mapper.prune_opacity_window);
-    mapper.window = env("WINDOW", mapper.window);
-    mapper.prune_min_age = env("MIN_AGE", mapper.prune_min_age);
-    mapper.views_per_iteration = env("VIEWS", mapper.views_per_iteration);
-    mapper.insert.target_samples = env("TARGET", mapper.insert.target_samples);
-    mapper.densify_grad = env("DENSIFY", mapper.densify_grad);
-    mapper.coarse_iterations = env("COARSE", mapper.coarse_iterations);
-    mapper.insert.scale_factor = env("SCALE", mapper.insert.scale_factor);
-    mapper.insert.opacity = env("OPACITY", mapper.insert.opacity);
+    mapper.iterations = env_or("MITS", mapper.iterations);
+    mapper.insert.sample_fraction = env_or("FRAC", mapper.insert.sample_fraction);
+    mapper.prune_opacity_window = env_or("PRUNE", mapper.prune_opacity_window);
+    mapper.window = env_or("WINDOW", mapper.window);
+    mapper.prune_min_age = env_or("MIN_AGE", mapper.prune_min_age);
+    mapper.views_per_iteration = env_or("VIEWS", mapper.views_per_iteration);
+    mapper.insert.target_samples = env_or("TARGET", mapper.insert.target_samples);
+    mapper.densify_grad = env_or("DENSIFY", mapper.densify_grad);
+    mapper.coarse_iterations = env_or("COARSE", mapper.coarse_iterations);
+    mapper.insert.scale_factor = env_or("SCALE", mapper.insert.scale_factor);
+    mapper.insert.opacity = env_or("OPACITY", mapper.insert.opacity);
     let mut keyframe = KeyframeConfig::default();
-    keyframe.min_covisibility = env("COVIS", keyframe.min_covisibility);
-    keyframe.translation_fraction = env("KF_T", keyframe.translation_fraction);
+    keyframe.min_covisibility = env_or("COVIS", keyframe.min_covisibility);
+    keyframe.translation_fraction = env_or("KF_T", keyframe.translation_fraction);
     let config = QualityConfig {
-        resolution: env("RES", 160),
-        frames: env("FRAMES", 120),
-        max_keyframes: env("MAX_KF", usize::MAX),
+        resolution: env_or("RES", 160),
+        frames: env_or("FRAMES", 120),
+        max_keyframes: env_or("MAX_KF", usize::MAX),
         keyframe,
         mapper,
     };

@@ -1,36 +1,29 @@
 //! Scripted-loop evaluation in the simulator (issue 5): ground truth only for the metrics.
 
-use activemap_slam::scripted::{LoopConfig, run_loop};
-
-fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
+use activemap_slam::scripted::{LoopConfig, env_or, run_loop};
 
 #[test]
 #[ignore = "development driver; run with --ignored --nocapture"]
 fn scripted_loop_driver() {
-    let mut c = LoopConfig::new(env("RES", 160), env("FRAMES", 100));
-    c.slam.mapper.insert.sample_fraction = env("FRAC", c.slam.mapper.insert.sample_fraction);
-    c.slam.mapper.insert.scale_factor = env("SCALE", c.slam.mapper.insert.scale_factor);
-    c.slam.mapper.iterations = env("MITS", c.slam.mapper.iterations);
-    c.slam.tracker.downscale = env("TDOWN", c.slam.tracker.downscale);
-    c.slam.tracker.gauss_newton.prior_translation_sigma = env(
+    let mut c = LoopConfig::new(env_or("RES", 160), env_or("FRAMES", 100));
+    c.slam.mapper.insert.sample_fraction = env_or("FRAC", c.slam.mapper.insert.sample_fraction);
+    c.slam.mapper.insert.scale_factor = env_or("SCALE", c.slam.mapper.insert.scale_factor);
+    c.slam.mapper.iterations = env_or("MITS", c.slam.mapper.iterations);
+    c.slam.tracker.downscale = env_or("TDOWN", c.slam.tracker.downscale);
+    c.slam.tracker.gauss_newton.prior_translation_sigma = env_or(
         "PRIOR_T",
         c.slam.tracker.gauss_newton.prior_translation_sigma,
     );
     c.slam.tracker.gauss_newton.prior_rotation_sigma =
-        env("PRIOR_R", c.slam.tracker.gauss_newton.prior_rotation_sigma);
-    if env("SINGLE_LEVEL", 0) == 1 {
+        env_or("PRIOR_R", c.slam.tracker.gauss_newton.prior_rotation_sigma);
+    if env_or("SINGLE_LEVEL", 0) == 1 {
         c.slam.tracker.gauss_newton.pyramid = vec![1];
     }
-    c.trace = env("TRACE", 0) == 1;
+    c.trace = env_or("TRACE", 0) == 1;
     let dense = &mut c.slam.tracker.dense;
-    dense.depth_sigma = env("DSIG", dense.depth_sigma);
-    dense.colour_sigma = env("CSIG", dense.colour_sigma);
-    dense.prior_translation_sigma = env("DPT", dense.prior_translation_sigma);
+    dense.depth_sigma = env_or("DSIG", dense.depth_sigma);
+    dense.colour_sigma = env_or("CSIG", dense.colour_sigma);
+    dense.prior_translation_sigma = env_or("DPT", dense.prior_translation_sigma);
     let r = run_loop(&c).unwrap();
     eprintln!("{r:?}");
 }
