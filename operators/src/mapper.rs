@@ -205,9 +205,16 @@ impl Worker {
                 while let Ok(job) = job_rx.recv() {
                     let frame_id = job.estimate.frame_id;
                     let stamp = job.estimate.stamp;
+                    let started = std::time::Instant::now();
                     let result = core.process(job.frame, &job.estimate).map(|changed| {
                         if changed {
                             current = Arc::new(core.map().clone());
+                            eprintln!(
+                                "mapper: keyframe {} at frame {frame_id}: {:.0} ms, {} Gaussians",
+                                core.keyframes,
+                                1e3 * started.elapsed().as_secs_f64(),
+                                core.map().len()
+                            );
                         }
                         Snapshot {
                             frame_id,

@@ -7,8 +7,10 @@
 //! mapper publishes one per frame; L = `map_lag`, [`crate::mapper::required_snapshot`]) and the
 //! action of step k − 1 have arrived, and always against exactly that snapshot, so the result
 //! never depends on message timing. Exactly one pose estimate per frame. The dense tracker
-//! aligns to its own reference keyframe and needs the map only for its Lost signal, so a lag
-//! of a few frames costs little while mapping runs in the background.
+//! aligns to its own reference keyframes (the newest, plus older ones of the same place when
+//! the robot comes back, `activemap_slam::references`) under the ground-robot motion prior
+//! (`DenseConfig::for_ground_robot`), and needs the map only for its Lost signal, so a lag of
+//! a few frames costs little while mapping runs in the background.
 
 use std::collections::BTreeMap;
 
@@ -21,7 +23,9 @@ use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
 };
 use activemap_slam::dense::DenseReference;
-use activemap_slam::{Frame, TrackerConfig, TrackingStatus as SlamStatus, track};
+use activemap_slam::{
+    Frame, ReferenceConfig, References, TrackerConfig, TrackingStatus as SlamStatus, track,
+};
 use activemap_splat::Gaussians;
 
 use crate::Registered;
@@ -104,8 +108,9 @@ pub struct Tracker {
     pose: Isometry3<f64>,
     velocity: Isometry3<f64>,
     exposure: [f64; 2],
-    /// The dense tracker's reference keyframe (a past tracked frame at its estimate).
-    reference: Option<DenseReference>,
+    /// The dense tracker's reference keyframes (past tracked frames at their estimates): the
+    /// newest, and older ones aligned to again when the robot comes back to their place.
+    references: References,
 }
 
 impl Tracker {
@@ -121,6 +126,7 @@ impl Tracker {
             config.rereference_below
         );
         let mut tracker = TrackerConfig::default();
+        tracker.dense = tracker.dense.for_ground_robot();
         if let Some(d) = config.downscale {
             tracker.downscale = d;
         }
@@ -138,7 +144,7 @@ impl Tracker {
             next: 0,
             velocity: Isometry3::identity(),
             exposure: [0.0, 0.0],
-            reference: None,
+            references: References::new(ReferenceConfig::default())?,
         })
     }
 
@@ -164,7 +170,8 @@ impl Tracker {
             let k = self.next;
             if k == 0 {
                 let small = frame.downscale(self.tracker.downscale);
-                self.reference = Some(DenseReference::new(&small, self.pose, &self.tracker.dense));
+                self.references
+                    .push(DenseReference::new(&small, self.pose, &self.tracker.dense));
                 out.push(estimate(
                     k,
                     frame.stamp,
@@ -189,13 +196,14 @@ impl Tracker {
                     Prior::None => previous,
                 };
                 let small = frame.downscale(self.tracker.downscale);
+                let references = self.references.select(&predicted);
                 let t = track(
                     &self.tracker,
                     map,
                     &small,
                     &predicted,
                     self.exposure,
-                    self.reference.as_ref(),
+                    &references,
                 )?;
                 let status = match t.status {
                     SlamStatus::Ok => TrackingStatus::Ok,
@@ -207,8 +215,11 @@ impl Tracker {
                     self.velocity = previous.inverse() * t.pose;
                     self.exposure = t.exposure;
                     if t.reference_overlap < self.config.rereference_below {
-                        self.reference =
-                            Some(DenseReference::new(&small, t.pose, &self.tracker.dense));
+                        self.references.push(DenseReference::new(
+                            &small,
+                            t.pose,
+                            &self.tracker.dense,
+                        ));
                     }
                 }
                 out.push(estimate(

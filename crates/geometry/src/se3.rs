@@ -3,7 +3,7 @@
 //! `[[θ]×, ρ; 0, 0]`, so that a left update `T ← Exp(τ)·T` moves `T` by τ expressed in the
 //! frame `T` maps into.
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// Skew-symmetric matrix `[v]×` with `[v]× w = v × w`.
 pub fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -70,6 +70,20 @@ pub fn normalized(pose: &Isometry3<f64>) -> Isometry3<f64> {
     )
 }
 
+/// The adjoint `Ad(T)` for τ = [ρ, θ]: `T·Exp(τ)·T⁻¹ = Exp(Ad(T)·τ)`, i.e.
+/// `[[R, [t]×R], [0, R]]`. It moves a perturbation from the frame `T` maps from into the frame
+/// it maps into, so that Gauss–Newton normal equations written for different frames can be
+/// summed (`H' = Adᵀ H Ad`, `g' = Adᵀ g`).
+pub fn adjoint(pose: &Isometry3<f64>) -> Matrix6<f64> {
+    let r = *pose.rotation.to_rotation_matrix().matrix();
+    let tr = hat(&pose.translation.vector) * r;
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&tr);
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad
+}
+
 /// Translation distance (metres) and rotation angle (radians) between two poses.
 pub fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     let delta = a.inverse() * b;
@@ -101,6 +115,20 @@ mod tests {
         assert!((pose.rotation.quaternion().norm() - 1.0).abs() < 1e-12);
         let unit = pose * nalgebra::Point3::new(1.0, 0.0, 0.0) - pose * nalgebra::Point3::origin();
         assert!((unit.norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn adjoint_conjugates_the_exponential() {
+        let t = exp(&Vector6::new(0.7, -1.2, 0.4, 0.3, -0.5, 0.9));
+        for tau in [
+            Vector6::new(0.01, 0.02, -0.03, 0.0, 0.0, 0.0),
+            Vector6::new(0.0, 0.0, 0.0, 0.02, -0.01, 0.03),
+            Vector6::new(0.05, -0.02, 0.01, -0.03, 0.04, 0.02),
+        ] {
+            let conjugated = t * exp(&tau) * t.inverse();
+            let via_adjoint = exp(&(adjoint(&t) * tau));
+            assert!(close(&conjugated, &via_adjoint, 1e-12), "{tau}");
+        }
     }
 
     #[test]

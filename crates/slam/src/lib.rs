@@ -9,6 +9,8 @@
 //! - [`keyframe`]: co-visibility / translation keyframe rule;
 //! - [`insert`], [`unknown`], [`mapper`]: insertion in unobserved areas, unknown-space
 //!   Gaussians (SPEC §5), window optimisation, pruning and densification;
+//! - [`dense`], [`references`]: dense RGB-D alignment to keyframes, and which keyframes a
+//!   frame is aligned to (the newest, plus older ones of the same place);
 //! - [`slam`]: the [`Slam`] facade, `process(frame, motion) → pose, status, keyframe, map`;
 //! - [`scripted`], [`bench`]: the scripted-loop evaluation in the simulator (ground truth only
 //!   for the metrics) and `activemap bench slam`.
@@ -36,6 +38,7 @@ pub mod insert;
 pub mod keyframe;
 pub mod loss;
 pub mod mapper;
+pub mod references;
 pub mod scripted;
 pub mod slam;
 pub mod tracker;
@@ -45,6 +48,7 @@ pub use error::SlamError;
 pub use frame::{Frame, SkipReason};
 pub use keyframe::{KeyframeConfig, KeyframeDecision};
 pub use mapper::{Mapper, MapperConfig, MappingReport};
+pub use references::{ReferenceConfig, References};
 pub use slam::{MotionPrior, Slam, SlamConfig, SlamOutput};
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};
 pub use unknown::{FrontierCell, UnknownSpaceConfig};

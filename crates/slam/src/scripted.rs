@@ -51,6 +51,7 @@ impl LoopConfig {
         let mut slam = SlamConfig::default();
         slam.tracker.downscale = if resolution > 160 { 2 } else { 1 };
         slam.mapping_downscale = if resolution > 200 { 2 } else { 1 };
+        slam.tracker.dense = slam.tracker.dense.for_ground_robot();
         Self {
             resolution,
             frames,

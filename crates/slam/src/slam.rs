@@ -15,6 +15,7 @@ use crate::frame::Frame;
 use crate::keyframe::{KeyframeConfig, KeyframeDecision, decide};
 use crate::loss::Residuals;
 use crate::mapper::{Mapper, MapperConfig, MappingReport};
+use crate::references::{ReferenceConfig, References};
 use crate::tracker::{TrackerConfig, TrackingStatus, track};
 use crate::unknown::FrontierCell;
 use activemap_geometry::Isometry3;
@@ -28,6 +29,8 @@ pub struct SlamConfig {
     pub tracker: TrackerConfig,
     /// Keyframe rule.
     pub keyframe: KeyframeConfig,
+    /// Which keyframes the dense tracker aligns to (every keyframe becomes a reference).
+    pub references: ReferenceConfig,
     /// Mapping.
     pub mapper: MapperConfig,
     /// Keyframes are stored and optimised at `1/mapping_downscale` resolution.
@@ -44,6 +47,7 @@ impl Default for SlamConfig {
         Self {
             tracker: TrackerConfig::default(),
             keyframe: KeyframeConfig::default(),
+            references: ReferenceConfig::default(),
             mapper: MapperConfig::default(),
             mapping_downscale: 1,
             initial_pose: Isometry3::identity(),
@@ -91,8 +95,6 @@ pub struct SlamOutput {
 #[derive(Debug, Clone)]
 struct LastKeyframe {
     pose: Isometry3<f64>,
-    /// The keyframe prepared as the dense tracker's reference.
-    reference: DenseReference,
     median_depth: f64,
     visible_ids: Vec<u64>,
 }
@@ -106,6 +108,8 @@ pub struct Slam {
     velocity: Isometry3<f64>,
     exposure: [f64; 2],
     last_keyframe: Option<LastKeyframe>,
+    /// The keyframes prepared as the dense tracker's references.
+    references: References,
     frames_since_keyframe: usize,
     consecutive_lost: usize,
 }
@@ -136,7 +140,9 @@ impl Slam {
             });
         }
         let mapper = Mapper::new(config.mapper.clone())?;
+        let references = References::new(config.references.clone())?;
         Ok(Self {
+            references,
             config,
             mapper,
             pose: None,
@@ -203,13 +209,14 @@ impl Slam {
             return self.bootstrap(frame, &track_frame, predicted);
         }
         let start = Instant::now();
+        let references = self.references.select(&predicted);
         let tracked = track(
             &self.config.tracker,
             self.mapper.map(),
             &track_frame,
             &predicted,
             self.exposure,
-            self.last_keyframe.as_ref().map(|k| &k.reference),
+            &references,
         )?;
         let track_seconds = start.elapsed().as_secs_f64();
         let mut output = SlamOutput {
@@ -331,9 +338,13 @@ impl Slam {
             .map(|(id, _)| *id)
             .collect();
         visible_ids.sort_unstable();
+        self.references.push(DenseReference::new(
+            track_frame,
+            pose,
+            &self.config.tracker.dense,
+        ));
         self.last_keyframe = Some(LastKeyframe {
             pose,
-            reference: DenseReference::new(track_frame, pose, &self.config.tracker.dense),
             median_depth,
             visible_ids,
         });

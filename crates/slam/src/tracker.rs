@@ -14,7 +14,7 @@
 //! the map covers too little of it, or when the covered part disagrees in depth or colour
 //! beyond the configured limits. The map residuals are reported in every case. Unknown-space Gaussians (SPEC §5) are never rendered for tracking.
 
-use crate::dense::{DenseConfig, DenseReference, align};
+use crate::dense::{DenseConfig, DenseReference, align_many};
 use crate::error::SlamError;
 use crate::frame::{Frame, SkipReason};
 use crate::gauss_newton::{GaussNewtonConfig, refine};
@@ -184,7 +184,8 @@ pub fn classify(config: &TrackerConfig, r: &Residuals, median_depth: f64) -> Tra
 }
 
 /// Tracks `frame` (already at tracking resolution) against `map` (and, for
-/// [`TrackerMethod::Dense`], the `reference` keyframe), starting from the predicted
+/// [`TrackerMethod::Dense`], the `references` keyframes: the newest first, then older ones of
+/// the same place, see [`crate::references`]), starting from the predicted
 /// `T_world_camera` and exposure. Unusable frames return `Skipped` with the prediction.
 pub fn track(
     config: &TrackerConfig,
@@ -192,7 +193,7 @@ pub fn track(
     frame: &Frame,
     predicted_pose: &Isometry3<f64>,
     predicted_exposure: [f64; 2],
-    reference: Option<&DenseReference>,
+    references: &[&DenseReference],
 ) -> Result<TrackOutput, SlamError> {
     config.validate()?;
     let pose_ok = predicted_pose
@@ -229,9 +230,9 @@ pub fn track(
     };
     let mut inlier_fraction = 1.0;
     let mut dense_status = None;
-    let (camera_from_world, exposure, iterations, converged) = match (config.method, reference) {
-        (TrackerMethod::Dense, Some(reference)) => {
-            let a = align(&config.dense, reference, frame, predicted_pose)?;
+    let (camera_from_world, exposure, iterations, converged) = match config.method {
+        TrackerMethod::Dense if !references.is_empty() => {
+            let a = align_many(&config.dense, references, frame, predicted_pose)?;
             inlier_fraction = a.inlier_fraction;
             dense_status = Some(
                 if a.inlier_fraction >= config.lost_min_coverage
@@ -249,7 +250,7 @@ pub fn track(
                 a.converged,
             )
         }
-        (TrackerMethod::Adam, _) => adam_refine(
+        TrackerMethod::Adam => adam_refine(
             config,
             map,
             frame,
@@ -257,7 +258,7 @@ pub fn track(
             predicted_pose,
             predicted_exposure,
         )?,
-        (TrackerMethod::GaussNewton | TrackerMethod::Dense, _) => {
+        TrackerMethod::GaussNewton | TrackerMethod::Dense => {
             let r = refine(
                 &config.gauss_newton,
                 map,

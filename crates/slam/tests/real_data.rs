@@ -191,7 +191,7 @@ fn icl_tracker_recovers_a_5cm_3deg_offset() {
         &frames[4],
         &start,
         [0.0, 0.0],
-        Some(&reference),
+        &[&reference],
     )
     .unwrap();
     let (t, r) = pose_error(&out.pose, &truth);
@@ -215,7 +215,7 @@ fn icl_tracker_recovers_a_5cm_3deg_offset() {
         &frames[4],
         &truth,
         [0.0, 0.0],
-        Some(&reference),
+        &[&reference],
     )
     .unwrap();
     let (dt, dr) = pose_error(&out.pose, &from_truth.pose);
@@ -276,7 +276,7 @@ fn tum_real_depth_tracking_converges_and_stays_sane() {
         &f1,
         &start,
         [0.0, 0.0],
-        Some(&reference),
+        &[&reference],
     )
     .unwrap();
     let (t, r) = pose_error(&back.pose, &Isometry3::identity());
@@ -308,7 +308,7 @@ fn tum_real_depth_tracking_converges_and_stays_sane() {
         &f2,
         &Isometry3::identity(),
         [0.0, 0.0],
-        Some(&reference),
+        &[&reference],
     )
     .unwrap();
     let (t, r) = pose_error(&out.pose, &Isometry3::identity());

@@ -24,6 +24,16 @@ fn scripted_loop_driver() {
     dense.depth_sigma = env_or("DSIG", dense.depth_sigma);
     dense.colour_sigma = env_or("CSIG", dense.colour_sigma);
     dense.prior_translation_sigma = env_or("DPT", dense.prior_translation_sigma);
+    if env_or("GROUND", 1) == 0 {
+        dense.prior_axis_sigmas = [0.0; 6];
+    }
+    dense.prior_axis_sigmas[0] = env_or("LAT", dense.prior_axis_sigmas[0]);
+    if env_or("COARSE", 1) == 0 {
+        dense.pyramid = vec![2, 1];
+    }
+    let references = &mut c.slam.references;
+    references.extra = env_or("REF_EXTRA", references.extra);
+    references.min_age = env_or("REF_MIN_AGE", references.min_age);
     let r = run_loop(&c).unwrap();
     eprintln!("{r:?}");
 }
