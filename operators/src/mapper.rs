@@ -23,7 +23,8 @@ use activemap_runtime::{
 };
 use activemap_schemas::{MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus};
 use activemap_slam::{
-    Frame, KeyframeConfig, Mapper as SlamMapper, MapperConfig, TrackerConfig, keyframe::decide,
+    Frame, KeyframeConfig, Mapper as SlamMapper, MapperConfig, MappingReport, TrackerConfig,
+    keyframe::decide,
 };
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 
@@ -72,6 +73,8 @@ pub struct MapperCore {
     frames_since: usize,
     /// Keyframes mapped so far.
     pub keyframes: usize,
+    /// What the last keyframe's mapping did.
+    pub last_report: Option<MappingReport>,
 }
 
 impl MapperCore {
@@ -101,6 +104,7 @@ impl MapperCore {
             last: None,
             frames_since: 0,
             keyframes: 0,
+            last_report: None,
         })
     }
 
@@ -158,7 +162,7 @@ impl MapperCore {
         }
         let median_depth = frame.median_depth().unwrap_or(1.0);
         let visible_frame = frame.clone();
-        self.mapper.add_keyframe(visible_frame, pose, [0.0, 0.0])?;
+        self.last_report = Some(self.mapper.add_keyframe(visible_frame, pose, [0.0, 0.0])?);
         let visible = self.visible_ids(&frame, &pose)?;
         self.last = Some(LastKeyframe {
             pose,
@@ -209,11 +213,16 @@ impl Worker {
                     let result = core.process(job.frame, &job.estimate).map(|changed| {
                         if changed {
                             current = Arc::new(core.map().clone());
+                            let r = core.last_report.unwrap_or_default();
                             eprintln!(
-                                "mapper: keyframe {} at frame {frame_id}: {:.0} ms, {} Gaussians",
+                                "mapper: keyframe {} at frame {frame_id}: {:.0} ms, {} Gaussians \
+                                 (+{} inserted, +{} densified, -{} pruned)",
                                 core.keyframes,
                                 1e3 * started.elapsed().as_secs_f64(),
-                                core.map().len()
+                                core.map().len(),
+                                r.inserted,
+                                r.densified,
+                                r.pruned
                             );
                         }
                         Snapshot {

@@ -161,6 +161,36 @@ pub struct Keyframe {
     pub rgb_mask: Vec<bool>,
     /// The frame at half resolution and its colour mask, for the coarse iterations.
     pub coarse: Option<(Frame, Vec<bool>)>,
+    /// Far plane of the keyframe's renders ([`far_plane`]).
+    pub far: f64,
+}
+
+/// Margin of the far plane beyond a keyframe's deepest reading, metres: a Gaussian whose centre
+/// lies a little behind the farthest surface can still reach it (inserted scales are ≤ 0.2 m).
+pub const FAR_PLANE_MARGIN: f64 = 0.25;
+
+/// The far plane a keyframe is rendered with while mapping: [`FAR_PLANE_MARGIN`] beyond its
+/// deepest depth reading when at most 1 % of its pixels lack depth (every other pixel sees a
+/// surface nearer than that, so the Gaussians beyond are occluded and change no pixel), else
+/// none (infinite). Culling them keeps the cost of a mapping step bounded by what the window
+/// sees rather than by the size of the whole map (measured in the exploration loop: mapping
+/// time per keyframe grew with the map, 1.8 s at 33k to 3.8 s at 168k Gaussians).
+pub fn far_plane(frame: &Frame) -> f64 {
+    let missing = frame
+        .depth
+        .iter()
+        .filter(|d| d.partial_cmp(&&0.0) != Some(std::cmp::Ordering::Greater))
+        .count();
+    if missing * 100 > frame.depth.len() {
+        return f64::INFINITY;
+    }
+    let deepest = frame
+        .depth
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .fold(0f32, f32::max);
+    deepest as f64 + FAR_PLANE_MARGIN
 }
 
 /// What one keyframe's mapping did.
@@ -289,7 +319,7 @@ impl Mapper {
         frame: &Frame,
         pose: &Isometry3<f64>,
     ) -> Result<usize, SlamError> {
-        let camera = Camera::from_world_pose(frame.intrinsics, pose);
+        let camera = Camera::from_world_pose(frame.intrinsics, pose).with_far(far_plane(frame));
         let options = RenderOptions {
             exposure: [0.0, 0.0],
             exclude_flags: FLAG_UNKNOWN_SPACE,
@@ -331,6 +361,7 @@ impl Mapper {
             (small, small_mask)
         });
         self.keyframes.push(Keyframe {
+            far: far_plane(&frame),
             frame,
             pose,
             exposure,
@@ -430,7 +461,8 @@ impl Mapper {
                 (Some((small, small_mask)), true) => (small, small_mask),
                 _ => (&keyframe.frame, &keyframe.rgb_mask),
             };
-            let camera = Camera::from_world_pose(frame.intrinsics, &keyframe.pose);
+            let camera =
+                Camera::from_world_pose(frame.intrinsics, &keyframe.pose).with_far(keyframe.far);
             let options = RenderOptions {
                 exposure: keyframe.exposure,
                 exclude_flags: FLAG_UNKNOWN_SPACE,
@@ -622,6 +654,23 @@ mod tests {
         };
         c.insert.sample_fraction = 0.5;
         c
+    }
+
+    #[test]
+    fn the_far_plane_lies_beyond_the_deepest_reading_unless_depth_is_missing() {
+        let k = Intrinsics::from_hfov(10, 10, std::f64::consts::FRAC_PI_2);
+        let mut depth: Vec<f32> = (0..100).map(|i| 1.0 + 0.03 * i as f32).collect();
+        let frame = Frame::new(k, vec![[0.5; 3]; 100], depth.clone(), 0.0).unwrap();
+        let expected = (1.0f32 + 0.03 * 99.0) as f64 + FAR_PLANE_MARGIN;
+        assert!((far_plane(&frame) - expected).abs() < 1e-12);
+        // One pixel in a hundred without depth is tolerated; two are not (the far Gaussians
+        // could show through them).
+        depth[5] = 0.0;
+        let one = Frame::new(k, vec![[0.5; 3]; 100], depth.clone(), 0.0).unwrap();
+        assert!((far_plane(&one) - expected).abs() < 1e-12);
+        depth[6] = 0.0;
+        let two = Frame::new(k, vec![[0.5; 3]; 100], depth, 0.0).unwrap();
+        assert_eq!(far_plane(&two), f64::INFINITY);
     }
 
     #[test]

@@ -85,13 +85,31 @@ impl AdamState {
     /// One Adam step on entry `k` with learning rate `lr`: returns the parameter change.
     #[inline]
     fn delta(&mut self, k: usize, grad: f64, lr: f64, beta1: f64, beta2: f64, eps: f64) -> f64 {
+        let t = self.steps[k] as i32 + 1;
+        let correction = (1.0 - beta1.powi(t), 1.0 - beta2.powi(t));
+        self.delta_corrected(k, grad, lr, beta1, beta2, eps, correction)
+    }
+
+    /// [`AdamState::delta`] with the bias corrections `(1 − β₁ᵗ, 1 − β₂ᵗ)` of the entry's next
+    /// step given, so entries stepped together (one Gaussian's) compute them once.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    fn delta_corrected(
+        &mut self,
+        k: usize,
+        grad: f64,
+        lr: f64,
+        beta1: f64,
+        beta2: f64,
+        eps: f64,
+        correction: (f64, f64),
+    ) -> f64 {
         let grad = if grad.is_finite() { grad } else { 0.0 };
         self.steps[k] += 1;
-        let t = self.steps[k] as i32;
         self.m[k] = beta1 * self.m[k] + (1.0 - beta1) * grad;
         self.v[k] = beta2 * self.v[k] + (1.0 - beta2) * grad * grad;
-        let m_hat = self.m[k] / (1.0 - beta1.powi(t));
-        let v_hat = self.v[k] / (1.0 - beta2.powi(t));
+        let m_hat = self.m[k] / correction.0;
+        let v_hat = self.v[k] / correction.1;
         -lr * m_hat / (v_hat.sqrt() + eps)
     }
 
@@ -253,14 +271,18 @@ impl GaussianAdam {
         let c = self.config;
         for i in (0..n).filter(|&i| active(i)) {
             let g = grads.params(i);
+            // All entries of a Gaussian share their step count (see `steps`).
+            let t = self.state.steps[i * PARAMS_PER_GAUSSIAN] as i32 + 1;
+            let correction = (1.0 - c.beta1.powi(t), 1.0 - c.beta2.powi(t));
             for (k, gk) in g.iter().enumerate() {
-                let d = self.state.delta(
+                let d = self.state.delta_corrected(
                     i * PARAMS_PER_GAUSSIAN + k,
                     gk.to_f64(),
                     c.lr_of(k),
                     c.beta1,
                     c.beta2,
                     c.eps,
+                    correction,
                 );
                 let p = gaussians.param_mut(i, k);
                 *p = T::of(p.to_f64() + d);

@@ -9,7 +9,7 @@ use nalgebra::Isometry3;
 /// Default near plane (metres): Gaussians with camera depth `z ≤ near` are culled (SPEC §3).
 pub const DEFAULT_NEAR: f64 = 0.01;
 
-/// A camera: intrinsics, the world-to-camera pose, and the near plane.
+/// A camera: intrinsics, the world-to-camera pose, and the near and far planes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
     /// Image size and pinhole parameters.
@@ -18,6 +18,11 @@ pub struct Camera {
     pub camera_from_world: Isometry3<f64>,
     /// Near plane, metres.
     pub near: f64,
+    /// Far plane, metres: Gaussians with camera depth `z > far` are culled (infinite by
+    /// default). A view whose every pixel sees a surface closer than some depth can set the far
+    /// plane just beyond it: the Gaussians farther away are occluded and change no pixel, and
+    /// culling them saves their projection, sorting and optimiser work (the mapper does this).
+    pub far: f64,
 }
 
 impl Camera {
@@ -27,7 +32,13 @@ impl Camera {
             intrinsics,
             camera_from_world,
             near: DEFAULT_NEAR,
+            far: f64::INFINITY,
         }
+    }
+
+    /// The same camera with the far plane at `far` metres.
+    pub fn with_far(self, far: f64) -> Self {
+        Self { far, ..self }
     }
 
     /// A camera from its pose in the world, `T_world_camera` (the project-wide pose convention).
@@ -59,6 +70,12 @@ impl Camera {
                 self.near
             )));
         }
+        if self.far.is_nan() || self.far <= self.near {
+            return Err(SplatError::Camera(format!(
+                "far plane {} must lie beyond the near plane {}",
+                self.far, self.near
+            )));
+        }
         Ok(())
     }
 }
@@ -78,6 +95,8 @@ pub(crate) struct CameraT<T: Real> {
     pub width: usize,
     pub height: usize,
     pub near: T,
+    /// Far plane (`T::of(f64::INFINITY)` when none).
+    pub far: T,
     /// Lower and upper limits of `x/z`.
     pub lim_x: [T; 2],
     /// Lower and upper limits of `y/z`.
@@ -106,6 +125,7 @@ impl<T: Real> CameraT<T> {
             width: k.width as usize,
             height: k.height as usize,
             near: T::of(cam.near),
+            far: T::of(cam.far),
             lim_x: limits(k.width as f64, k.cx, k.fx),
             lim_y: limits(k.height as f64, k.cy, k.fy),
         }

@@ -157,6 +157,47 @@ pub(crate) fn chain<T: Real>(cam: &CameraT<T>, g: &Gaussians<T>, i: usize) -> Op
     })
 }
 
+/// A cheap test run before the projection chain: true when Gaussian `i` lies beyond the far
+/// plane, or (conservatively) when its screen box is certainly empty because its projected mean
+/// lies farther outside the image than its footprint can reach. The footprint's half-width is `extent·√cov_xx` with `extent ≤ 3` and
+/// `cov_xx = j₀ᵀΣj₀ + LOW_PASS ≤ (f/z)²(1 + L²)·s_max² + LOW_PASS`, where `s_max` is the largest
+/// scale (the largest eigenvalue of Σ is `s_max²`) and `L` the Jacobian clamp limit of `x/z`
+/// (resp. `y/z`). The bound gets 0.1 % and one pixel of slack for rounding, so culling here
+/// never changes a render; it saves the covariance work for the (many) Gaussians in front of
+/// the camera but outside its field of view. Non-finite values return false (the chain decides).
+#[inline]
+fn culled_early<T: Real>(cam: &CameraT<T>, g: &Gaussians<T>, i: usize) -> bool {
+    let mu = g.means[i];
+    let r = &cam.r;
+    let p = |k: usize| r[k][0] * mu[0] + r[k][1] * mu[1] + r[k][2] * mu[2] + cam.t[k];
+    let z = p(2);
+    if z > cam.far {
+        return true;
+    }
+    if z.partial_cmp(&cam.near) != Some(std::cmp::Ordering::Greater) {
+        return false;
+    }
+    let ls = g.log_scales[i];
+    let s_max = ls[0].max(ls[1]).max(ls[2]).exp();
+    let iz = T::one() / z;
+    let low_pass = T::of(LOW_PASS);
+    let slack = T::of(3.0 * 1.001);
+    let axes = [
+        (p(0), cam.fx, cam.cx, cam.lim_x, cam.width),
+        (p(1), cam.fy, cam.cy, cam.lim_y, cam.height),
+    ];
+    for (x, f, c, lim, size) in axes {
+        let limit2 = (lim[0] * lim[0]).max(lim[1] * lim[1]);
+        let reach = f * iz * s_max;
+        let bound = slack * (reach * reach * (T::one() + limit2) + low_pass).sqrt() + T::one();
+        let u = f * x * iz + c;
+        if u + bound < T::zero() || u - bound > T::of(size as f64 - 1.0) {
+            return true;
+        }
+    }
+    false
+}
+
 /// Projects Gaussian `i`; `None` when it cannot touch any pixel.
 pub(crate) fn project_one<T: Real>(
     cam: &CameraT<T>,
@@ -165,6 +206,9 @@ pub(crate) fn project_one<T: Real>(
 ) -> Option<Splat<T>> {
     let opacity = sigmoid(g.opacity_logits[i]);
     if !opacity.is_finite() || opacity < T::of(ALPHA_MIN) {
+        return None;
+    }
+    if culled_early(cam, g, i) {
         return None;
     }
     let c = chain(cam, g, i)?;
@@ -375,5 +419,110 @@ impl<T: Real> SigmaRow<T> {
     #[inline(always)]
     pub fn sigma(&self, dx: T) -> T {
         dx * (self.half_qa * dx + self.b) + self.c
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+    use activemap_geometry::{Intrinsics, Isometry3};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The early cull only ever drops Gaussians the full projection drops too, and it does
+    /// drop most of those outside the field of view (else it would be useless).
+    #[test]
+    fn the_early_cull_drops_only_gaussians_the_projection_drops() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut g = Gaussians::<f32>::new();
+        for _ in 0..40_000 {
+            let mean = [
+                rng.random_range(-6.0..6.0),
+                rng.random_range(-6.0..6.0),
+                rng.random_range(-1.0..8.0),
+            ];
+            // Scales from 1 mm to 0.5 m (log-uniform; the mapper prunes larger ones), random
+            // rotations.
+            let scale = [0; 3].map(|_| 10f64.powf(rng.random_range(-3.0..-0.3)));
+            let q = [0; 4].map(|_| rng.random_range(-1.0..1.0));
+            g.push(mean, [0.5, 0.4, 0.3], q, rng.random_range(0.05..1.0), scale);
+        }
+        let mut early_count = 0;
+        let mut dropped_outside = 0;
+        for (width, height, hfov) in [(160, 160, 90f64), (200, 120, 60.0), (64, 96, 110.0)] {
+            let k = Intrinsics::from_hfov(width, height, hfov.to_radians());
+            let cam = CameraT::<f32>::new(&Camera::new(k, Isometry3::identity()));
+            for i in 0..g.len() {
+                let early = culled_early(&cam, &g, i);
+                let full = bbox_of(&cam, &g, i);
+                if early {
+                    early_count += 1;
+                    assert!(
+                        full.is_none(),
+                        "Gaussian {i} culled early but touches {full:?}"
+                    );
+                }
+                if full.is_none() && chain(&cam, &g, i).is_some() {
+                    dropped_outside += 1;
+                }
+            }
+        }
+        assert!(
+            early_count * 10 >= dropped_outside * 9,
+            "the early cull caught {early_count} of {dropped_outside} off-screen Gaussians"
+        );
+    }
+
+    #[test]
+    fn the_far_plane_culls_exactly_what_lies_beyond_it() {
+        let k = Intrinsics::from_hfov(64, 64, 90f64.to_radians());
+        let camera = Camera::new(k, Isometry3::identity());
+        let mut g = Gaussians::<f32>::new();
+        for z in [1.0, 2.9, 3.1, 8.0] {
+            g.push(
+                [0.1, -0.1, z],
+                [0.5; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                0.9,
+                [0.05; 3],
+            );
+        }
+        let near_only = CameraT::<f32>::new(&camera);
+        let with_far = CameraT::<f32>::new(&camera.with_far(3.0));
+        let seen = |cam: &CameraT<f32>| -> Vec<bool> {
+            (0..g.len())
+                .map(|i| project_one(cam, &g, i).is_some())
+                .collect()
+        };
+        assert_eq!(seen(&near_only), vec![true; 4]);
+        assert_eq!(seen(&with_far), vec![true, true, false, false]);
+        assert!(camera.with_far(0.005).validate().is_err());
+        assert!(camera.with_far(f64::NAN).validate().is_err());
+        assert!(camera.with_far(f64::INFINITY).validate().is_ok());
+    }
+
+    /// The screen box of Gaussian `i` at the largest extent (3, as for an opaque Gaussian),
+    /// computed without the early cull.
+    fn bbox_of(cam: &CameraT<f32>, g: &Gaussians<f32>, i: usize) -> Option<[u32; 4]> {
+        let c = chain(cam, g, i)?;
+        let iz = 1.0 / c.p_c.z;
+        let mean = [
+            cam.fx * c.p_c.x * iz + cam.cx,
+            cam.fy * c.p_c.y * iz + cam.cy,
+        ];
+        let half = [3.0 * c.cov[(0, 0)].sqrt(), 3.0 * c.cov[(1, 1)].sqrt()];
+        let mut bbox = [0u32; 4];
+        for k in 0..2 {
+            let size = if k == 0 { cam.width } else { cam.height };
+            let lo = (mean[k] - half[k]).ceil().max(0.0);
+            let hi = (mean[k] + half[k]).floor().min(size as f32 - 1.0);
+            if lo > hi {
+                return None;
+            }
+            bbox[2 * k] = lo as u32;
+            bbox[2 * k + 1] = hi as u32;
+        }
+        Some(bbox)
     }
 }
