@@ -1,6 +1,6 @@
 //! `follower`: executes the scorer's path with the greedy rule of SPEC §6 and emits exactly
 //! one action per step. It asks the planner for a new goal when the path is done (after
-//! turning to face the frontier it came for), when the map shows an obstacle on the remaining
+//! turning to face the frontier it came for, unless the frontier is already in view), when the map shows an obstacle on the remaining
 //! path or close ahead, when the goal turns occupied, when no path was found, and when the
 //! robot is stuck (no progress along the path over `stuck_window` steps: the goal then counts
 //! as failed). Wraps `activemap_planning::{follower, replan, stuck}`. The episode starts with a
@@ -13,7 +13,9 @@ use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
 use activemap_planning::dynamics::Action as PlanAction;
-use activemap_planning::follower::{FollowerConfig, GreedyFollower, greedy_action};
+use activemap_planning::follower::{
+    FollowerConfig, GreedyFollower, greedy_action, look_turn_needed,
+};
 use activemap_planning::replan::{ReplanConfig, ReplanReason as PlanReason, check_replan};
 use activemap_planning::stuck::ProgressMonitor;
 use activemap_runtime::{
@@ -47,6 +49,11 @@ pub struct Config {
     /// first plan. 0 disables it.
     #[serde(default = "default_spin")]
     pub initial_spin_steps: usize,
+    /// At the end of a path, the turn toward the frontier is skipped when it is already within
+    /// this many degrees of the heading (the camera's half hfov is 45°; 25° keeps it well in
+    /// view, as the in-process explorer's default). 0 always turns.
+    #[serde(default = "default_look_skip")]
+    pub look_skip_half_angle_deg: f64,
 }
 
 fn default_window() -> usize {
@@ -61,6 +68,9 @@ fn default_replans() -> usize {
 fn default_spin() -> usize {
     72
 }
+fn default_look_skip() -> f64 {
+    25.0
+}
 
 impl Default for Config {
     fn default() -> Self {
@@ -69,6 +79,7 @@ impl Default for Config {
             stuck_min_improvement: default_improvement(),
             max_replans_per_step: default_replans(),
             initial_spin_steps: default_spin(),
+            look_skip_half_angle_deg: default_look_skip(),
         }
     }
 }
@@ -112,6 +123,8 @@ pub struct Counters {
     pub no_path: usize,
     /// Steps taken while tracking was lost.
     pub lost_steps: usize,
+    /// Paths ended without the look turn (the frontier was already in view).
+    pub looks_skipped: usize,
 }
 
 /// The follower's state machine, without transport.
@@ -120,6 +133,8 @@ pub struct FollowerCore {
     replan: ReplanConfig,
     monitor: ProgressMonitor,
     phase: Phase,
+    /// Skip the look turn within this angle of the heading, radians.
+    look_skip_half_angle: f64,
     /// The grid the current path was planned on (the first grid seen after it arrived): only
     /// obstacles that appeared since then trigger an obstacle-ahead replan.
     plan_grid: Option<PlanGrid>,
@@ -139,7 +154,14 @@ impl FollowerCore {
     /// A follower that starts by asking for a plan.
     pub fn new(config: &Config) -> anyhow::Result<Self> {
         let follower = FollowerConfig::default();
+        anyhow::ensure!(
+            config.look_skip_half_angle_deg.is_finite()
+                && (0.0..=180.0).contains(&config.look_skip_half_angle_deg),
+            "follower: look_skip_half_angle_deg must be in [0, 180], got {}",
+            config.look_skip_half_angle_deg
+        );
         Ok(Self {
+            look_skip_half_angle: config.look_skip_half_angle_deg.to_radians(),
             config: follower,
             replan: ReplanConfig {
                 turn_threshold_rad: follower.turn_threshold_rad,
@@ -253,7 +275,7 @@ impl FollowerCore {
                     match reason {
                         None => {}
                         Some(PlanReason::PathDone) => {
-                            self.phase = Phase::Look { yaw };
+                            self.arrive(pose, yaw);
                             continue;
                         }
                         Some(_) => {
@@ -264,12 +286,22 @@ impl FollowerCore {
                     }
                     match follower.next_action(pose) {
                         Some(a) => return Ok(Decision::Act(to_kind(a))),
-                        None => self.phase = Phase::Look { yaw },
+                        None => self.arrive(pose, yaw),
                     }
                 }
             }
         }
         Ok(Decision::Act(ActionKind::TurnLeft))
+    }
+
+    /// At the end of the path: turn to face the frontier (`look_yaw`) unless it is in view.
+    fn arrive(&mut self, pose: &PlanarPose, look_yaw: f64) {
+        if look_turn_needed(pose.yaw, look_yaw, self.look_skip_half_angle) {
+            self.phase = Phase::Look { yaw: look_yaw };
+        } else {
+            self.counters.looks_skipped += 1;
+            self.phase = Phase::Idle(ReplanReason::PathDone);
+        }
     }
 }
 
@@ -436,6 +468,68 @@ mod tests {
     use activemap_sim::{
         Action as SimAction, Material, Scene, SimConfig, Simulator, Triangle, Vertex,
     };
+
+    /// Drives a 0.5 m straight path along +x on an all-free grid and returns the actions sent
+    /// until the replan request, whose reason must be "path done".
+    fn actions_to_the_end(look_yaw: f64, look_skip_deg: f64) -> Vec<ActionKind> {
+        let geometry = activemap_planning::GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = PlanGrid::filled(geometry, activemap_planning::CellState::Free);
+        let mut core = FollowerCore::new(&Config {
+            initial_spin_steps: 0,
+            look_skip_half_angle_deg: look_skip_deg,
+            ..Config::default()
+        })
+        .unwrap();
+        let waypoint = |x, yaw| activemap_schemas::PlanarPose2 { x, y: 0.0, yaw };
+        core.set_path(&Path {
+            frame_id: 0,
+            waypoints: vec![waypoint(0.25, 0.0), waypoint(0.5, look_yaw)],
+            objective: 0.0,
+        })
+        .unwrap();
+        let model = activemap_planning::dynamics::ActionModel::default();
+        let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+        let mut actions = Vec::new();
+        for _ in 0..200 {
+            match core.decide(&pose, &grid, false).unwrap() {
+                Decision::Replan(reason) => {
+                    assert_eq!(reason, ReplanReason::PathDone);
+                    return actions;
+                }
+                Decision::Act(kind) => {
+                    let a = match kind {
+                        ActionKind::Forward => PlanAction::Forward,
+                        ActionKind::TurnLeft => PlanAction::TurnLeft,
+                        _ => PlanAction::TurnRight,
+                    };
+                    pose = model.apply(&pose, a);
+                    actions.push(kind);
+                }
+            }
+        }
+        panic!("no replan request within 200 steps: {actions:?}");
+    }
+
+    /// At the end of the path the follower turns to the frontier only when it is out of view:
+    /// a frontier 20° to the left is already seen (no turn); one behind (180°) costs about 36
+    /// turns of 5°; with the skip disabled, the 32° turn is made (6 turns: 2° left, within the
+    /// 5° threshold).
+    #[test]
+    fn the_look_turn_is_skipped_when_the_frontier_is_in_view() {
+        let count = |actions: &[ActionKind]| {
+            actions
+                .iter()
+                .filter(|a| matches!(a, ActionKind::TurnLeft | ActionKind::TurnRight))
+                .count()
+        };
+        let in_view = actions_to_the_end(20f64.to_radians(), 25.0);
+        assert_eq!(count(&in_view), 0, "{in_view:?}");
+        assert!(in_view.iter().all(|a| *a == ActionKind::Forward));
+        let behind = actions_to_the_end(std::f64::consts::PI, 25.0);
+        assert!(count(&behind) >= 35, "{behind:?}");
+        let always = actions_to_the_end(32f64.to_radians(), 0.0);
+        assert_eq!(count(&always), 6, "{always:?}");
+    }
 
     /// Adds a closed box [lo, hi] (world metres) to `scene` in one flat colour.
     fn add_box(scene: &mut Scene, lo: [f32; 3], hi: [f32; 3]) {

@@ -1,26 +1,29 @@
 //! `planner`: chooses the frontier to explore when the follower asks for a replan. Policy
-//! `fbe` (frontier-based exploration, SPEC §6 baseline) via `activemap_planning::fbe`: the
-//! nearest reachable region by path length, or the largest. The LLM policy (SPEC §7) is a later
-//! issue: any other `policy` is a config error. Goals visited count one strike, goals that
-//! failed (no path, stuck) two; a region whose approach cell has two strikes nearby is skipped.
-//! The path distances come with the regions (`FrontierRegion::path_distance_m`), so a replan
-//! costs no search here. With no reachable frontier left (after forgiving the strikes once per
-//! growth of the map) the planner ends the episode (end of its `goal` stream).
+//! `fbe` (frontier-based exploration, SPEC §6 baseline): a thin wrapper around
+//! [`activemap_planning::fbe::FbeState`], the decision state the in-process explorer uses too
+//! (ranking: `utility` = size / (path + turn cost + offset) by default, or `nearest` / `largest`;
+//! strikes: a reached goal one, or two when its region did not shrink, a failed goal (no path,
+//! stuck) two; amnesty once per growth of the map). The path distances come with the regions
+//! (`FrontierRegion::path_distance_m`), so a replan costs no search here. The LLM policy
+//! (SPEC §7) is a later issue: any other `policy` is a config error. With no reachable frontier
+//! left the planner ends the episode (end of its `goal` stream).
 
+use activemap_geometry::PlanarPose;
+use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::fbe::{FbePolicy, choose_frontier};
+use activemap_planning::fbe::{FbeConfig, FbePolicy, FbeState, GoalOutcome};
 use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
 use activemap_planning::grid::{Cell, CellState};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
 use activemap_schemas::{
-    Frontiers, Goal, MessageKind as K, OccupancyGridView, ReplanReason, ReplanRequest,
+    Frontiers, Goal, MessageKind as K, OccupancyGridView, PoseEstimate, ReplanReason, ReplanRequest,
 };
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::read_grid;
+use crate::convert::{pose_from_wire, read_grid};
 use crate::join::FrameJoin;
 
 /// Which frontier FBE picks.
@@ -31,6 +34,8 @@ pub enum Choice {
     Nearest,
     /// Most cells.
     Largest,
+    /// Size over path-plus-turn cost (the default: doorways before wall pockets).
+    Utility,
 }
 
 /// Config.
@@ -52,10 +57,10 @@ fn default_policy() -> String {
     "fbe".into()
 }
 fn default_choice() -> Choice {
-    Choice::Nearest
+    Choice::Utility
 }
 fn default_exclusion() -> f64 {
-    3.0
+    FbeConfig::default().exclusion_radius_cells
 }
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
@@ -66,117 +71,97 @@ fn check_config(value: &serde_json::Value) -> Result<(), String> {
             config.policy
         ));
     }
-    Ok(())
+    fbe_config(&config).validate().map_err(|e| e.to_string())
 }
 
-/// The FBE decision state (testable without transport).
+/// The library settings for an operator config.
+fn fbe_config(config: &Config) -> FbeConfig {
+    FbeConfig {
+        policy: match config.frontier {
+            Choice::Nearest => FbePolicy::Nearest,
+            Choice::Largest => FbePolicy::Largest,
+            Choice::Utility => FbePolicy::Utility,
+        },
+        exclusion_radius_cells: config.exclusion_radius_cells,
+        ..FbeConfig::default()
+    }
+}
+
+/// How the follower's replan reason judges the last goal.
+pub fn outcome(reason: ReplanReason) -> GoalOutcome {
+    match reason {
+        ReplanReason::PathDone => GoalOutcome::Reached,
+        ReplanReason::NoPath | ReplanReason::Stuck => GoalOutcome::Failed,
+        ReplanReason::ObstacleAhead | ReplanReason::Startup | ReplanReason::TrackingLost => {
+            GoalOutcome::Abandoned
+        }
+    }
+}
+
+/// Library regions from the wire summaries (the FBE decision reads the size, the centroid and
+/// the approach cell with its path distance).
+pub fn regions_from_wire(frontiers: &Frontiers) -> Vec<PlanRegion> {
+    frontiers
+        .regions
+        .iter()
+        .map(|r| {
+            let cell = Cell::new(r.closest_reachable_cell[0], r.closest_reachable_cell[1]);
+            PlanRegion {
+                cells: vec![cell; r.size_cells as usize],
+                centroid: Point2::new(r.centroid[0], r.centroid[1]),
+                anchor: cell,
+                approach: r.path_distance_m.is_finite().then_some(Approach {
+                    cell,
+                    path_distance_m: r.path_distance_m,
+                }),
+            }
+        })
+        .collect()
+}
+
+/// The FBE decision on wire messages (testable without transport).
 pub struct FbePlanner {
-    policy: FbePolicy,
-    exclusion_radius_cells: f64,
-    /// Struck goals, world (x, y), one entry per strike.
-    pub strikes: Vec<Point2<f64>>,
-    last_goal: Option<Point2<f64>>,
-    /// Free cells of the grid when the strikes were last forgiven.
-    free_at_last_amnesty: usize,
-    /// Times every reachable frontier was banned and the strikes were forgiven.
-    pub amnesties: usize,
+    state: FbeState,
 }
 
 impl FbePlanner {
     /// A planner with no strikes.
-    pub fn new(choice: Choice, exclusion_radius_cells: f64) -> Self {
-        Self {
-            policy: match choice {
-                Choice::Nearest => FbePolicy::Nearest,
-                Choice::Largest => FbePolicy::Largest,
-            },
-            exclusion_radius_cells,
-            strikes: Vec::new(),
-            last_goal: None,
-            free_at_last_amnesty: 0,
-            amnesties: 0,
-        }
+    pub fn new(config: &Config) -> anyhow::Result<Self> {
+        Ok(Self {
+            state: FbeState::new(fbe_config(config))?,
+        })
     }
 
-    /// Records the outcome of the last goal from the follower's replan reason: reached counts
-    /// one strike (a frontier still there after a second visit cannot be seen from its
-    /// approach cell), failed (no path, stuck) two.
-    pub fn record(&mut self, reason: ReplanReason) {
-        let Some(goal) = self.last_goal.take() else {
-            return;
-        };
-        match reason {
-            ReplanReason::PathDone => self.strikes.push(goal),
-            ReplanReason::NoPath | ReplanReason::Stuck => self.strikes.extend([goal, goal]),
-            ReplanReason::ObstacleAhead | ReplanReason::Startup | ReplanReason::TrackingLost => {}
-        }
+    /// The shared decision state (strikes, amnesties).
+    pub fn state(&self) -> &FbeState {
+        &self.state
     }
 
-    /// Chooses among the reachable `frontiers` of `grid`: the region id and its centroid;
-    /// `None` when no reachable region is left. When every reachable region is banned but the
-    /// map grew since the last time that happened, the strikes are forgiven once (estimated
-    /// poses shift the map, so a goal that failed may work now).
+    /// Judges the last goal by the follower's `reason` against the current `frontiers`, then
+    /// chooses among the reachable ones for the robot at `robot`: the region id and its
+    /// centroid; `None` when no reachable region is left even after forgiving the strikes
+    /// (once per growth of the map).
     pub fn choose(
         &mut self,
+        reason: ReplanReason,
         grid: &PlanGrid,
         frontiers: &Frontiers,
+        robot: &PlanarPose,
     ) -> anyhow::Result<Option<(u32, Point2<f64>)>> {
-        // Library regions from the wire summaries (the FBE ranking only reads the size and the
-        // approach cell with its path distance).
-        let regions: Vec<PlanRegion> = frontiers
-            .regions
-            .iter()
-            .map(|r| {
-                let cell = Cell::new(r.closest_reachable_cell[0], r.closest_reachable_cell[1]);
-                PlanRegion {
-                    cells: vec![cell; r.size_cells as usize],
-                    centroid: Point2::new(r.centroid[0], r.centroid[1]),
-                    anchor: cell,
-                    approach: r.path_distance_m.is_finite().then_some(Approach {
-                        cell,
-                        path_distance_m: r.path_distance_m,
-                    }),
-                }
-            })
-            .collect();
-        let mut choice = self.choose_among(grid, &regions);
-        if choice.is_none() && !self.strikes.is_empty() {
-            let free = grid.count(CellState::Free);
-            if free > self.free_at_last_amnesty {
-                self.free_at_last_amnesty = free;
-                self.strikes.clear();
-                self.amnesties += 1;
-                choice = self.choose_among(grid, &regions);
-            }
+        let regions = regions_from_wire(frontiers);
+        self.state.record(outcome(reason), &regions, &grid.geometry);
+        let mut choice = self.state.choose(&regions, &grid.geometry, robot);
+        if choice.is_none() && self.state.forgive(grid.count(CellState::Free)) {
+            choice = self.state.choose(&regions, &grid.geometry, robot);
         }
         let Some(choice) = choice else {
             return Ok(None);
         };
-        self.last_goal = Some(grid.geometry.center(choice.cell));
         let region = &frontiers.regions[choice.region];
         Ok(Some((
             region.id,
             Point2::new(region.centroid[0], region.centroid[1]),
         )))
-    }
-
-    fn choose_among(
-        &self,
-        grid: &PlanGrid,
-        regions: &[PlanRegion],
-    ) -> Option<activemap_planning::fbe::FbeGoal> {
-        let excluded: Vec<Cell> = self
-            .strikes
-            .iter()
-            .map(|p| grid.geometry.cell_of(*p))
-            .collect();
-        choose_frontier(
-            regions,
-            self.policy,
-            &excluded,
-            self.exclusion_radius_cells,
-            2,
-        )
     }
 }
 
@@ -185,6 +170,7 @@ impl FbePlanner {
 struct Slot {
     grid: Option<Vec<u8>>,
     regions: Option<Frontiers>,
+    pose: Option<PlanarPose>,
 }
 
 /// The operator.
@@ -204,7 +190,7 @@ impl Operator for Planner {
             config.policy
         );
         Ok(Self {
-            fbe: FbePlanner::new(config.frontier, config.exclusion_radius_cells),
+            fbe: FbePlanner::new(&config)?,
             join: FrameJoin::new(),
             requests: Vec::new(),
         })
@@ -223,7 +209,12 @@ impl Operator for Planner {
                     self.join.slot(frame).regions = Some(f);
                 }
                 "replan" => self.requests.push(input.decode()?),
-                "pose" | "map" => {}
+                "pose" => {
+                    let e: PoseEstimate = input.decode()?;
+                    let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
+                    self.join.slot(e.frame_id).pose = Some(pose);
+                }
+                "map" => {}
                 other => anyhow::bail!("planner: unexpected input `{other}`"),
             },
             Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
@@ -234,14 +225,14 @@ impl Operator for Planner {
             let Some(Slot {
                 grid: Some(grid),
                 regions: Some(frontiers),
+                pose: Some(pose),
             }) = self.join.get(k)
             else {
                 break;
             };
             let (_, grid) = read_grid(grid)?;
             self.requests.remove(0);
-            self.fbe.record(request.reason);
-            match self.fbe.choose(&grid, frontiers)? {
+            match self.fbe.choose(request.reason, &grid, frontiers, pose)? {
                 Some((target, focus)) => ctx.send(
                     "goal",
                     &Goal {
@@ -299,12 +290,107 @@ pub fn registered() -> Registered {
     Registered {
         descriptor: OperatorDescriptor {
             name: "planner",
-            summary: "Goal choice on replan: FBE nearest/largest frontier now, LLM later (SPEC §6, §7)",
+            summary: "Goal choice on replan: FBE utility/nearest/largest frontier now, LLM later (SPEC §6, §7)",
             inputs: INPUTS,
             outputs: OUTPUTS,
             evaluation: false,
             check_config,
         },
         implementation: Some(OperatorImpl::of::<Planner>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use activemap_planning::GridGeometry;
+    use activemap_schemas::FrontierRegion;
+
+    fn wire(id: u32, size: u32, cell: [i32; 2], distance: f64) -> FrontierRegion {
+        FrontierRegion {
+            id,
+            size_cells: size,
+            centroid: [cell[0] as f64 * 0.05, cell[1] as f64 * 0.05 + 0.3],
+            closest_reachable_cell: cell,
+            path_distance_m: distance,
+        }
+    }
+
+    fn frontiers(regions: Vec<FrontierRegion>) -> Frontiers {
+        Frontiers {
+            frame_id: 0,
+            stamp: 0.0,
+            regions,
+        }
+    }
+
+    /// The wrapper keeps the library's rules: with `nearest`, a pocket reached and still there
+    /// at full size is banned at once (the doorway comes next), a failed goal is banned too,
+    /// and when everything is banned the strikes are forgiven once per growth of the map.
+    #[test]
+    fn planner_bans_an_unshrunk_pocket_after_one_visit() {
+        let geometry = GridGeometry::new(0.0, 0.0, 0.05, 100, 100).unwrap();
+        let mut grid = PlanGrid::filled(geometry, CellState::Unknown);
+        grid.data[0] = CellState::Free;
+        let config = Config {
+            policy: "fbe".into(),
+            frontier: Choice::Nearest,
+            exclusion_radius_cells: 3.0,
+        };
+        let mut planner = FbePlanner::new(&config).unwrap();
+        let robot = PlanarPose::new(0.5, 0.5, 0.0);
+        let f = frontiers(vec![wire(7, 40, [60, 10], 3.0), wire(3, 12, [20, 10], 1.0)]);
+        let first = planner
+            .choose(ReplanReason::Startup, &grid, &f, &robot)
+            .unwrap();
+        assert_eq!(first.unwrap().0, 3, "nearest first");
+        let second = planner
+            .choose(ReplanReason::PathDone, &grid, &f, &robot)
+            .unwrap();
+        assert_eq!(
+            second.unwrap().0,
+            7,
+            "the unshrunk pocket is banned after one visit"
+        );
+        assert_eq!(planner.state().unobservable_goals, 1);
+        let none = planner
+            .choose(ReplanReason::Stuck, &grid, &f, &robot)
+            .unwrap();
+        assert_eq!(
+            none.map(|c| c.0),
+            Some(3),
+            "amnesty: the map has free cells"
+        );
+        assert_eq!(planner.state().amnesties, 1);
+        let again = planner
+            .choose(ReplanReason::NoPath, &grid, &f, &robot)
+            .unwrap();
+        assert_eq!(again.map(|c| c.0), Some(7));
+        let over = planner
+            .choose(ReplanReason::NoPath, &grid, &f, &robot)
+            .unwrap();
+        assert!(
+            over.is_none(),
+            "no growth since the amnesty: the episode is over"
+        );
+    }
+
+    /// The default ranking is the utility: a large frontier beats a small nearer one.
+    #[test]
+    fn default_ranking_is_the_utility() {
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.frontier, Choice::Utility);
+        let geometry = GridGeometry::new(0.0, 0.0, 0.05, 100, 100).unwrap();
+        let grid = PlanGrid::filled(geometry, CellState::Free);
+        let mut planner = FbePlanner::new(&config).unwrap();
+        // Robot at (0.5, 0.5) facing +x; both approach cells lie ahead of it (y = 0.5).
+        let f = frontiers(vec![wire(1, 6, [14, 10], 0.2), wire(2, 40, [70, 10], 3.0)]);
+        let robot = PlanarPose::new(0.5, 0.5, 0.0);
+        let c = planner
+            .choose(ReplanReason::Startup, &grid, &f, &robot)
+            .unwrap();
+        assert_eq!(c.unwrap().0, 2);
+        assert!(check_config(&serde_json::json!({ "frontier": "utility" })).is_ok());
+        assert!(check_config(&serde_json::json!({ "frontier": "widest" })).is_err());
     }
 }

@@ -1,6 +1,7 @@
 //! Timings of the pieces the exploration loop runs (the loop's budget is ≥ 3 steps/s end to
 //! end, SPEC §1 / issue 6): A* on a 400×400 grid, an occupancy update from a 160×160 depth
-//! frame, frontier extraction on a 400×400 grid, and a synthetic FBE episode per house.
+//! frame, frontier extraction on a 400×400 grid, and an FBE episode with true poses on each of
+//! the simulator's `house:<seed>` scenes ([`crate::house_episode`]).
 //! `activemap bench planning` prints the rows; [`run`] is driven by an ignored test here.
 
 use std::time::{Duration, Instant};
@@ -11,11 +12,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::astar::{AstarConfig, plan};
 use crate::clearance::{ClearanceConfig, ClearanceMap};
-use crate::dynamics::{Action, ActionModel};
 use crate::error::PlanningError;
-use crate::explorer::{Decision, Explorer, ExplorerConfig};
 use crate::frontier::{FrontierConfig, extract_frontiers};
 use crate::grid::{CellState, Grid, OccupancyGrid};
+use crate::house_episode::{self, HouseEpisodeConfig};
 use crate::occupancy::{OccupancyConfig, OccupancyMapper};
 use crate::synthetic::SyntheticWorld;
 
@@ -24,7 +24,7 @@ use crate::synthetic::SyntheticWorld;
 pub struct BenchConfig {
     /// Repetitions of each micro-benchmark (the median is reported).
     pub repetitions: usize,
-    /// House seeds for the FBE episodes (empty: no episodes).
+    /// `house:<seed>` seeds for the FBE episodes (empty: no episodes).
     pub explore_seeds: Vec<u64>,
     /// Step budget of each episode.
     pub explore_steps: usize,
@@ -190,93 +190,70 @@ pub fn run(config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
     Ok(rows)
 }
 
-/// One FBE episode on a 3×2-room house (seeded) with true poses; rows: coverage, steps,
-/// path length, planning-loop steps per second (without rendering) and the time shares.
+/// One FBE episode on the simulator's `house:<seed>` (the scenes of `activemap bench explore`,
+/// default size) with true poses ([`crate::house_episode`]); rows: coverage, steps, steps to
+/// 85 %, path length, collisions, planning-loop steps per second (without rendering), the
+/// event counters and the time shares.
 pub fn explore_episode(seed: u64, config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
-    let world = SyntheticWorld::procedural_house(seed, 3, 2, 3.0)?;
-    let k = Intrinsics::from_hfov(
-        config.depth_size,
-        config.depth_size,
-        std::f64::consts::FRAC_PI_2,
-    );
-    let model = ActionModel::default();
-    let mut ex = Explorer::new(
-        ExplorerConfig::default(),
-        Point2::new(world.start.x - 1.0, world.start.y - 1.0),
-        Point2::new(world.start.x + 1.0, world.start.y + 1.0),
-    )?;
-    let mut pose = world.start;
-    let (mut steps, mut path, mut bumps) = (0usize, 0.0, 0usize);
-    let (mut render, mut loop_time) = (Duration::ZERO, Duration::ZERO);
-    for _ in 0..config.explore_steps {
-        let cam = camera_pose_from_planar(&pose, 0.0, 0.88);
-        let t = Instant::now();
-        let depth = world.render_depth(&k, &cam);
-        render += t.elapsed();
-        let t = Instant::now();
-        let decision = ex.step(&pose, &depth, &k, &cam)?;
-        loop_time += t.elapsed();
-        steps += 1;
-        match decision {
-            Decision::Finished => break,
-            Decision::Act(a) => {
-                let next = world.step(&pose, a, &model, 0.05);
-                if a == Action::Forward {
-                    if next == pose {
-                        bumps += 1;
-                    }
-                    path += ((next.x - pose.x).powi(2) + (next.y - pose.y).powi(2)).sqrt();
-                }
-                pose = next;
-            }
-        }
-    }
-    let coverage = ex.grid().map_or(0.0, |g| world.coverage(g));
+    let mut episode = HouseEpisodeConfig::benchmark(seed)?;
+    episode.steps = config.explore_steps;
+    episode.image_size = config.depth_size;
+    episode.coverage_every = 10;
+    let e = house_episode::run(&episode)?;
     let name = |what: &str| format!("explore_fbe_house{seed}_{what}");
-    let total = loop_time.as_secs_f64().max(1e-12);
+    let total = e.loop_time.as_secs_f64().max(1e-12);
     let share = |d: Duration| 100.0 * d.as_secs_f64() / total;
+    let c = &e.counters;
     Ok(vec![
-        row(name("coverage"), 100.0 * coverage, "%"),
-        row(name("steps"), steps as f64, "steps"),
-        row(name("path_length"), path, "m"),
-        row(name("bumps"), bumps as f64, "steps"),
-        row(name("loop_steps_per_s"), steps as f64 / total, "steps/s"),
+        row(name("coverage"), 100.0 * e.coverage, "%"),
+        row(name("steps"), e.steps as f64, "steps"),
+        row(
+            name("steps_to_85"),
+            e.steps_to(0.85).map_or(f64::NAN, |s| s as f64),
+            "steps",
+        ),
+        row(name("path_length"), e.path_length_m, "m"),
+        row(name("turn_steps"), e.turn_steps as f64, "steps"),
+        row(name("collisions"), e.collisions as f64, "steps"),
+        row(name("loop_steps_per_s"), e.steps as f64 / total, "steps/s"),
         row(
             name("render_ms_per_step"),
-            1e3 * render.as_secs_f64() / steps.max(1) as f64,
+            1e3 * e.render_time.as_secs_f64() / e.steps.max(1) as f64,
             "ms",
         ),
-        row(name("plans"), ex.counters.plans as f64, "plans"),
+        row(name("plans"), c.plans as f64, "plans"),
         row(
             name("replans_path_blocked"),
-            ex.counters.path_blocked as f64,
+            c.path_blocked as f64,
             "replans",
         ),
         row(
             name("replans_obstacle_ahead"),
-            ex.counters.obstacle_ahead as f64,
+            c.obstacle_ahead as f64,
             "replans",
         ),
         row(
             name("replans_goal_occupied"),
-            ex.counters.goal_occupied as f64,
+            c.goal_occupied as f64,
             "replans",
         ),
-        row(name("stuck"), ex.counters.stuck as f64, "times"),
-        row(
-            name("recovery_spins"),
-            ex.counters.recovery_spins as f64,
-            "spins",
-        ),
+        row(name("stuck"), c.stuck as f64, "times"),
+        row(name("recovery_spins"), c.recovery_spins as f64, "spins"),
         row(
             name("unreachable_goals"),
-            ex.counters.unreachable_goals as f64,
+            c.unreachable_goals as f64,
             "goals",
         ),
-        row(name("share_occupancy"), share(ex.times.occupancy), "%"),
-        row(name("share_triggers"), share(ex.times.triggers), "%"),
-        row(name("share_frontiers"), share(ex.times.frontiers), "%"),
-        row(name("share_planning"), share(ex.times.planning), "%"),
+        row(name("looks_skipped"), c.looks_skipped as f64, "goals"),
+        row(
+            name("unobservable_goals"),
+            c.unobservable_goals as f64,
+            "goals",
+        ),
+        row(name("share_occupancy"), share(e.times.occupancy), "%"),
+        row(name("share_triggers"), share(e.times.triggers), "%"),
+        row(name("share_frontiers"), share(e.times.frontiers), "%"),
+        row(name("share_planning"), share(e.times.planning), "%"),
     ])
 }
 
@@ -299,7 +276,7 @@ mod tests {
                 .unwrap_or(d)
         };
         let cfg = BenchConfig {
-            depth_size: env("DEPTH", 64) as u32,
+            depth_size: env("DEPTH", 160) as u32,
             explore_steps: env("STEPS", 2000),
             ..Default::default()
         };

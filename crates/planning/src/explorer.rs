@@ -2,9 +2,11 @@
 //! library's own end-to-end tests and benchmark, and as the reference the operators split up:
 //! occupancy update → replan triggers / stuck check → (frontiers → FBE goal → A* → shortcut)
 //! → greedy follower action. The episode starts with a 360° look-around. Once at a goal, the
-//! robot turns to face the frontier cell it came to look at; a goal visited twice, or failed
-//! once (stuck, unreachable), is banned. When every frontier is banned, the robot forgives the
-//! strikes and looks around again, as long as the map grew since the last such spin.
+//! robot turns to face the frontier cell it came to look at, unless that cell is already within
+//! [`ExplorerConfig::look_skip_half_angle_rad`] of its heading (in the camera's view). Goal
+//! choice, strikes and amnesty are [`FbeState`]'s (the `planner` operator uses the same): when
+//! every frontier is banned, the robot forgives the strikes and looks around again, as long as
+//! the map grew since the last such spin.
 
 use std::time::{Duration, Instant};
 
@@ -16,8 +18,8 @@ use crate::astar::{AstarConfig, plan};
 use crate::clearance::{ClearanceConfig, ClearanceMap};
 use crate::dynamics::Action;
 use crate::error::PlanningError;
-use crate::fbe::{FbePolicy, choose_frontier};
-use crate::follower::{FollowerConfig, GreedyFollower, greedy_action};
+use crate::fbe::{FbeConfig, FbeState, GoalOutcome};
+use crate::follower::{FollowerConfig, GreedyFollower, greedy_action, look_turn_needed};
 use crate::frontier::{FrontierConfig, Frontiers, extract_frontiers};
 use crate::grid::{Cell, OccupancyGrid};
 use crate::occupancy::{OccupancyConfig, OccupancyMapper};
@@ -40,20 +42,24 @@ pub struct ExplorerConfig {
     pub follower: FollowerConfig,
     /// Replan triggers.
     pub replan: ReplanConfig,
-    /// Nearest or largest frontier.
-    pub policy: FbePolicy,
+    /// Goal ranking, strikes and amnesty.
+    pub fbe: FbeConfig,
     /// Radius (metres) around the robot always marked free (its own footprint).
     pub footprint_radius_m: f64,
     /// Steps without progress before the robot counts as stuck.
     pub stuck_window: usize,
     /// Progress needed to reset the stuck counter, metres.
     pub stuck_min_improvement_m: f64,
-    /// Goals (approach cells) within this many cells of a visited or failed goal are skipped.
-    pub exclusion_radius_cells: f64,
+    /// At a goal, the look turn toward the frontier is skipped when the frontier's bearing is
+    /// within this angle of the heading (radians; the camera's half hfov is 45°; the default
+    /// 25° keeps the frontier well inside the view: 40° measured worse on `house:4`, see
+    /// `house_episode`). 0 always turns.
+    pub look_skip_half_angle_rad: f64,
     /// Turns of a full look-around (72 × 5° = 360°), done at the start of the episode and
     /// when every frontier got banned while the map still grows.
     pub spin_steps: usize,
-    /// When stuck, an obstacle cell is put this far (metres) ahead of the robot.
+    /// When stuck, an obstacle cell is put this far (metres) ahead of the robot. It must lie
+    /// beyond `footprint_radius_m`, or the next step's footprint clears it again.
     pub bump_obstacle_ahead_m: f64,
 }
 
@@ -66,13 +72,13 @@ impl Default for ExplorerConfig {
             frontier: FrontierConfig::default(),
             follower: FollowerConfig::default(),
             replan: ReplanConfig::default(),
-            policy: FbePolicy::Nearest,
+            fbe: FbeConfig::default(),
             footprint_radius_m: 0.15,
             stuck_window: 40,
             stuck_min_improvement_m: 0.02,
-            exclusion_radius_cells: 3.0,
+            look_skip_half_angle_rad: 25f64.to_radians(),
             spin_steps: 72,
-            bump_obstacle_ahead_m: 0.1,
+            bump_obstacle_ahead_m: 0.2,
         }
     }
 }
@@ -116,6 +122,10 @@ pub struct ExplorerCounters {
     pub unreachable_goals: usize,
     /// Look-around spins after every frontier got banned.
     pub recovery_spins: usize,
+    /// Goals reached without the look turn (the frontier was already in view).
+    pub looks_skipped: usize,
+    /// Goals reached whose frontier did not shrink (banned at once).
+    pub unobservable_goals: usize,
 }
 
 enum Phase {
@@ -128,7 +138,6 @@ enum Phase {
         look_at: Point2<f64>,
     },
     Look {
-        goal: Cell,
         look_at: Point2<f64>,
     },
 }
@@ -139,10 +148,11 @@ pub struct Explorer {
     mapper: OccupancyMapper,
     phase: Phase,
     monitor: ProgressMonitor,
-    excluded: Vec<Cell>,
+    fbe: FbeState,
+    /// How the last goal ended (judged at the next plan, against the new frontiers).
+    outcome: GoalOutcome,
     grid: Option<OccupancyGrid>,
     frontiers: Option<Frontiers>,
-    free_at_last_spin: usize,
     plan_grid: Option<OccupancyGrid>,
     /// Time per stage.
     pub times: StageTimes,
@@ -161,15 +171,21 @@ impl Explorer {
         config.astar.validate()?;
         config.follower.validate()?;
         config.replan.validate()?;
+        crate::error::require(
+            config.bump_obstacle_ahead_m.is_finite()
+                && config.bump_obstacle_ahead_m > config.footprint_radius_m,
+            "ExplorerConfig::bump_obstacle_ahead_m",
+            "must be finite and beyond footprint_radius_m (the footprint would clear the bump)",
+        )?;
         Ok(Self {
             mapper: OccupancyMapper::new(config.occupancy, min, max)?,
             monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement_m)?,
             phase: Phase::Spin(config.spin_steps),
             config,
-            excluded: Vec::new(),
+            fbe: FbeState::new(config.fbe)?,
+            outcome: GoalOutcome::Abandoned,
             grid: None,
             frontiers: None,
-            free_at_last_spin: 0,
             plan_grid: None,
             times: StageTimes::default(),
             counters: ExplorerCounters::default(),
@@ -193,6 +209,22 @@ impl Explorer {
             Phase::Follow { follower, .. } => Some(follower.remaining()),
             _ => None,
         }
+    }
+
+    /// The goal (world centre of the approach cell) and the frontier point being driven to;
+    /// `None` unless a path is being followed.
+    pub fn goal(&self) -> Option<(Point2<f64>, Point2<f64>)> {
+        match (&self.phase, &self.grid) {
+            (Phase::Follow { goal, look_at, .. }, Some(g)) => {
+                Some((g.geometry.center(*goal), *look_at))
+            }
+            _ => None,
+        }
+    }
+
+    /// The FBE decision state (strikes, amnesties).
+    pub fn fbe(&self) -> &FbeState {
+        &self.fbe
     }
 
     /// The occupancy mapper (to feed map points too).
@@ -244,9 +276,7 @@ impl Explorer {
                         // since the last look-around, forgive the strikes and look around once
                         // more; otherwise the episode is over.
                         let free = grid.count(crate::grid::CellState::Free);
-                        if !self.excluded.is_empty() && free > self.free_at_last_spin {
-                            self.free_at_last_spin = free;
-                            self.excluded.clear();
+                        if self.fbe.forgive(free) {
                             self.counters.recovery_spins += 1;
                             self.phase = Phase::Spin(self.config.spin_steps);
                             continue;
@@ -254,14 +284,14 @@ impl Explorer {
                         return Ok(Decision::Finished);
                     }
                 }
-                Phase::Look { goal, look_at } => {
+                Phase::Look { look_at } => {
                     let a = greedy_action(pose, look_at, threshold);
                     if a != Action::Forward {
                         return Ok(Decision::Act(a));
                     }
-                    // Visited: one strike (a frontier still there after a second visit is
-                    // not observable from its approach cell).
-                    self.excluded.push(*goal);
+                    // Reached: the strikes are counted at the next plan, against the frontiers
+                    // seen from here.
+                    self.outcome = GoalOutcome::Reached;
                     self.phase = Phase::Idle;
                 }
                 Phase::Follow {
@@ -307,14 +337,15 @@ impl Explorer {
                                 * self.config.bump_obstacle_ahead_m;
                         self.mapper
                             .mark_occupied_disc(ahead, 0.5 * grid.geometry.resolution)?;
-                        self.excluded.extend([goal, goal]);
+                        self.fbe.record(GoalOutcome::Failed, &[], &grid.geometry);
+                        self.outcome = GoalOutcome::Abandoned;
                         self.phase = Phase::Idle;
                         continue;
                     }
                     match reason {
                         None => {}
                         Some(ReplanReason::PathDone) => {
-                            self.phase = Phase::Look { goal, look_at };
+                            self.arrive(pose, look_at);
                             continue;
                         }
                         Some(r) => {
@@ -323,19 +354,32 @@ impl Explorer {
                                 ReplanReason::ObstacleAhead => self.counters.obstacle_ahead += 1,
                                 _ => self.counters.goal_occupied += 1,
                             }
+                            self.outcome = GoalOutcome::Abandoned;
                             self.phase = Phase::Idle;
                             continue;
                         }
                     }
                     match follower.next_action(pose) {
                         Some(a) => return Ok(Decision::Act(a)),
-                        None => self.phase = Phase::Look { goal, look_at },
+                        None => self.arrive(pose, look_at),
                     }
                 }
             }
         }
         // Still undecided after several phase changes: turn in place to look around.
         Ok(Decision::Act(Action::TurnLeft))
+    }
+
+    /// At the goal: turn to the frontier unless it is already in view.
+    fn arrive(&mut self, pose: &PlanarPose, look_at: Point2<f64>) {
+        let look_yaw = (look_at.y - pose.y).atan2(look_at.x - pose.x);
+        if look_turn_needed(pose.yaw, look_yaw, self.config.look_skip_half_angle_rad) {
+            self.phase = Phase::Look { look_at };
+        } else {
+            self.counters.looks_skipped += 1;
+            self.outcome = GoalOutcome::Reached;
+            self.phase = Phase::Idle;
+        }
     }
 
     /// Chooses a frontier and plans to it; false when no reachable frontier is left.
@@ -350,18 +394,13 @@ impl Explorer {
         let frontiers = extract_frontiers(grid, &map, here, &self.config.frontier)?;
         self.times.frontiers += t.elapsed();
         let start = grid.geometry.require_cell(here, "robot position")?;
+        let outcome = std::mem::replace(&mut self.outcome, GoalOutcome::Abandoned);
+        self.fbe.record(outcome, &frontiers.regions, &grid.geometry);
+        self.counters.unobservable_goals = self.fbe.unobservable_goals;
         let mut result = false;
         loop {
             let t = Instant::now();
-            // A goal is banned after two strikes near it (two visits, or one failure, which
-            // counts twice).
-            let Some(choice) = choose_frontier(
-                &frontiers.regions,
-                self.config.policy,
-                &self.excluded,
-                self.config.exclusion_radius_cells,
-                2,
-            ) else {
+            let Some(choice) = self.fbe.choose(&frontiers.regions, &grid.geometry, pose) else {
                 break;
             };
             self.times.frontiers += t.elapsed();
@@ -370,7 +409,8 @@ impl Explorer {
             let Some(path) = path else {
                 self.times.planning += t.elapsed();
                 self.counters.unreachable_goals += 1;
-                self.excluded.extend([choice.cell, choice.cell]);
+                self.fbe
+                    .record(GoalOutcome::Failed, &frontiers.regions, &grid.geometry);
                 continue;
             };
             let short = shortcut(&map, &path.cells);
@@ -543,7 +583,7 @@ mod tests {
                     r.approach
                 );
             }
-            eprintln!("excluded {:?}", ex.excluded);
+            eprintln!("strikes {:?}", ex.fbe.strikes());
         }
         eprintln!(
             "finished at {finished_at:?}, coverage {coverage:.3}, blocked forward {blocked_forward}, {:?}",

@@ -63,6 +63,14 @@ pub fn greedy_action(pose: &PlanarPose, target: &Point2<f64>, threshold: f64) ->
     }
 }
 
+/// Whether the robot at heading `yaw` must turn on the spot to face `look_yaw` (the bearing of
+/// the frontier it came to look at): false when the bearing is within `skip_half_angle` of the
+/// heading, i.e. the frontier is already in the camera's view (its half hfov is 45°), so the
+/// turn would show nothing new. Angles in radians.
+pub fn look_turn_needed(yaw: f64, look_yaw: f64, skip_half_angle: f64) -> bool {
+    wrap_angle(look_yaw - yaw).abs() > skip_half_angle
+}
+
 /// Follows a list of world waypoints with the greedy rule.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GreedyFollower {
@@ -195,6 +203,23 @@ mod tests {
             let forward = r.actions.iter().filter(|a| **a == Action::Forward).count();
             assert!((forward as f64) * 0.05 <= poly * 1.01 + 0.05 * n as f64 + 0.1);
         }
+    }
+
+    #[test]
+    fn look_turn_is_skipped_only_when_the_frontier_is_in_view() {
+        let half = 40f64.to_radians();
+        assert!(!look_turn_needed(0.0, 39f64.to_radians(), half));
+        assert!(!look_turn_needed(0.0, -39f64.to_radians(), half));
+        assert!(look_turn_needed(0.0, 41f64.to_radians(), half));
+        assert!(look_turn_needed(0.0, std::f64::consts::PI, half));
+        // Across the ±π seam: 170° and −170° are 20° apart.
+        assert!(!look_turn_needed(
+            170f64.to_radians(),
+            -170f64.to_radians(),
+            half
+        ));
+        // 0 never skips a real turn.
+        assert!(look_turn_needed(0.0, 1f64.to_radians(), 0.0));
     }
 
     #[test]

@@ -12,6 +12,7 @@
 //! - [`follower`], [`dynamics`], [`stuck`], [`replan`]: executing paths;
 //! - [`fbe`]: the frontier-based-exploration goal choice;
 //! - [`explorer`]: the whole FBE loop in one synchronous object (reference for the operators);
+//! - [`house_episode`]: FBE episodes on the simulator's `house:<seed>` scenes with true poses;
 //! - [`synthetic`]: a 2.5D test world with an exact depth renderer and procedural houses;
 //! - [`bench`]: timings of the pieces the exploration loop runs every step.
 
@@ -28,6 +29,7 @@ pub mod fbe;
 pub mod follower;
 pub mod frontier;
 pub mod grid;
+pub mod house_episode;
 pub mod morphology;
 pub mod occupancy;
 pub mod replan;
