@@ -154,6 +154,24 @@ impl FbePlanner {
         if choice.is_none() && self.state.forgive(grid.count(CellState::Free)) {
             choice = self.state.choose(&regions, &grid.geometry, robot);
         }
+        // One line per decision in the node's log: what was on offer and what was banned.
+        let offered: Vec<String> = frontiers
+            .regions
+            .iter()
+            .take(8)
+            .map(|r| format!("{}:{}c@{:.1}m", r.id, r.size_cells, r.path_distance_m))
+            .collect();
+        eprintln!(
+            "planner: frame {} after {reason:?}: {} of {} regions [{}], {} strikes",
+            frontiers.frame_id,
+            choice.map_or("none".to_string(), |c| format!(
+                "region {}",
+                frontiers.regions[c.region].id
+            )),
+            frontiers.regions.len(),
+            offered.join(" "),
+            self.state.strikes().len()
+        );
         let Some(choice) = choice else {
             return Ok(None);
         };
