@@ -6,6 +6,12 @@
 //! of the move's supercover except its first, `d` the distance to the nearest blocked cell.
 //! The heuristic `max(0, |n − goal| − tolerance)` (metres) never overestimates, so the path is
 //! optimal on the lattice among paths ending within the goal tolerance.
+//!
+//! The lattice keeps `x mod 3` and `y mod 3` of every node fixed, so it cannot thread a
+//! passage whose only clear cells lie off it. When the lattice finds nothing, the search runs
+//! again with 1-cell moves ([`AstarConfig::fine_fallback`]); from the same first moves
+//! ([`ClearanceMap::escape_targets`]) that is the graph the frontier path distances use, so a
+//! frontier reported reachable always gets a path (shortcutting then straightens it).
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -37,6 +43,8 @@ pub struct AstarConfig {
     pub snap_to_goal: bool,
     /// Give up (no path) after this many node expansions.
     pub max_expansions: usize,
+    /// When the lattice finds no path, search again with 1-cell moves (see the module doc).
+    pub fine_fallback: bool,
 }
 
 impl Default for AstarConfig {
@@ -48,6 +56,7 @@ impl Default for AstarConfig {
             goal_tolerance_cells: 1.5,
             snap_to_goal: true,
             max_expansions: 2_000_000,
+            fine_fallback: true,
         }
     }
 }
@@ -173,9 +182,11 @@ impl PartialOrd for Open {
     }
 }
 
-/// Plans from cell `start` to within the goal tolerance of cell `goal`. `Ok(None)` when no
-/// path exists (or the expansion budget runs out); errors on cells outside the grid or a bad
-/// configuration.
+/// Plans from cell `start` to within the goal tolerance of cell `goal`: on the lattice of
+/// [`AstarConfig::step_cells`] moves, then, if that fails and [`AstarConfig::fine_fallback`]
+/// is set, with 1-cell moves. The first move out of a start inside the clearance margin goes
+/// to one of [`ClearanceMap::escape_targets`]. `Ok(None)` when no path exists (or the
+/// expansion budget runs out); errors on cells outside the grid or a bad configuration.
 pub fn plan(
     map: &ClearanceMap,
     start: Cell,
@@ -183,6 +194,21 @@ pub fn plan(
     config: &AstarConfig,
 ) -> Result<Option<GridPath>, PlanningError> {
     config.validate()?;
+    let found = search(map, start, goal, config, config.step_cells)?;
+    if found.is_some() || !config.fine_fallback || config.step_cells == 1 {
+        return Ok(found);
+    }
+    search(map, start, goal, config, 1)
+}
+
+/// One A* search with moves of `step` cells (see [`plan`]).
+fn search(
+    map: &ClearanceMap,
+    start: Cell,
+    goal: Cell,
+    config: &AstarConfig,
+    step: i32,
+) -> Result<Option<GridPath>, PlanningError> {
     let geom = *map.geometry();
     let start_index = geom.index(start).ok_or(PlanningError::OutsideGrid {
         what: "A* start",
@@ -209,8 +235,17 @@ pub fn plan(
         g: 0.0,
         index: start_index,
     });
-    let moves = lattice_moves(config.step_cells);
-    let snap_reach = config.step_cells as f64 * std::f64::consts::SQRT_2 + 1e-9;
+    let lattice: Vec<(i32, i32)> = lattice_moves(step).to_vec();
+    // From a start inside the margin, the first moves are the escape moves.
+    let escapes: Vec<(i32, i32)> = if map.is_clear(start) {
+        lattice.clone()
+    } else {
+        map.escape_targets(start)
+            .into_iter()
+            .map(|c| (c.x - start.x, c.y - start.y))
+            .collect()
+    };
+    let snap_reach = step as f64 * std::f64::consts::SQRT_2 + 1e-9;
     let goal_index = geom.index(goal).unwrap_or(start_index);
     let mut expansions = 0usize;
     let mut reached = None;
@@ -228,7 +263,8 @@ pub fn plan(
         if expansions > config.max_expansions {
             return Ok(None);
         }
-        for (dx, dy) in moves {
+        let moves = if cell == start { &escapes } else { &lattice };
+        for &(dx, dy) in moves {
             let next = cell.offset(dx, dy);
             let Some(ni) = geom.index(next) else { continue };
             if closed[ni] || !move_is_allowed(map, start, cell, next) {
@@ -345,8 +381,15 @@ mod tests {
                 return Some(d);
             }
             done.push(c);
-            for (dx, dy) in lattice_moves(cfg.step_cells) {
-                let n = c.offset(dx, dy);
+            let next: Vec<Cell> = if c == start && !map.is_clear(start) {
+                map.escape_targets(start)
+            } else {
+                lattice_moves(cfg.step_cells)
+                    .iter()
+                    .map(|(dx, dy)| c.offset(*dx, *dy))
+                    .collect()
+            };
+            for n in next {
                 if !geom.contains(n) || !move_is_allowed(map, start, c, n) {
                     continue;
                 }
@@ -404,6 +447,7 @@ mod tests {
                 step_cells: [3, 1, 2][trial % 3],
                 proximity_weight: [1.0, 0.0, 3.0][trial % 3],
                 snap_to_goal: false,
+                fine_fallback: false,
                 ..Default::default()
             };
             let s = Cell::new(rng.random_range(0..w as i32), rng.random_range(0..h as i32));
@@ -429,6 +473,9 @@ mod tests {
                     assert!(p.cells.last().unwrap().distance(&g) <= cfg.goal_tolerance_cells);
                     for m in p.cells.windows(2) {
                         assert!(move_is_allowed(&map, s, m[0], m[1]));
+                        if m[0] == s && !map.is_clear(s) {
+                            continue; // an escape move
+                        }
                         let (dx, dy) = ((m[1].x - m[0].x).abs(), (m[1].y - m[0].y).abs());
                         assert!(dx == 0 || dx == cfg.step_cells);
                         assert!(dy == 0 || dy == cfg.step_cells);
@@ -550,6 +597,7 @@ mod tests {
         assert!(map.is_clear(g));
         let plain = AstarConfig {
             snap_to_goal: false,
+            fine_fallback: false,
             ..Default::default()
         };
         let snapping = AstarConfig::default();
@@ -655,5 +703,86 @@ mod tests {
         assert!(!map.is_clear(s));
         let p = plan(&map, s, Cell::new(10, 3), &AstarConfig::default()).unwrap();
         assert!(p.is_some());
+    }
+
+    #[test]
+    fn a_passage_off_the_lattice_is_found_by_the_fine_fallback() {
+        // A wall with a doorway whose only clear column is x = 7: the lattice from x = 2 visits
+        // x = 2, 5, 8, … and cannot pass; the 1-cell search can.
+        let mut rows = vec!["..............."; 5];
+        rows.push("#####...#######");
+        rows.extend(vec!["..............."; 5]);
+        let grid = OccupancyGrid::from_ascii(&rows, 0.05).unwrap();
+        let map = ClearanceMap::new(&grid, &ClearanceConfig::default()).unwrap();
+        let (s, g) = (Cell::new(2, 1), Cell::new(2, 9));
+        assert!(map.is_clear(Cell::new(6, 5)) && !map.is_clear(Cell::new(5, 5)));
+        let lattice_only = AstarConfig {
+            fine_fallback: false,
+            ..Default::default()
+        };
+        assert_eq!(plan(&map, s, g, &lattice_only).unwrap(), None);
+        let p = plan(&map, s, g, &AstarConfig::default()).unwrap().unwrap();
+        assert_eq!(*p.cells.last().unwrap(), g);
+        assert!(p.cells.contains(&Cell::new(6, 5)), "{:?}", p.cells);
+        for m in p.cells.windows(2) {
+            assert!(move_is_allowed(&map, s, m[0], m[1]));
+        }
+        path_keeps_clearance(&grid, &p.cells, 1.5, true);
+    }
+
+    #[test]
+    fn a_path_exists_exactly_where_the_frontier_path_distances_are_finite() {
+        // The frontier operator calls a region reachable when its approach cell has a finite
+        // path distance; the scorer then plans to it with A*. The two must agree, also from a
+        // start inside the clearance margin.
+        let mut rng = ChaCha8Rng::seed_from_u64(29);
+        let (mut reachable, mut unreachable, mut margin_starts) = (0, 0, 0);
+        for trial in 0..60 {
+            let (w, h) = (rng.random_range(10..30), rng.random_range(10..30));
+            let grid = random_grid(&mut rng, w, h, 0.12);
+            let cc = if trial % 2 == 0 {
+                ClearanceConfig::default()
+            } else {
+                ClearanceConfig::for_disc(0.1, 0.05).unwrap()
+            };
+            let map = ClearanceMap::new(&grid, &cc).unwrap();
+            let unblocked: Vec<Cell> = (0..grid.data.len())
+                .map(|i| grid.geometry.cell_at(i))
+                .filter(|c| !map.is_blocked(*c))
+                .collect();
+            if unblocked.is_empty() {
+                continue;
+            }
+            let s = unblocked[rng.random_range(0..unblocked.len())];
+            margin_starts += usize::from(!map.is_clear(s));
+            let dist = crate::frontier::path_distances(&map, s);
+            let cfg = AstarConfig {
+                goal_tolerance_cells: 0.0,
+                ..Default::default()
+            };
+            for _ in 0..12 {
+                let g = Cell::new(rng.random_range(0..w as i32), rng.random_range(0..h as i32));
+                let finite = dist.get(g).is_some_and(|d| d.is_finite());
+                let p = plan(&map, s, g, &cfg).unwrap();
+                assert_eq!(
+                    p.is_some(),
+                    finite,
+                    "trial {trial}: start {s:?} goal {g:?}: path {p:?}, distance finite {finite}"
+                );
+                if let Some(p) = p {
+                    reachable += 1;
+                    assert_eq!(*p.cells.last().unwrap(), g);
+                    for m in p.cells.windows(2) {
+                        assert!(move_is_allowed(&map, s, m[0], m[1]));
+                    }
+                } else {
+                    unreachable += 1;
+                }
+            }
+        }
+        assert!(
+            reachable > 100 && unreachable > 100 && margin_starts > 5,
+            "too few cases: {reachable} reachable, {unreachable} not, {margin_starts} margin starts"
+        );
     }
 }

@@ -138,11 +138,42 @@ impl ClearanceMap {
         for_each_supercover_cell(a, b, |c| self.is_clear(c))
     }
 
+    /// How far (cells) one escape move may go: the clearance radius plus one cell, enough to
+    /// leave the margin from any cell next to an obstacle.
+    pub fn escape_radius_cells(&self) -> f64 {
+        self.radius_cells + 1.0
+    }
+
     /// The relaxed check used when the robot starts inside the clearance margin (after a
     /// slide or a map update): the segment may not touch a blocked cell other than `a` itself,
-    /// and it must end on a clear cell, so the robot can only move out of the margin.
+    /// it must end on a clear cell, so the robot can only move out of the margin, and it is at
+    /// most [`ClearanceMap::escape_radius_cells`] long, so it cannot graze a wall for long.
     pub fn escape_segment_is_ok(&self, a: Cell, b: Cell) -> bool {
-        self.is_clear(b) && for_each_supercover_cell(a, b, |c| c == a || !self.is_blocked(c))
+        a.distance(&b) <= self.escape_radius_cells()
+            && self.is_clear(b)
+            && for_each_supercover_cell(a, b, |c| c == a || !self.is_blocked(c))
+    }
+
+    /// Where a search from `start` may go first: `start` itself when it is clear, otherwise
+    /// every cell one escape move away ([`ClearanceMap::escape_segment_is_ok`]), in row-major
+    /// order. A* and the frontier path distances both begin here, so a frontier reported
+    /// reachable is one A* can plan to.
+    pub fn escape_targets(&self, start: Cell) -> Vec<Cell> {
+        if self.is_clear(start) {
+            return vec![start];
+        }
+        let r = self.escape_radius_cells();
+        let reach = r.floor() as i32;
+        let mut out = Vec::new();
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let b = start.offset(dx, dy);
+                if b != start && self.escape_segment_is_ok(start, b) {
+                    out.push(b);
+                }
+            }
+        }
+        out
     }
 }
 
@@ -281,7 +312,16 @@ mod tests {
         let map = ClearanceMap::new(&grid, &ClearanceConfig::default()).unwrap();
         let start = Cell::new(1, 2);
         assert!(!map.is_clear(start));
-        assert!(map.escape_segment_is_ok(start, Cell::new(4, 2)));
+        assert!(map.escape_segment_is_ok(start, Cell::new(3, 2)));
+        assert!(
+            map.is_clear(Cell::new(4, 2)) && !map.escape_segment_is_ok(start, Cell::new(4, 2)),
+            "longer than the escape radius"
+        );
+        assert_eq!(map.escape_radius_cells(), 2.5);
+        let targets = map.escape_targets(start);
+        assert!(targets.contains(&Cell::new(3, 2)) && !targets.contains(&Cell::new(1, 1)));
+        assert!(targets.iter().all(|t| map.escape_segment_is_ok(start, *t)));
+        assert_eq!(map.escape_targets(Cell::new(4, 2)), vec![Cell::new(4, 2)]);
         assert!(
             !map.escape_segment_is_ok(start, Cell::new(1, 1)),
             "ends unclear"

@@ -6,8 +6,8 @@
 //! always with a line of sight to that cell.
 //!
 //! Reachability for the approach uses the robot-width check of [`ClearanceMap`]: a path
-//! distance is an 8-connected Dijkstra distance over clear cells (plus the unblocked cells next
-//! to the robot, so a robot inside the clearance margin can leave it).
+//! distance is an 8-connected Dijkstra distance over swept-clear moves, after the escape move
+//! A* also makes when the robot is inside the clearance margin ([`path_distances`]).
 
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
@@ -106,18 +106,23 @@ impl PartialOrd for Queued {
     }
 }
 
-/// Path distances (metres) from `start` over clear cells of `map` (8-connected, diagonal
-/// √2); cells within `radius + 1` of the start only need to be unblocked.
+/// Path distances (metres) from `start`: a straight move to each of
+/// [`ClearanceMap::escape_targets`] (the start itself when it is clear), then 8-connected
+/// moves (diagonal √2) that pass the swept check. These are the first moves and the 1-cell
+/// moves of A*, so every cell with a finite distance is one [`crate::astar::plan`] reaches.
 pub fn path_distances(map: &ClearanceMap, start: Cell) -> Grid<f64> {
     let g = *map.geometry();
     let mut dist = Grid::filled(g, f64::INFINITY);
     let Some(s) = g.index(start) else { return dist };
-    let escape = map.radius_cells() + 1.0;
-    let passable =
-        |c: Cell| map.is_clear(c) || (c.distance(&start) <= escape && !map.is_blocked(c));
     let mut heap = BinaryHeap::new();
     dist.data[s] = 0.0;
-    heap.push(Queued(0.0, s));
+    for t in map.escape_targets(start) {
+        if let Some(j) = g.index(t) {
+            let d = t.distance(&start) * g.resolution;
+            dist.data[j] = d;
+            heap.push(Queued(d, j));
+        }
+    }
     while let Some(Queued(d, i)) = heap.pop() {
         if d > dist.data[i] {
             continue;
@@ -126,7 +131,7 @@ pub fn path_distances(map: &ClearanceMap, start: Cell) -> Grid<f64> {
         for (dx, dy) in NEIGHBOURS8 {
             let n = c.offset(dx, dy);
             let Some(j) = g.index(n) else { continue };
-            if !passable(n) {
+            if !map.segment_is_clear(c, n) {
                 continue;
             }
             let step = if dx != 0 && dy != 0 {
