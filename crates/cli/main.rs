@@ -497,9 +497,10 @@ fn run(
     }
     if let Some(stats) = &report.recording {
         eprintln!(
-            "activemap: recorded {} messages ({} bytes) to {}",
+            "activemap: recorded {} messages ({:.1} MB of payload, {:.1} MB written) to {}",
             stats.messages,
-            stats.bytes,
+            stats.bytes as f64 / 1e6,
+            stats.written_bytes as f64 / 1e6,
             report.run_dir.join("recording.mcap").display()
         );
         for (topic, n) in &stats.dropped {

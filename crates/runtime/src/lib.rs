@@ -81,6 +81,7 @@ pub mod bench;
 pub mod catalog;
 pub mod daemon;
 pub mod dataflow;
+pub mod delta;
 mod error;
 pub mod graph;
 pub mod launch;

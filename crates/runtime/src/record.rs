@@ -4,6 +4,11 @@
 //! The recorder never drops silently: Zenoh topics use a blocking FIFO (back-pressure up to the
 //! producer), and shared-memory topics are checked for gaps in the producers' sequence numbers;
 //! any gap is counted and reported per topic.
+//!
+//! Large payloads are stored delta-encoded against the previous payload of their channel
+//! ([`crate::delta`], encoding [`DELTA_ENCODING`]): the map is published every frame but changes
+//! only at keyframes. [`read_recording`] gives back every payload byte for byte, and still reads
+//! recordings of plain [`LARGE_ENCODING`] channels.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -23,16 +28,21 @@ use crate::transport::{ShmSubscriber, ZenohSubscriber, iox_node, topic_key};
 
 /// Message encoding of small messages in recordings.
 pub const SMALL_ENCODING: &str = "activemap/postcard-v";
-/// Message encoding of large payloads in recordings.
+/// Message encoding of large payloads stored as they are (recordings before delta encoding).
 pub const LARGE_ENCODING: &str = "activemap/repr-c";
+/// Message encoding of large payloads stored with [`crate::delta`] against the channel's previous
+/// payload.
+pub const DELTA_ENCODING: &str = "activemap/repr-c-delta";
 
 /// What the recorder saw.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RecorderStats {
     /// Messages written (including end-of-stream markers).
     pub messages: u64,
-    /// Payload bytes written.
+    /// Payload bytes received.
     pub bytes: u64,
+    /// Bytes written for them (large payloads are delta-encoded, so this can be far smaller).
+    pub written_bytes: u64,
     /// Messages lost per topic (gaps in sequence numbers). Empty when nothing was lost.
     pub dropped: BTreeMap<String, u64>,
 }
@@ -184,7 +194,7 @@ fn record_loop(
                     kind.schema_version().to_string(),
                 );
                 let encoding = match kind.transport_class() {
-                    TransportClass::SharedMemory => LARGE_ENCODING.to_string(),
+                    TransportClass::SharedMemory => DELTA_ENCODING.to_string(),
                     TransportClass::Small => format!("{SMALL_ENCODING}{}", kind.schema_version()),
                 };
                 let channel = writer
@@ -207,7 +217,10 @@ fn record_loop(
                         DropPolicy::Block,
                     )?),
                 };
-                sources.push((topic, channel, source, 0u64));
+                // Large channels keep their previous payload for the delta encoding.
+                let previous =
+                    (kind.transport_class() == TransportClass::SharedMemory).then(Vec::<u8>::new);
+                sources.push((topic, channel, source, 0u64, previous));
             }
         }
         writer.flush().map_err(mcap_err)?;
@@ -227,9 +240,10 @@ fn record_loop(
     let mut stop_seen: Option<Instant> = None;
     let mut last_flush = Instant::now();
     let mut mcap_sequence = 0u32;
+    let mut encoded: Vec<u8> = Vec::new();
     loop {
         let mut busy = false;
-        for (topic, channel, source, last_seq) in &mut sources {
+        for (topic, channel, source, last_seq, previous) in &mut sources {
             let mut write_err = None;
             let mut handle = |seq: u64, bytes: &[u8]| {
                 if seq > *last_seq + 1 && *last_seq > 0 {
@@ -246,11 +260,24 @@ fn record_loop(
                     log_time: t,
                     publish_time: t,
                 };
-                if let Err(e) = writer.write_to_known_channel(&header, bytes) {
+                let record: &[u8] = match previous {
+                    Some(prev) => {
+                        let base = (!prev.is_empty()).then_some(prev.as_slice());
+                        crate::delta::encode(base, bytes, &mut encoded);
+                        if !bytes.is_empty() {
+                            prev.clear();
+                            prev.extend_from_slice(bytes);
+                        }
+                        &encoded
+                    }
+                    None => bytes,
+                };
+                if let Err(e) = writer.write_to_known_channel(&header, record) {
                     write_err = Some(e);
                 }
                 stats.messages += 1;
                 stats.bytes += bytes.len() as u64;
+                stats.written_bytes += record.len() as u64;
             };
             let got = match source {
                 Source::Shm(s) => s.try_recv(&mut handle)?,
@@ -302,13 +329,15 @@ pub struct Recording {
     pub truncated: bool,
 }
 
-/// Read a recording, tolerating a file cut short by a crash.
+/// Read a recording, tolerating a file cut short by a crash; delta-encoded payloads are decoded
+/// (a payload that does not decode is an error naming the topic and its sequence number).
 pub fn read_recording(path: &Path) -> Result<Recording, RuntimeError> {
     let data = std::fs::read(path).map_err(|e| RuntimeError::io(path, e))?;
     let mut dataflow_yaml = String::new();
-    let mut messages = Vec::new();
+    let mut messages: Vec<RecordedMessage> = Vec::new();
     let mut truncated = false;
-    let mut channels: BTreeMap<u16, String> = BTreeMap::new();
+    // Per channel: topic, whether it is delta-encoded, and its last decoded non-empty payload.
+    let mut channels: BTreeMap<u16, (String, bool, Option<usize>)> = BTreeMap::new();
     let reader = mcap::read::LinearReader::new_with_options(
         &data,
         mcap::read::Options::IgnoreEndMagic.into(),
@@ -327,17 +356,39 @@ pub fn read_recording(path: &Path) -> Result<Recording, RuntimeError> {
                 dataflow_yaml = m.metadata.get("dataflow_yaml").cloned().unwrap_or_default();
             }
             mcap::records::Record::Channel(c) => {
-                channels.insert(c.id, c.topic.clone());
+                let delta = c.message_encoding == DELTA_ENCODING;
+                channels.insert(c.id, (c.topic.clone(), delta, None));
             }
             mcap::records::Record::Message { header, data } => {
-                let topic = channels
-                    .get(&header.channel_id)
-                    .cloned()
-                    .unwrap_or_default();
+                let (topic, delta, last) = channels
+                    .get_mut(&header.channel_id)
+                    .map(|(t, d, l)| (t.clone(), *d, l))
+                    .ok_or_else(|| {
+                        RuntimeError::Other(format!(
+                            "{}: a message on channel {} that was never declared",
+                            path.display(),
+                            header.channel_id
+                        ))
+                    })?;
+                let bytes = if delta {
+                    let previous = last.map(|i: usize| messages[i].bytes.as_slice());
+                    crate::delta::decode(previous, &data).map_err(|e| {
+                        RuntimeError::Other(format!(
+                            "{}: message {} of `{topic}`: {e}",
+                            path.display(),
+                            header.sequence
+                        ))
+                    })?
+                } else {
+                    data.into_owned()
+                };
+                if !bytes.is_empty() {
+                    *last = Some(messages.len());
+                }
                 messages.push(RecordedMessage {
                     topic,
                     seq: header.sequence.into(),
-                    bytes: data.into_owned(),
+                    bytes,
                 });
             }
             mcap::records::Record::DataEnd(_) => break,

@@ -18,6 +18,19 @@ pub struct Config {
     /// Image side in pixels.
     #[serde(default = "default_size")]
     pub size: u32,
+    /// Each pixel pattern is sent this many times in a row (frame ids still count up), like a
+    /// map republished unchanged between keyframes; see [`pattern_of`].
+    #[serde(default = "default_repeat")]
+    pub repeat: u64,
+}
+
+fn default_repeat() -> u64 {
+    1
+}
+
+/// The pixel pattern frame `frame_id` (from 1) carries when each is sent `repeat` times.
+pub fn pattern_of(frame_id: u64, repeat: u64) -> u64 {
+    (frame_id - 1) / repeat.max(1) + 1
 }
 
 fn default_count() -> u64 {
@@ -66,6 +79,7 @@ impl Operator for FrameSource {
             config.size > 0 && config.size <= 4096,
             "size must be in 1..=4096"
         );
+        anyhow::ensure!(config.repeat >= 1, "repeat must be at least 1");
         Ok(Self { config, sent: 0 })
     }
 
@@ -76,7 +90,7 @@ impl Operator for FrameSource {
             }
             self.sent += 1;
             let header = pattern_header(self.sent, self.config.size);
-            let id = self.sent;
+            let id = pattern_of(self.sent, self.config.repeat);
             ctx.loan("frame", header.payload_len()?, |buf| {
                 let frame = RgbdFrameMut::init(buf, header)?;
                 for (i, v) in frame.rgb.iter_mut().enumerate() {
