@@ -126,6 +126,8 @@ pub struct HouseResult {
     pub steps_per_s: f64,
     /// True path length, metres.
     pub path_length_m: f64,
+    /// Forward actions, and how many of them were blocked (the evaluator's counts).
+    pub forwards: (u64, u64),
     /// Busy time per node.
     pub stages: Vec<StageTime>,
 }
@@ -142,8 +144,8 @@ impl HouseResult {
                 self.scene, self.coverage_pct, self.steps_per_s
             ),
             format!(
-                "explore fbe {} steps {} path_m {:.2}",
-                self.scene, self.steps, self.path_length_m
+                "explore fbe {} steps {} path_m {:.2} forwards {} blocked {}",
+                self.scene, self.steps, self.path_length_m, self.forwards.0, self.forwards.1
             ),
         ];
         let per_step = |s: f64| 1000.0 * s / self.steps.max(1) as f64;
@@ -295,6 +297,10 @@ fn run_house(
         steps,
         steps_per_s: steps as f64 / wall.max(1e-9),
         path_length_m: number("path_length_m")?,
+        forwards: (
+            summary["forward_actions"].as_u64().unwrap_or(0),
+            summary["blocked_forwards"].as_u64().unwrap_or(0),
+        ),
         stages: read_timings(&run_dir.join(activemap_runtime::node::TIMINGS_FILE))?,
     })
 }
@@ -410,6 +416,7 @@ mod tests {
             steps: 2000,
             steps_per_s: 3.456,
             path_length_m: 41.5,
+            forwards: (800, 3),
             stages: vec![StageTime {
                 stage: "tracker".into(),
                 seconds: 100.0,
@@ -421,7 +428,10 @@ mod tests {
             lines[0],
             "explore fbe house:2 coverage 87.3 ate_cm 3.0 steps_per_s 3.46"
         );
-        assert_eq!(lines[1], "explore fbe house:2 steps 2000 path_m 41.50");
+        assert_eq!(
+            lines[1],
+            "explore fbe house:2 steps 2000 path_m 41.50 forwards 800 blocked 3"
+        );
         assert_eq!(
             lines[2],
             "explore fbe house:2 stage tracker share_pct 100.0 busy_ms_per_step 50.0"

@@ -4,7 +4,12 @@
 //! volume and would read as surfaces in any PLY viewer), `bev.png` (bird's-eye view of the
 //! last occupancy grid with the estimated path in green, the true path in blue and the
 //! frontier centroids in red), `coverage.csv` (2D coverage per step, SPEC §8: seen floor /
-//! reachable navigable floor) and `summary.json` (steps, coverage, ATE, path length, whether `recording.mcap` is present).
+//! reachable navigable floor) and `summary.json` (steps, coverage, ATE, path length, blocked
+//! forward moves, whether `recording.mcap` is present).
+//!
+//! A forward action is *blocked* when the true position it led to lies less than half the
+//! forward step (SPEC §1: 5 cm) from the one it started at: the robot drove into something.
+//! This needs only the actions and the true poses, so it also counts for an external simulator.
 //!
 //! The loop's world is anchored at the robot's start pose; coverage maps each reachable
 //! navigable cell of the scene (ground truth) into that frame with the true start pose.
@@ -20,7 +25,9 @@ use activemap_planning::grid::CellState;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
-use activemap_schemas::{EpisodeStatus, Frontiers, MessageKind as K, PoseEstimate, TruePose};
+use activemap_schemas::{
+    Action, ActionKind, EpisodeStatus, Frontiers, MessageKind as K, PoseEstimate, TruePose,
+};
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
 use nalgebra::Point2;
@@ -52,6 +59,14 @@ pub struct Config {
     /// Pixels per grid cell in `bev.png`.
     #[serde(default = "default_scale")]
     pub bev_pixels_per_cell: u32,
+    /// Length of the simulator's forward step, metres (SPEC §1: 0.05); a forward action that
+    /// moves the robot less than half of it counts as blocked.
+    #[serde(default = "default_forward_step")]
+    pub forward_step_m: f64,
+}
+
+fn default_forward_step() -> f64 {
+    0.05
 }
 
 fn default_scene() -> String {
@@ -72,6 +87,13 @@ pub struct Summary {
     pub ate_m: Option<f64>,
     /// Length of the true path, metres.
     pub path_length_m: f64,
+    /// Forward actions whose result the true poses show (0 when the `action` input is not
+    /// connected).
+    #[serde(default)]
+    pub forward_actions: u64,
+    /// Of those, the ones that moved the robot less than half a step (see the module doc).
+    #[serde(default)]
+    pub blocked_forwards: u64,
     /// Last episode status message.
     pub episode: String,
     /// Whether `recording.mcap` was in the output folder when the evaluator finished.
@@ -142,6 +164,29 @@ pub struct Evaluator {
     episode: String,
     pending_grids: Vec<(u64, PlanGrid)>,
     written: bool,
+    /// True planar position per frame id.
+    true_positions: std::collections::BTreeMap<u64, Point2<f64>>,
+    /// Forward actions received, by the frame id they were computed from.
+    forward_steps: Vec<u64>,
+    forward_step_m: f64,
+}
+
+/// Counts the forward actions whose outcome is known, and the blocked ones among them: the
+/// action computed on frame `k` shows in frame `k + 1`, and it is blocked when the robot moved
+/// less than `forward_step_m / 2` between the two (module doc).
+pub fn blocked_forwards(
+    forward_steps: &[u64],
+    true_positions: &std::collections::BTreeMap<u64, Point2<f64>>,
+    forward_step_m: f64,
+) -> (u64, u64) {
+    let (mut known, mut blocked) = (0, 0);
+    for k in forward_steps {
+        if let (Some(a), Some(b)) = (true_positions.get(k), true_positions.get(&(k + 1))) {
+            known += 1;
+            blocked += u64::from((b - a).norm() < 0.5 * forward_step_m);
+        }
+    }
+    (known, blocked)
 }
 
 impl Evaluator {
@@ -190,11 +235,18 @@ impl Evaluator {
         for w in self.true_traj.poses.windows(2) {
             path_length_m += (w[1].translation.vector - w[0].translation.vector).norm();
         }
+        let (forward_actions, blocked) = blocked_forwards(
+            &self.forward_steps,
+            &self.true_positions,
+            self.forward_step_m,
+        );
         let summary = Summary {
             steps: self.estimated.len() as u64,
             coverage: self.coverage.last().map_or(0.0, |c| c.1),
             ate_m,
             path_length_m,
+            forward_actions,
+            blocked_forwards: blocked,
             episode: self.episode.clone(),
             recording_present: self.out.join("recording.mcap").exists(),
             map_gaussians: self.map.as_ref().map_or(0, |m| m.len()),
@@ -208,13 +260,15 @@ impl Evaluator {
             serde_json::to_string_pretty(&summary)?,
         )?;
         eprintln!(
-            "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m → {}",
+            "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m, {} of {} forward moves blocked → {}",
             summary.steps,
             summary.coverage * 100.0,
             summary
                 .ate_m
                 .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0)),
             summary.path_length_m,
+            summary.blocked_forwards,
+            summary.forward_actions,
             self.out.display()
         );
         Ok(summary)
@@ -314,6 +368,11 @@ impl Operator for Evaluator {
     type Config = Config;
 
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            config.forward_step_m.is_finite() && config.forward_step_m > 0.0,
+            "evaluator: forward_step_m must be finite and positive, got {}",
+            config.forward_step_m
+        );
         let out = config
             .out
             .clone()
@@ -338,6 +397,9 @@ impl Operator for Evaluator {
             episode: String::new(),
             pending_grids: Vec::new(),
             written: false,
+            true_positions: Default::default(),
+            forward_steps: Vec::new(),
+            forward_step_m: config.forward_step_m,
         })
     }
 
@@ -363,6 +425,9 @@ impl Operator for Evaluator {
                         let start_from_world = anchor * pose.inverse();
                         self.truth = Some((truth, start, start_from_world));
                     }
+                    let planar = planar_from_camera_pose(&pose);
+                    self.true_positions
+                        .insert(t.frame_id, Point2::new(planar.x, planar.y));
                     self.true_traj.push(t.stamp, pose);
                 }
                 "episode" => {
@@ -372,6 +437,12 @@ impl Operator for Evaluator {
                 "map" => self.map = Some(read_map(input.bytes)?.1),
                 "grid" => self.pending_grids.push(read_grid(input.bytes)?),
                 "regions" => self.regions = Some(input.decode()?),
+                "action" => {
+                    let a: Action = input.decode()?;
+                    if a.action == ActionKind::Forward {
+                        self.forward_steps.push(a.step);
+                    }
+                }
                 other => anyhow::bail!("evaluator: unexpected input `{other}`"),
             },
             Event::Stop => {
@@ -416,6 +487,10 @@ pub fn registered() -> Registered {
             name: "regions",
             kind: K::Frontiers,
         },
+        PortSpec {
+            name: "action",
+            kind: K::Action,
+        },
     ];
     Registered {
         descriptor: OperatorDescriptor {
@@ -433,6 +508,22 @@ pub fn registered() -> Registered {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_forward_move_that_does_not_move_the_robot_counts_as_blocked() {
+        // Frames 0..=4 along x: 5 cm, 5 cm, 0 (blocked), 2 cm (a slide), then frame 5 unseen.
+        let xs = [0.0, 0.05, 0.10, 0.10, 0.12];
+        let positions = xs
+            .iter()
+            .enumerate()
+            .map(|(k, x)| (k as u64, Point2::new(*x, 1.0)))
+            .collect();
+        // Forward on frames 0, 1, 2, 3 and 4 (whose outcome, frame 5, never came).
+        assert_eq!(blocked_forwards(&[0, 1, 2, 3, 4], &positions, 0.05), (4, 2));
+        assert_eq!(blocked_forwards(&[0, 1], &positions, 0.05), (2, 0));
+        // With a 2 cm step the 2 cm slide is a full move.
+        assert_eq!(blocked_forwards(&[3], &positions, 0.02), (1, 0));
+    }
 
     #[test]
     fn map_ply_keeps_exactly_the_observed_gaussians() {
