@@ -3,7 +3,10 @@
 //! turning to face the frontier it came for, unless the frontier is already in view), when the map shows an obstacle on the remaining
 //! path or close ahead, when the goal turns occupied, when no path was found, and when the
 //! robot is stuck (no progress along the path over `stuck_window` steps: the goal then counts
-//! as failed). Wraps `activemap_planning::{follower, replan, stuck}`. The episode starts with a
+//! as failed). It also notices a blocked robot at once, as a bumper would: when
+//! `bumps_to_replan` forward moves in a row leave the tracked position within half a step of
+//! where it was, something is in the way (an obstacle the map does not show, or a corner of
+//! one the robot grazes after cutting toward its next waypoint), and it asks for a new path. Wraps `activemap_planning::{follower, replan, stuck}`. The episode starts with a
 //! 360° look-around; while the tracker reports the pose lost the robot only turns on the spot,
 //! and asks for a new plan once tracking is back. When the planner ends the episode (its goal
 //! stream, hence the path stream, closes) it sends `Stop`.
@@ -54,6 +57,13 @@ pub struct Config {
     /// view, as the in-process explorer's default). 0 always turns.
     #[serde(default = "default_look_skip")]
     pub look_skip_half_angle_deg: f64,
+    /// Forward moves in a row that leave the tracked position within half of
+    /// `forward_step_m` before the follower replans (see the module doc). 0 disables it.
+    #[serde(default = "default_bumps")]
+    pub bumps_to_replan: usize,
+    /// Length of a forward step, metres (SPEC §1: 0.05).
+    #[serde(default = "default_forward_step")]
+    pub forward_step_m: f64,
 }
 
 fn default_window() -> usize {
@@ -71,6 +81,12 @@ fn default_spin() -> usize {
 fn default_look_skip() -> f64 {
     25.0
 }
+fn default_bumps() -> usize {
+    2
+}
+fn default_forward_step() -> f64 {
+    0.05
+}
 
 impl Default for Config {
     fn default() -> Self {
@@ -80,6 +96,8 @@ impl Default for Config {
             max_replans_per_step: default_replans(),
             initial_spin_steps: default_spin(),
             look_skip_half_angle_deg: default_look_skip(),
+            bumps_to_replan: default_bumps(),
+            forward_step_m: default_forward_step(),
         }
     }
 }
@@ -125,6 +143,10 @@ pub struct Counters {
     pub lost_steps: usize,
     /// Paths ended without the look turn (the frontier was already in view).
     pub looks_skipped: usize,
+    /// Forward moves that did not move the robot.
+    pub bumps: usize,
+    /// Replans because forward moves kept not moving the robot.
+    pub blocked_replans: usize,
 }
 
 /// The follower's state machine, without transport.
@@ -138,6 +160,12 @@ pub struct FollowerCore {
     /// The grid the current path was planned on (the first grid seen after it arrived): only
     /// obstacles that appeared since then trigger an obstacle-ahead replan.
     plan_grid: Option<PlanGrid>,
+    /// Where the robot was when it last moved forward (cleared by any other decision).
+    forward_from: Option<Point2<f64>>,
+    /// Forward moves in a row that did not move the robot.
+    bumps_in_row: usize,
+    bumps_to_replan: usize,
+    forward_step_m: f64,
     /// What happened so far.
     pub counters: Counters,
 }
@@ -160,7 +188,16 @@ impl FollowerCore {
             "follower: look_skip_half_angle_deg must be in [0, 180], got {}",
             config.look_skip_half_angle_deg
         );
+        anyhow::ensure!(
+            config.forward_step_m.is_finite() && config.forward_step_m > 0.0,
+            "follower: forward_step_m must be finite and positive, got {}",
+            config.forward_step_m
+        );
         Ok(Self {
+            forward_from: None,
+            bumps_in_row: 0,
+            bumps_to_replan: config.bumps_to_replan,
+            forward_step_m: config.forward_step_m,
             look_skip_half_angle: config.look_skip_half_angle_deg.to_radians(),
             config: follower,
             replan: ReplanConfig {
@@ -209,7 +246,43 @@ impl FollowerCore {
         grid: &PlanGrid,
         tracking_lost: bool,
     ) -> anyhow::Result<Decision> {
+        let decision = self.decide_inner(pose, grid, tracking_lost)?;
+        self.forward_from = (decision == Decision::Act(ActionKind::Forward) && !tracking_lost)
+            .then_some(Point2::new(pose.x, pose.y));
+        Ok(decision)
+    }
+
+    /// Counts a forward move that left the robot where it was; true when `bumps_to_replan`
+    /// happened in a row.
+    fn blocked(&mut self, here: Point2<f64>, tracking_lost: bool) -> bool {
+        let Some(from) = self.forward_from.filter(|_| !tracking_lost) else {
+            self.bumps_in_row = 0;
+            return false;
+        };
+        if (here - from).norm() >= 0.5 * self.forward_step_m {
+            self.bumps_in_row = 0;
+            return false;
+        }
+        self.counters.bumps += 1;
+        self.bumps_in_row += 1;
+        if self.bumps_to_replan > 0 && self.bumps_in_row >= self.bumps_to_replan {
+            self.bumps_in_row = 0;
+            return true;
+        }
+        false
+    }
+
+    fn decide_inner(
+        &mut self,
+        pose: &PlanarPose,
+        grid: &PlanGrid,
+        tracking_lost: bool,
+    ) -> anyhow::Result<Decision> {
         let here = Point2::new(pose.x, pose.y);
+        if self.blocked(here, tracking_lost) && matches!(self.phase, Phase::Follow { .. }) {
+            self.counters.blocked_replans += 1;
+            self.phase = Phase::Idle(ReplanReason::Blocked);
+        }
         let threshold = self.config.turn_threshold_rad;
         if tracking_lost {
             self.counters.lost_steps += 1;
@@ -508,6 +581,67 @@ mod tests {
             }
         }
         panic!("no replan request within 200 steps: {actions:?}");
+    }
+
+    /// A wall the grid does not show stops the robot 0.2 m along a 0.5 m path: the tracked pose
+    /// stops advancing, and the follower asks for a new path (blocked) at the second forward
+    /// move that did not move it, not after the stuck window. Driving freely counts no bump.
+    #[test]
+    fn forward_moves_that_do_not_move_the_robot_ask_for_a_new_path() {
+        let geometry = activemap_planning::GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = PlanGrid::filled(geometry, activemap_planning::CellState::Free);
+        let model = activemap_planning::dynamics::ActionModel::default();
+        let run = |wall_x: f64, bumps_to_replan: usize| {
+            let mut core = FollowerCore::new(&Config {
+                initial_spin_steps: 0,
+                bumps_to_replan,
+                ..Config::default()
+            })
+            .unwrap();
+            let waypoint = |x| activemap_schemas::PlanarPose2 {
+                x,
+                y: 0.0,
+                yaw: 0.0,
+            };
+            core.set_path(&Path {
+                frame_id: 0,
+                waypoints: vec![waypoint(0.25), waypoint(0.5)],
+                objective: 0.0,
+            })
+            .unwrap();
+            let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+            let mut forwards = 0;
+            for _ in 0..100 {
+                match core.decide(&pose, &grid, false).unwrap() {
+                    Decision::Replan(reason) => return (reason, forwards, core.counters),
+                    Decision::Act(kind) => {
+                        assert_eq!(kind, ActionKind::Forward);
+                        forwards += 1;
+                        let next = model.apply(&pose, PlanAction::Forward);
+                        if next.x <= wall_x + 1e-9 {
+                            pose = next;
+                        }
+                    }
+                }
+            }
+            panic!("no replan request within 100 steps");
+        };
+        // Free: 9 forward moves to within the waypoint tolerance of the end, no bump.
+        let (reason, forwards, counters) = run(10.0, 2);
+        assert_eq!(
+            (reason, forwards, counters.bumps),
+            (ReplanReason::PathDone, 9, 0)
+        );
+        // Blocked at 0.2 m: 4 moves get there, the 5th and 6th do not move it.
+        let (reason, forwards, counters) = run(0.2, 2);
+        assert_eq!(reason, ReplanReason::Blocked);
+        assert_eq!(forwards, 6);
+        assert_eq!((counters.bumps, counters.blocked_replans), (2, 1));
+        // Disabled: only the stuck window (40 steps without progress) ends it.
+        let (reason, forwards, counters) = run(0.2, 0);
+        assert_eq!(reason, ReplanReason::Stuck);
+        assert!(forwards > 40, "{forwards}");
+        assert_eq!(counters.blocked_replans, 0);
     }
 
     /// At the end of the path the follower turns to the frontier only when it is out of view:

@@ -92,9 +92,10 @@ pub fn outcome(reason: ReplanReason) -> GoalOutcome {
     match reason {
         ReplanReason::PathDone => GoalOutcome::Reached,
         ReplanReason::NoPath | ReplanReason::Stuck => GoalOutcome::Failed,
-        ReplanReason::ObstacleAhead | ReplanReason::Startup | ReplanReason::TrackingLost => {
-            GoalOutcome::Abandoned
-        }
+        ReplanReason::ObstacleAhead
+        | ReplanReason::Startup
+        | ReplanReason::TrackingLost
+        | ReplanReason::Blocked => GoalOutcome::Abandoned,
     }
 }
 

@@ -176,6 +176,10 @@ pub enum ReplanReason {
     /// Tracking was lost and has recovered: the old path was planned on a pose that may be
     /// wrong.
     TrackingLost,
+    /// Forward moves did not move the robot (by the tracked pose): something the map does not
+    /// show, or the robot grazing an obstacle's margin, blocks the way. The goal is not at
+    /// fault (stuck detection still judges a goal that keeps failing this way).
+    Blocked,
 }
 
 /// Request from the follower to plan again.
@@ -186,7 +190,7 @@ pub struct ReplanRequest {
     /// Why.
     pub reason: ReplanReason,
 }
-small_message!(ReplanRequest, 2);
+small_message!(ReplanRequest, 3);
 
 /// Episode state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
