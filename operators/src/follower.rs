@@ -357,7 +357,13 @@ impl FollowerCore {
                             continue;
                         }
                     }
-                    match follower.next_action(pose) {
+                    // Leave a reached waypoint early only along a clear line (the robot's
+                    // own margin aside: from inside it no line is clear, so it closes in).
+                    let geometry = grid.geometry;
+                    let line_is_clear = |a: Point2<f64>, b: Point2<f64>| {
+                        occupied_only.segment_is_clear(geometry.cell_of(a), geometry.cell_of(b))
+                    };
+                    match follower.next_action_checked(pose, line_is_clear) {
                         Some(a) => return Ok(Decision::Act(to_kind(a))),
                         None => self.arrive(pose, yaw),
                     }
