@@ -21,6 +21,7 @@ use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_planning::OccupancyGrid as PlanGrid;
+use activemap_planning::dynamics::{ActionModel, forward_was_blocked};
 use activemap_planning::grid::CellState;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
@@ -66,7 +67,7 @@ pub struct Config {
 }
 
 fn default_forward_step() -> f64 {
-    0.05
+    ActionModel::default().forward_m
 }
 
 fn default_scene() -> String {
@@ -183,7 +184,7 @@ pub fn blocked_forwards(
     for k in forward_steps {
         if let (Some(a), Some(b)) = (true_positions.get(k), true_positions.get(&(k + 1))) {
             known += 1;
-            blocked += u64::from((b - a).norm() < 0.5 * forward_step_m);
+            blocked += u64::from(forward_was_blocked(*a, *b, forward_step_m));
         }
     }
     (known, blocked)

@@ -85,7 +85,7 @@ fn default_bumps() -> usize {
     2
 }
 fn default_forward_step() -> f64 {
-    0.05
+    activemap_planning::dynamics::ActionModel::default().forward_m
 }
 
 impl Default for Config {
@@ -259,7 +259,7 @@ impl FollowerCore {
             self.bumps_in_row = 0;
             return false;
         };
-        if (here - from).norm() >= 0.5 * self.forward_step_m {
+        if !activemap_planning::dynamics::forward_was_blocked(from, here, self.forward_step_m) {
             self.bumps_in_row = 0;
             return false;
         }

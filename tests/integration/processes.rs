@@ -1,37 +1,49 @@
 //! Flows of real processes: shared-memory frames, record → replay, kill -9 recovery (the killed
 //! node holds iceoryx2 resources, which the next run must clean up).
 
+use std::path::PathBuf;
 use std::time::Duration;
 
-use activemap_runtime::record::read_recording;
+use activemap_runtime::record::{RecordedMessage, Recording, read_recording};
 use activemap_schemas::{Counter, SmallMessage};
 
 use super::harness::{pids_with, root, run, spawn, wait};
 
-fn counters(rec: &activemap_runtime::record::Recording, topic: &str) -> Vec<Counter> {
+/// Runs the dataflow file `flow` (relative to the repository root) into a fresh run folder and
+/// reads its recording back; returns the tempdir (keeps the folder alive), the recording's
+/// path and the recording.
+fn run_recorded(flow: &str) -> (tempfile::TempDir, PathBuf, Recording) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("run");
+    let out = run(
+        &["run", flow, "--out", out_dir.to_str().unwrap()],
+        &root(),
+        Duration::from_secs(120),
+    );
+    assert!(out.status.success(), "run failed:\n{}", out.stderr);
+    let path = out_dir.join("recording.mcap");
+    let rec = read_recording(&path).unwrap();
+    (tmp, path, rec)
+}
+
+/// The non-empty payloads recorded on `topic`.
+fn payloads<'a>(rec: &'a Recording, topic: &str) -> Vec<&'a RecordedMessage> {
     rec.messages
         .iter()
         .filter(|m| m.topic == topic && !m.bytes.is_empty())
+        .collect()
+}
+
+fn counters(rec: &Recording, topic: &str) -> Vec<Counter> {
+    payloads(rec, topic)
+        .iter()
         .map(|m| Counter::decode(&m.bytes).expect("counter"))
         .collect()
 }
 
 #[test]
 fn rgbd_800x800_crosses_processes_bit_exact_through_shared_memory() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out_dir = tmp.path().join("run");
-    let out = run(
-        &[
-            "run",
-            "tests/data/dataflows/good/frames.yaml",
-            "--out",
-            out_dir.to_str().unwrap(),
-        ],
-        &root(),
-        Duration::from_secs(120),
-    );
-    assert!(out.status.success(), "run failed:\n{}", out.stderr);
-    let rec = read_recording(&out_dir.join("recording.mcap")).unwrap();
+    let (_tmp, _, rec) = run_recorded("tests/data/dataflows/good/frames.yaml");
     assert!(!rec.truncated);
     // The checker process recomputed every pixel independently and compared bit for bit.
     let reports = counters(&rec, "checker/report");
@@ -41,11 +53,7 @@ fn rgbd_800x800_crosses_processes_bit_exact_through_shared_memory() {
         assert_eq!(r.value, 1, "frame {} differed; see checker log", r.seq);
     }
     // The recorder read the same shared-memory frames.
-    let frames: Vec<_> = rec
-        .messages
-        .iter()
-        .filter(|m| m.topic == "camera/frame" && !m.bytes.is_empty())
-        .collect();
+    let frames = payloads(&rec, "camera/frame");
     assert_eq!(frames.len(), 5);
     assert_eq!(frames[0].bytes.len(), 64 + 800 * 800 * 3 + 800 * 800 * 4);
 }
@@ -59,27 +67,9 @@ fn repeated_frames_are_recorded_as_deltas_and_read_back_bit_exact() {
         pattern_depth, pattern_header, pattern_of, pattern_rgb,
     };
     use activemap_schemas::RgbdFrameView;
-    let tmp = tempfile::tempdir().unwrap();
-    let out_dir = tmp.path().join("run");
-    let out = run(
-        &[
-            "run",
-            "tests/data/dataflows/good/frames_repeated.yaml",
-            "--out",
-            out_dir.to_str().unwrap(),
-        ],
-        &root(),
-        Duration::from_secs(120),
-    );
-    assert!(out.status.success(), "run failed:\n{}", out.stderr);
-    let path = out_dir.join("recording.mcap");
-    let rec = read_recording(&path).unwrap();
+    let (_tmp, path, rec) = run_recorded("tests/data/dataflows/good/frames_repeated.yaml");
     assert!(!rec.truncated);
-    let frames: Vec<_> = rec
-        .messages
-        .iter()
-        .filter(|m| m.topic == "camera/frame" && !m.bytes.is_empty())
-        .collect();
+    let frames = payloads(&rec, "camera/frame");
     assert_eq!(frames.len(), 6);
     for (k, m) in frames.iter().enumerate() {
         let id = k as u64 + 1;
@@ -110,21 +100,7 @@ fn repeated_frames_are_recorded_as_deltas_and_read_back_bit_exact() {
 
 #[test]
 fn record_then_replay_reproduces_every_output() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out_dir = tmp.path().join("run");
-    let out = run(
-        &[
-            "run",
-            "tests/data/dataflows/good/counter.yaml",
-            "--out",
-            out_dir.to_str().unwrap(),
-        ],
-        &root(),
-        Duration::from_secs(120),
-    );
-    assert!(out.status.success(), "run failed:\n{}", out.stderr);
-    let rec_path = out_dir.join("recording.mcap");
-    let rec = read_recording(&rec_path).unwrap();
+    let (_tmp, rec_path, rec) = run_recorded("tests/data/dataflows/good/counter.yaml");
     // Independent truth: the source sends 1..=20, the doubler (factor 3) answers 3·v, nothing lost.
     let sent: Vec<i64> = counters(&rec, "source/count")
         .iter()

@@ -235,16 +235,14 @@ fn search(
         g: 0.0,
         index: start_index,
     });
-    let lattice: Vec<(i32, i32)> = lattice_moves(step).to_vec();
+    let lattice = lattice_moves(step);
     // From a start inside the margin, the first moves are the escape moves.
-    let escapes: Vec<(i32, i32)> = if map.is_clear(start) {
-        lattice.clone()
-    } else {
+    let escapes: Option<Vec<(i32, i32)>> = (!map.is_clear(start)).then(|| {
         map.escape_targets(start)
             .into_iter()
             .map(|c| (c.x - start.x, c.y - start.y))
             .collect()
-    };
+    });
     let snap_reach = step as f64 * std::f64::consts::SQRT_2 + 1e-9;
     let goal_index = geom.index(goal).unwrap_or(start_index);
     let mut expansions = 0usize;
@@ -263,7 +261,10 @@ fn search(
         if expansions > config.max_expansions {
             return Ok(None);
         }
-        let moves = if cell == start { &escapes } else { &lattice };
+        let moves: &[(i32, i32)] = match &escapes {
+            Some(escapes) if cell == start => escapes,
+            _ => &lattice,
+        };
         for &(dx, dy) in moves {
             let next = cell.offset(dx, dy);
             let Some(ni) = geom.index(next) else { continue };

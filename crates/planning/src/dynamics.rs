@@ -38,6 +38,13 @@ impl Default for ActionModel {
     }
 }
 
+/// Whether a forward move of `forward_m` metres was blocked: the robot went from `from` to
+/// `to` (planar positions, metres) less than half a step. The follower judges its tracked
+/// poses with it (a bumper), the evaluator the true ones (the blocked-move count).
+pub fn forward_was_blocked(from: Point2<f64>, to: Point2<f64>, forward_m: f64) -> bool {
+    (to - from).norm() < 0.5 * forward_m
+}
+
 /// Wraps an angle to (−π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let t = std::f64::consts::TAU;
