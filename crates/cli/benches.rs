@@ -62,6 +62,11 @@ pub struct SlamArgs {
     /// Cases as RESOLUTIONxFRAMES, e.g. 200x500,400x500.
     #[arg(long, value_delimiter = ',', default_values_t = ["200x500".to_string(), "400x500".to_string()])]
     cases: Vec<String>,
+    /// The dataflow whose `tracker` and `mapper` node configs the loop runs (map lag, keyframe
+    /// interval, …); where they leave `downscale` unset, tracking runs at half resolution above
+    /// 160 px and mapping above 200 px.
+    #[arg(long, default_value = "dataflow.yaml")]
+    flow: std::path::PathBuf,
 }
 
 /// Runs the SLAM benchmark on scripted loops.
@@ -82,7 +87,28 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
             ))
         })
         .collect::<anyhow::Result<Vec<(u32, usize)>>>()?;
-    for row in activemap_slam::bench::run(&cases).context("SLAM benchmark")? {
+    let flow =
+        activemap_runtime::dataflow::Dataflow::load(&args.flow, &activemap_operators::catalog())
+            .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let (tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
+        .with_context(|| format!("{}", args.flow.display()))?;
+    let slam_for = |resolution: u32| {
+        let (track, map) = activemap_bench::slam_loop::resolution_profile(
+            resolution,
+            tracker.downscale,
+            mapper.downscale,
+        );
+        let (mut t, mut m) = (tracker.clone(), mapper.clone());
+        (t.downscale, m.downscale) = (Some(track), Some(map));
+        activemap_operators::mapper::slam_config(&t, &m)
+    };
+    println!(
+        "# SLAM of {}: tracker {:?}, mapper {:?}",
+        args.flow.display(),
+        tracker,
+        mapper
+    );
+    for row in activemap_bench::slam_bench::run(&cases, slam_for).context("SLAM benchmark")? {
         println!("{row}");
     }
     Ok(())

@@ -45,7 +45,8 @@ pub fn pose_to_wire(t: &Isometry3<f64>) -> Pose {
     }
 }
 
-/// A wire pose as an isometry; fails on a non-finite or zero quaternion.
+/// A wire pose as an isometry (renormalised unless already unit); fails on a non-finite or
+/// zero quaternion.
 pub fn pose_from_wire(p: &Pose) -> anyhow::Result<Isometry3<f64>> {
     let [x, y, z, w] = p.rotation_xyzw;
     let q = Quaternion::new(w, x, y, z);
@@ -57,9 +58,16 @@ pub fn pose_from_wire(p: &Pose) -> anyhow::Result<Isometry3<f64>> {
             && q.norm() > 1e-9,
         "pose is not finite or has a zero quaternion: {p:?}"
     );
+    // A quaternion that is unit to rounding is taken as it is, so that a pose goes through
+    // the wire bit for bit (the in-process drivers and the pipeline then agree exactly).
+    let rotation = if (q.norm_squared() - 1.0).abs() <= 4.0 * f64::EPSILON {
+        UnitQuaternion::new_unchecked(q)
+    } else {
+        UnitQuaternion::from_quaternion(q)
+    };
     Ok(Isometry3::from_parts(
         Translation3::new(p.translation[0], p.translation[1], p.translation[2]),
-        UnitQuaternion::from_quaternion(q),
+        rotation,
     ))
 }
 

@@ -1,36 +1,27 @@
-//! `tracker`: camera tracking against the latest Gaussian map (SPEC §4), wrapping
-//! `activemap_slam::track`. Never sees ground truth: the world is anchored at the start pose
-//! (floor at z = 0, [`crate::convert::start_anchor`]) and each frame is predicted from the
-//! previous estimate and the commanded action (or constant velocity).
-//!
-//! Lockstep determinism: frame k is tracked only once the map snapshot of frame k − 1 − L (the
-//! mapper publishes one per frame; L = `map_lag`, [`crate::mapper::required_snapshot`]) and the
-//! action of step k − 1 have arrived, and always against exactly that snapshot, so the result
-//! never depends on message timing. Exactly one pose estimate per frame. The dense tracker
-//! aligns to its own reference keyframes (the newest, plus older ones of the same place when
-//! the robot comes back, `activemap_slam::references`) under the ground-robot motion prior
-//! (`DenseConfig::for_ground_robot`), and needs the map only for its Lost signal, so a lag of
-//! a few frames costs little while mapping runs in the background.
+//! `tracker`: camera tracking against the latest Gaussian map (SPEC §4). A thin shell around
+//! [`activemap_slam::TrackingSession`], which holds the whole per-frame logic (prediction,
+//! lagged map snapshots, reference keyframes, lost/skipped frames; see its module doc); the
+//! in-process driver of `activemap bench slam` holds the same session. Never sees ground
+//! truth: the world is anchored at the start pose (floor at z = 0,
+//! [`crate::convert::start_anchor`]) and each frame is predicted from the previous estimate and
+//! the commanded action (or constant velocity). Exactly one pose estimate per frame.
 
-use std::collections::BTreeMap;
+use std::sync::Arc;
 
-use activemap_geometry::{Isometry3, PlanarPose, camera_pose_from_planar};
-use activemap_planning::dynamics::{Action as PlanAction, ActionModel};
+use activemap_geometry::{Action as RobotAction, Isometry3, RobotModel};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
 };
-use activemap_slam::dense::DenseReference;
 use activemap_slam::{
-    Frame, ReferenceConfig, References, TrackerConfig, TrackingStatus as SlamStatus, track,
+    Frame, MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, TrackingStatus as SlamStatus,
 };
 use activemap_splat::Gaussians;
 
 use crate::Registered;
 use crate::convert::{CAMERA_HEIGHT_M, pose_to_wire, read_map, slam_frame, start_anchor};
-use crate::mapper::required_snapshot;
 
 /// How the tracker predicts the next pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -71,7 +62,7 @@ pub struct Config {
 }
 
 fn default_rereference() -> f64 {
-    0.85
+    TrackingConfig::default().rereference_below
 }
 
 fn default_height() -> f64 {
@@ -81,183 +72,107 @@ fn default_prior() -> Prior {
     Prior::Action
 }
 
-/// `T_prev_current` of the camera for one commanded action (forward dynamics of SPEC §6).
+/// `T_prev_current` of the camera for one commanded action ([`RobotModel::camera_motion`] of
+/// a robot whose camera is `camera_height` above the floor; `Stop` does not move).
 pub fn action_motion(action: ActionKind, camera_height: f64) -> Isometry3<f64> {
-    let model = ActionModel::default();
-    let a = match action {
-        ActionKind::Forward => PlanAction::Forward,
-        ActionKind::TurnLeft => PlanAction::TurnLeft,
-        ActionKind::TurnRight => PlanAction::TurnRight,
-        ActionKind::Stop => return Isometry3::identity(),
+    let robot = RobotModel {
+        camera_height_m: camera_height,
+        ..RobotModel::default()
     };
-    let origin = PlanarPose::new(0.0, 0.0, 0.0);
-    let before = camera_pose_from_planar(&origin, 0.0, camera_height);
-    let after = camera_pose_from_planar(&model.apply(&origin, a), 0.0, camera_height);
-    before.inverse() * after
+    match action {
+        ActionKind::Forward => robot.camera_motion(RobotAction::Forward),
+        ActionKind::TurnLeft => robot.camera_motion(RobotAction::TurnLeft),
+        ActionKind::TurnRight => robot.camera_motion(RobotAction::TurnRight),
+        ActionKind::Stop => Isometry3::identity(),
+    }
 }
 
-/// The operator's state (also driven directly by tests).
+impl Config {
+    /// The tracking session's settings for this node (library defaults where unset).
+    pub fn tracking_config(&self) -> anyhow::Result<TrackingConfig> {
+        anyhow::ensure!(
+            self.camera_height.is_finite() && self.camera_height > 0.0,
+            "tracker: camera_height must be > 0"
+        );
+        let mut config = TrackingConfig {
+            rereference_below: self.rereference_below,
+            map_lag: self.map_lag,
+            initial_pose: start_anchor(self.camera_height),
+            ..TrackingConfig::default()
+        };
+        if let Some(d) = self.downscale {
+            config.tracker.downscale = d;
+        }
+        if let Some(n) = self.max_iterations {
+            config.tracker.max_iterations = n;
+        }
+        config
+            .validate()
+            .map_err(|e| anyhow::anyhow!("tracker: {e}"))?;
+        Ok(config)
+    }
+
+    /// The motion prior from one frame to the next after `action`.
+    fn motion(&self, action: ActionKind) -> MotionPrior {
+        match self.motion_prior {
+            Prior::Action => MotionPrior::Relative(action_motion(action, self.camera_height)),
+            Prior::ConstantVelocity => MotionPrior::ConstantVelocity,
+            Prior::None => MotionPrior::None,
+        }
+    }
+}
+
+/// The operator's state (also driven directly by tests): the session and the node config.
 pub struct Tracker {
     config: Config,
-    tracker: TrackerConfig,
-    /// Map snapshots by the frame they include, from the one the next frame needs on.
-    maps: BTreeMap<u64, Gaussians<f32>>,
-    frames: BTreeMap<u64, Frame>,
-    actions: BTreeMap<u64, ActionKind>,
-    next: u64,
-    pose: Isometry3<f64>,
-    velocity: Isometry3<f64>,
-    exposure: [f64; 2],
-    /// The dense tracker's reference keyframes (past tracked frames at their estimates): the
-    /// newest, and older ones aligned to again when the robot comes back to their place.
-    references: References,
+    session: TrackingSession,
 }
 
 impl Tracker {
     /// A tracker at the start anchor with an empty map.
     pub fn from_config(config: Config) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.camera_height.is_finite() && config.camera_height > 0.0,
-            "tracker: camera_height must be > 0"
-        );
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&config.rereference_below),
-            "tracker: rereference_below must be in [0, 1], got {}",
-            config.rereference_below
-        );
-        let mut tracker = TrackerConfig::default();
-        tracker.dense = tracker.dense.for_ground_robot();
-        if let Some(d) = config.downscale {
-            tracker.downscale = d;
-        }
-        if let Some(n) = config.max_iterations {
-            tracker.max_iterations = n;
-        }
-        tracker.validate()?;
         Ok(Self {
-            pose: start_anchor(config.camera_height),
+            session: TrackingSession::new(config.tracking_config()?)?,
             config,
-            tracker,
-            maps: BTreeMap::new(),
-            frames: BTreeMap::new(),
-            actions: BTreeMap::new(),
-            next: 0,
-            velocity: Isometry3::identity(),
-            exposure: [0.0, 0.0],
-            references: References::new(ReferenceConfig::default())?,
         })
     }
 
     /// Stores a map snapshot (of frame `frame_id`).
     pub fn set_map(&mut self, frame_id: u64, map: Gaussians<f32>) {
-        self.maps.insert(frame_id, map);
+        self.session.add_map(frame_id, Arc::new(map));
     }
 
     /// Stores an RGB-D frame to track.
     pub fn add_frame(&mut self, frame_id: u64, frame: Frame) {
-        self.frames.insert(frame_id, frame);
+        self.session.add_frame(frame_id, frame);
     }
 
-    /// Stores the action taken at step `step`.
+    /// Stores the action taken at step `step` (the motion from frame `step` to `step + 1`).
     pub fn add_action(&mut self, step: u64, action: ActionKind) {
-        self.actions.insert(step, action);
+        let motion = self.config.motion(action);
+        self.session.add_motion(step, motion);
     }
 
     /// Tracks every frame whose inputs are complete, in order; returns their estimates.
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<PoseEstimate>> {
-        let mut out = Vec::new();
-        while let Some(frame) = self.frames.get(&self.next) {
-            let k = self.next;
-            if k == 0 {
-                let small = frame.downscale(self.tracker.downscale);
-                self.references
-                    .push(DenseReference::new(&small, self.pose, &self.tracker.dense));
-                out.push(estimate(
-                    k,
-                    frame.stamp,
-                    &self.pose,
-                    TrackingStatus::Ok,
-                    0.0,
-                    0.0,
-                    0,
-                ));
-            } else {
-                let needed = required_snapshot(k, self.config.map_lag);
-                let Some(map) = self.maps.get(&needed) else {
-                    break;
-                };
-                let Some(&action) = self.actions.get(&(k - 1)) else {
-                    break;
-                };
-                let previous = self.pose;
-                let predicted = match self.config.motion_prior {
-                    Prior::Action => previous * action_motion(action, self.config.camera_height),
-                    Prior::ConstantVelocity => previous * self.velocity,
-                    Prior::None => previous,
-                };
-                let small = frame.downscale(self.tracker.downscale);
-                let references = self.references.select(&predicted);
-                let t = track(
-                    &self.tracker,
-                    map,
-                    &small,
-                    &predicted,
-                    self.exposure,
-                    &references,
-                )?;
-                let status = match t.status {
-                    SlamStatus::Ok => TrackingStatus::Ok,
-                    SlamStatus::Lost => TrackingStatus::Lost,
-                    SlamStatus::Skipped(_) => TrackingStatus::Skipped,
-                };
-                self.pose = t.pose;
-                if status == TrackingStatus::Ok {
-                    self.velocity = previous.inverse() * t.pose;
-                    self.exposure = t.exposure;
-                    if t.reference_overlap < self.config.rereference_below {
-                        self.references.push(DenseReference::new(
-                            &small,
-                            t.pose,
-                            &self.tracker.dense,
-                        ));
-                    }
-                }
-                out.push(estimate(
-                    k,
-                    frame.stamp,
-                    &self.pose,
-                    status,
-                    t.residuals.photometric,
-                    t.residuals.depth_median,
-                    t.iterations as u32,
-                ));
-                self.actions.remove(&(k - 1));
-                self.maps = self.maps.split_off(&needed);
-            }
-            self.frames.remove(&k);
-            self.next += 1;
-        }
-        Ok(out)
+        Ok(self.session.process_ready()?.iter().map(estimate).collect())
     }
 }
 
-fn estimate(
-    frame_id: u64,
-    stamp: f64,
-    pose: &Isometry3<f64>,
-    status: TrackingStatus,
-    residual_rgb: f64,
-    residual_depth: f64,
-    iterations: u32,
-) -> PoseEstimate {
+/// The wire estimate of a tracked frame.
+pub fn estimate(t: &TrackedFrame) -> PoseEstimate {
     PoseEstimate {
-        frame_id,
-        stamp,
-        t_world_camera: pose_to_wire(pose),
-        status,
-        residual_rgb,
-        residual_depth,
-        iterations,
+        frame_id: t.frame_id,
+        stamp: t.stamp,
+        t_world_camera: pose_to_wire(&t.pose),
+        status: match t.status {
+            SlamStatus::Ok => TrackingStatus::Ok,
+            SlamStatus::Lost => TrackingStatus::Lost,
+            SlamStatus::Skipped(_) => TrackingStatus::Skipped,
+        },
+        residual_rgb: t.residuals.photometric,
+        residual_depth: t.residuals.depth_median,
+        iterations: t.iterations as u32,
     }
 }
 
@@ -349,47 +264,5 @@ mod tests {
         );
         let r = action_motion(ActionKind::TurnRight, 0.88);
         assert!((r * l).rotation.angle() < 1e-12);
-    }
-
-    /// With map lag L = 3, frame k is tracked once the snapshot of frame k − 4 is there: with
-    /// only snapshot 0, frames 0–4 come out and frame 5 waits; snapshot 1 releases it. Each
-    /// frame is tracked exactly once, in order.
-    #[test]
-    fn tracking_waits_only_for_the_lagged_snapshot() {
-        let frames = crate::mapper::tests::sequence(6);
-        let mut tracker = Tracker::from_config(Config {
-            camera_height: CAMERA_HEIGHT_M,
-            motion_prior: Prior::None,
-            downscale: Some(1),
-            max_iterations: Some(5),
-            rereference_below: 0.85,
-            map_lag: 3,
-        })
-        .unwrap();
-        for (k, (frame, _)) in frames.iter().enumerate() {
-            tracker.add_frame(k as u64, frame.clone());
-            tracker.add_action(k as u64, ActionKind::TurnLeft);
-        }
-        assert!(
-            tracker.process_ready().unwrap().len() == 1,
-            "frame 0 needs no map"
-        );
-        tracker.set_map(0, Gaussians::new());
-        let ids: Vec<u64> = tracker
-            .process_ready()
-            .unwrap()
-            .iter()
-            .map(|e| e.frame_id)
-            .collect();
-        assert_eq!(ids, vec![1, 2, 3, 4]);
-        tracker.set_map(1, Gaussians::new());
-        let ids: Vec<u64> = tracker
-            .process_ready()
-            .unwrap()
-            .iter()
-            .map(|e| e.frame_id)
-            .collect();
-        assert_eq!(ids, vec![5]);
-        assert!(tracker.process_ready().unwrap().is_empty());
     }
 }

@@ -44,12 +44,6 @@ pub enum SlamError {
     /// The renderer refused a call.
     #[error("renderer: {0}")]
     Splat(#[from] SplatError),
-    /// A metric refused its input (scripted evaluation only).
-    #[error("evaluation: {0}")]
-    Eval(#[from] activemap_eval::EvalError),
-    /// The simulator failed (benchmark and scripted evaluation only).
-    #[error("simulator: {0}")]
-    Sim(#[from] activemap_sim::SimError),
 }
 
 impl SlamError {

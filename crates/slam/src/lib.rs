@@ -11,17 +11,20 @@
 //!   Gaussians (SPEC §5), window optimisation, pruning and densification;
 //! - [`dense`], [`references`]: dense RGB-D alignment to keyframes, and which keyframes a
 //!   frame is aligned to (the newest, plus older ones of the same place);
-//! - [`slam`]: the [`Slam`] facade, `process(frame, motion) → pose, status, keyframe, map`;
-//! - [`scripted`], [`bench`]: the scripted-loop evaluation in the simulator (ground truth only
-//!   for the metrics) and `activemap bench slam`.
+//! - [`session`]: the tracking session (prediction, lagged map snapshots, reference
+//!   keyframes, lost/skipped frames), as the `tracker` operator holds it;
+//! - [`mapping`]: the mapping session (keyframe rule, insertion, window optimisation in a
+//!   background worker, the fixed map lag), as the `mapper` operator holds it;
+//! - [`lockstep`]: [`LockstepSlam`], both sessions fed in-process frame by frame exactly as
+//!   the operators feed them (the scripted loop and `activemap bench slam` run it).
 //!
 //! ```no_run
-//! use activemap_slam::{Frame, MotionPrior, Slam, SlamConfig};
+//! use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig};
 //! # fn demo(frames: Vec<Frame>) -> Result<(), activemap_slam::SlamError> {
-//! let mut slam = Slam::new(SlamConfig::default())?;
-//! for frame in &frames {
+//! let mut slam = LockstepSlam::new(SlamConfig::default().with_map_lag(10))?;
+//! for frame in frames {
 //!     let out = slam.process(frame, MotionPrior::ConstantVelocity)?;
-//!     println!("{:?} {:?} keyframe {}", out.pose, out.status, out.map_updated);
+//!     println!("{:?} {:?}", out.pose, out.status);
 //! }
 //! # Ok(()) }
 //! ```
@@ -29,26 +32,30 @@
 // Index loops over the parallel arrays of the structure-of-arrays map read better than zips.
 #![allow(clippy::needless_range_loop)]
 
-pub mod bench;
 pub mod dense;
 pub mod error;
 pub mod frame;
 pub mod gauss_newton;
 pub mod insert;
 pub mod keyframe;
+pub mod lockstep;
 pub mod loss;
 pub mod mapper;
+pub mod mapping;
 pub mod references;
-pub mod scripted;
-pub mod slam;
+pub mod session;
 pub mod tracker;
 pub mod unknown;
 
 pub use error::SlamError;
 pub use frame::{Frame, SkipReason};
 pub use keyframe::{KeyframeConfig, KeyframeDecision};
+pub use lockstep::{LockstepSlam, SlamConfig};
 pub use mapper::{Mapper, MapperConfig, MappingReport};
+pub use mapping::{
+    BackgroundMapper, KeyframeEvent, KeyframeMapper, MappingConfig, PoseQuality, Snapshot,
+};
 pub use references::{ReferenceConfig, References};
-pub use slam::{MotionPrior, Slam, SlamConfig, SlamOutput};
+pub use session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, required_snapshot};
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};
 pub use unknown::{FrontierCell, UnknownSpaceConfig};

@@ -1,29 +1,30 @@
-//! Scripted-trajectory evaluation (issue 5): the simulator drives a fixed loop of actions
-//! through a procedural house; SLAM sees only the frames and the commanded actions (as a
-//! motion prior); the true poses go to the metrics only (SPEC §1).
+//! The scripted SLAM loop: the simulator drives a fixed loop of actions through a procedural
+//! house; SLAM sees only the frames and the commanded actions (as a motion prior); the true
+//! poses go to the metrics only (SPEC §1). SLAM runs through
+//! [`activemap_slam::LockstepSlam`], i.e. the tracking and mapping sessions the `tracker` and
+//! `mapper` operators hold, fed frame by frame in the operators' order with their map lag.
 //!
 //! The loop: laps of a rectangle inset `margin` metres inside the room the house starts in,
-//! each side `forward` steps then 18 × 5° left turns, until `frames` frames. The world is
-//! anchored at the true start pose (the robot's known origin), so the map and the truth share
-//! a frame up to drift; ATE is still reported after Umeyama alignment (SPEC §8).
+//! each side `forward` steps then 18 × 5° left turns, until `frames` frames. The SLAM world is
+//! anchored where the tracker's config anchors it (the `tracker` operator: the robot's start
+//! at the planar origin, floor at z = 0); the metrics map the true poses into that frame
+//! through the known start (a rigid transform, no fitting), and ATE is still reported after
+//! Umeyama alignment (SPEC §8).
 //! Metrics (from `activemap-eval`, SPEC §8): ATE RMSE over all frames ([`activemap_eval::ate`],
-//! Umeyama SE(3) alignment), training-view PSNR (map rendered
-//! at the estimated keyframe poses against the keyframe images), held-out PSNR (map rendered
-//! at poses never given to SLAM: every `held_out_every`-th loop pose shifted 2.5 cm forward
-//! and turned 2.5°, against the simulator's image there), tracking frames per second, mapping
-//! seconds per keyframe and the Gaussian count.
+//! Umeyama SE(3) alignment), training-view PSNR (map rendered at the estimated keyframe poses
+//! against the keyframe images), held-out PSNR (map rendered at poses never given to SLAM:
+//! every `held_out_every`-th loop pose shifted 2.5 cm forward and turned 2.5°, against the
+//! simulator's image there), tracking frames per second, mapping seconds per keyframe and the
+//! Gaussian count.
 
-use crate::error::SlamError;
-use crate::frame::Frame;
-use crate::slam::{MotionPrior, Slam, SlamConfig};
-use crate::tracker::TrackingStatus;
 use activemap_eval::{AteOptions, ImageView};
 use activemap_geometry::tum::Trajectory;
-use activemap_geometry::{Isometry3, PlanarPose, UnitQuaternion, Vector3, camera_pose_from_planar};
+use activemap_geometry::{Isometry3, PlanarPose, RobotModel, camera_pose_from_planar};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, SimConfig, Simulator};
+use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig, TrackingStatus};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
-use nalgebra::Translation3;
+use anyhow::Context as _;
 
 /// Settings of one scripted loop.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,20 +39,19 @@ pub struct LoopConfig {
     pub margin: f64,
     /// Held-out view every this many frames.
     pub held_out_every: usize,
-    /// SLAM settings.
+    /// SLAM settings (the benchmark passes the dataflow's tracker and mapper settings).
     pub slam: SlamConfig,
+    /// Keep every frame, action and estimate in the result's [`LoopTrace`] (for the
+    /// equivalence test against the operators; costs memory).
+    pub keep_trace: bool,
     /// Print one line per frame to stderr (status, iterations, keyframe, pose error against the
     /// truth in the shared start-anchored frame), for diagnosis.
     pub trace: bool,
 }
 
 impl LoopConfig {
-    /// Defaults for a resolution and length: tracking at half resolution above 160 px.
-    pub fn new(resolution: u32, frames: usize) -> Self {
-        let mut slam = SlamConfig::default();
-        slam.tracker.downscale = if resolution > 160 { 2 } else { 1 };
-        slam.mapping_downscale = if resolution > 200 { 2 } else { 1 };
-        slam.tracker.dense = slam.tracker.dense.for_ground_robot();
+    /// A loop of `frames` frames at `resolution`² with the given SLAM settings.
+    pub fn new(resolution: u32, frames: usize, slam: SlamConfig) -> Self {
         Self {
             resolution,
             frames,
@@ -59,9 +59,24 @@ impl LoopConfig {
             margin: 0.7,
             held_out_every: 10,
             slam,
+            keep_trace: false,
             trace: false,
         }
     }
+}
+
+/// The benchmark's image-size profile: where a node config leaves the resolution of tracking or
+/// mapping unset (`None`), track at half resolution above 160 px and map keyframes at half
+/// resolution above 200 px (the same `downscale` settings the operators take).
+pub fn resolution_profile(
+    resolution: u32,
+    tracking_downscale: Option<usize>,
+    mapping_downscale: Option<usize>,
+) -> (usize, usize) {
+    (
+        tracking_downscale.unwrap_or(if resolution > 160 { 2 } else { 1 }),
+        mapping_downscale.unwrap_or(if resolution > 200 { 2 } else { 1 }),
+    )
 }
 
 /// Metrics of one scripted loop.
@@ -87,23 +102,35 @@ pub struct LoopResult {
     pub lost: usize,
 }
 
-/// The commanded motion of the camera for an action, `T_prev_current` in the optical frame:
-/// forward moves along +z, a left turn rotates by −angle about the optical y axis (y points
-/// down, so that is +angle about the world's up axis).
-pub fn commanded_motion(action: Action, forward_step: f64, turn_angle: f64) -> Isometry3<f64> {
+/// What SLAM saw and estimated, frame by frame (with [`LoopConfig::keep_trace`]).
+#[derive(Debug, Clone, Default)]
+pub struct LoopTrace {
+    /// The frames, in order.
+    pub frames: Vec<Frame>,
+    /// The action taken after each frame but the last.
+    pub actions: Vec<Action>,
+    /// The estimates, one per frame.
+    pub estimates: Vec<activemap_slam::TrackedFrame>,
+    /// The final map.
+    pub map: Gaussians<f32>,
+}
+
+/// The robot model of a simulator config (its camera height, step and turn sizes).
+pub fn robot_of(config: &SimConfig) -> RobotModel {
+    RobotModel {
+        camera_height_m: config.camera_height,
+        forward_step_m: config.forward_step,
+        turn_angle_rad: config.turn_angle,
+        ..RobotModel::default()
+    }
+}
+
+/// The robot action of a simulator action.
+pub fn robot_action(action: Action) -> activemap_geometry::Action {
     match action {
-        Action::Forward => Isometry3::from_parts(
-            Translation3::new(0.0, 0.0, forward_step),
-            UnitQuaternion::identity(),
-        ),
-        Action::TurnLeft => Isometry3::from_parts(
-            Translation3::identity(),
-            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -turn_angle),
-        ),
-        Action::TurnRight => Isometry3::from_parts(
-            Translation3::identity(),
-            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), turn_angle),
-        ),
+        Action::Forward => activemap_geometry::Action::Forward,
+        Action::TurnLeft => activemap_geometry::Action::TurnLeft,
+        Action::TurnRight => activemap_geometry::Action::TurnRight,
     }
 }
 
@@ -133,11 +160,7 @@ pub fn rectangle_loop(
     (PlanarPose::new(x0, y0, 0.0), actions)
 }
 
-fn colour_psnr(
-    map: &Gaussians<f32>,
-    frame: &Frame,
-    pose: &Isometry3<f64>,
-) -> Result<f64, SlamError> {
+fn colour_psnr(map: &Gaussians<f32>, frame: &Frame, pose: &Isometry3<f64>) -> anyhow::Result<f64> {
     let camera = Camera::from_world_pose(frame.intrinsics, pose);
     let out = render(
         map,
@@ -177,69 +200,84 @@ pub fn held_out_pose(sim: &Simulator) -> Isometry3<f64> {
 }
 
 /// Runs the scripted loop and measures it (see the module doc).
-pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
+pub fn run_loop(config: &LoopConfig) -> anyhow::Result<LoopResult> {
+    Ok(run_loop_traced(config)?.0)
+}
+
+/// [`run_loop`], also returning the trace when [`LoopConfig::keep_trace`] is set.
+pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopTrace)> {
     let house = generate(config.house_seed, &HouseConfig::default())?;
-    let room = *house.start_room().ok_or_else(|| SlamError::Input {
-        what: "house",
-        reason: "no room".into(),
-    })?;
+    let room = *house.start_room().context("the house has no room")?;
     let (start, actions) = rectangle_loop(room.min, room.max, config.margin, config.frames);
     let sim_config = SimConfig {
         start: Some(start),
         ..SimConfig::with_resolution(config.resolution, config.resolution)
     };
-    let (forward, turn) = (sim_config.forward_step, sim_config.turn_angle);
+    let robot = robot_of(&sim_config);
     let mut sim = Simulator::new(house.scene, sim_config)?;
-    let mut slam_config = config.slam.clone();
-    slam_config.initial_pose = sim.true_pose();
-    let mut slam = Slam::new(slam_config)?;
+    // True poses into the SLAM frame: the true start maps onto the anchor.
+    let slam_from_true = config.slam.tracking.initial_pose * sim.true_pose().inverse();
+    let mut slam = LockstepSlam::new(config.slam.clone())?;
+    let mut trace = LoopTrace::default();
     let (mut truth, mut estimate) = (Trajectory::default(), Trajectory::default());
-    let (mut track_seconds, mut tracked, mut map_seconds, mut lost) = (0.0, 0usize, 0.0, 0usize);
+    let (mut track_seconds, mut tracked, mut lost) = (0.0, 0usize, 0usize);
     let mut held_out = Vec::new();
     for i in 0..config.frames {
         let motion = if i == 0 {
             MotionPrior::None
         } else {
             let action = actions[(i - 1).min(actions.len().saturating_sub(1))];
+            if config.keep_trace {
+                trace.actions.push(action);
+            }
             sim.step(action);
-            MotionPrior::Relative(commanded_motion(action, forward, turn))
+            MotionPrior::Relative(robot.camera_motion(robot_action(action)))
         };
         let rgbd = sim.render();
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, i as f64 * 0.1)?;
-        let out = slam.process(&frame, motion)?;
+        let stamp = frame.stamp;
+        let keyframes_before = slam.keyframe_events().len();
+        if config.keep_trace {
+            trace.frames.push(frame.clone());
+        }
+        let out = slam.process(frame, motion)?;
         if i > 0 {
-            track_seconds += out.track_seconds;
+            track_seconds += out.seconds;
             tracked += 1;
         }
-        map_seconds += out.map_seconds;
         if out.status == TrackingStatus::Lost {
             lost += 1;
         }
         if config.trace {
-            let (t, a) = activemap_geometry::se3::pose_error(&out.pose, &sim.true_pose());
+            let true_here = slam_from_true * sim.true_pose();
+            let (t, a) = activemap_geometry::se3::pose_error(&out.pose, &true_here);
             eprintln!(
-                "frame {i:4} {:?} it {:2} kf {} track {:.3}s map {:.2}s err {:.2} cm {:.2}° truth {:.3?} est {:.3?} {:?}",
+                "frame {i:4} {:?} it {:2} keyframes done {} track {:.3}s err {:.2} cm {:.2}° truth {:.3?} est {:.3?} {:?}",
                 out.status,
                 out.iterations,
-                out.map_updated,
-                out.track_seconds,
-                out.map_seconds,
+                slam.keyframe_events().len() - keyframes_before,
+                out.seconds,
                 t * 100.0,
                 a.to_degrees(),
-                sim.true_pose().translation.vector.as_slice(),
+                true_here.translation.vector.as_slice(),
                 out.pose.translation.vector.as_slice(),
                 out.residuals
             );
         }
-        truth.push(frame.stamp, sim.true_pose());
-        estimate.push(frame.stamp, out.pose);
+        truth.push(stamp, sim.true_pose());
+        estimate.push(stamp, out.pose);
         if i % config.held_out_every.max(1) == config.held_out_every / 2 {
             held_out.push(held_out_pose(&sim));
         }
+        if config.keep_trace {
+            trace.estimates.push(out);
+        }
     }
+    let (mapping, events) = slam.finish()?;
+    let map_seconds: f64 = events.iter().map(|(_, e)| e.seconds).sum();
     let ate_rmse = activemap_eval::ate(&truth, &estimate, AteOptions::default())?.rmse;
-    let map = slam.map();
-    let keyframes = slam.mapper().keyframes();
+    let map = mapping.map();
+    let keyframes = mapping.mapper().keyframes();
     let mut train = Vec::new();
     for kf in keyframes {
         train.push(colour_psnr(map, &kf.frame, &kf.pose)?);
@@ -248,7 +286,7 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
     for pose in &held_out {
         let rgbd = sim.render_at(pose);
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, 0.0)?;
-        test.push(colour_psnr(map, &frame, pose)?);
+        test.push(colour_psnr(map, &frame, &(slam_from_true * pose))?);
     }
     let mean = |v: &[f64]| {
         if v.is_empty() {
@@ -257,7 +295,10 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
             v.iter().sum::<f64>() / v.len() as f64
         }
     };
-    Ok(LoopResult {
+    if config.keep_trace {
+        trace.map = map.clone();
+    }
+    let result = LoopResult {
         frames: config.frames,
         ate_cm: ate_rmse * 100.0,
         psnr_train: mean(&train),
@@ -271,7 +312,8 @@ pub fn run_loop(config: &LoopConfig) -> Result<LoopResult, SlamError> {
         gaussians: map.len(),
         keyframes: keyframes.len(),
         lost,
-    })
+    };
+    Ok((result, trace))
 }
 
 /// The value of environment variable `name` parsed as `T`, else `default`: the knobs of the

@@ -1,8 +1,9 @@
-//! `activemap bench slam`: the scripted loop of [`crate::scripted`] over 500 frames at 200×200
-//! and 400×400, one row per case.
+//! `activemap bench slam`: the scripted loop of [`crate::slam_loop`] over 500 frames at 200×200
+//! and 400×400, one row per case, with the SLAM settings of the dataflow's `tracker` and
+//! `mapper` nodes (the caller builds them, see `activemap bench slam --flow`).
 
-use crate::error::SlamError;
-use crate::scripted::{LoopConfig, LoopResult, run_loop};
+use crate::slam_loop::{LoopConfig, LoopResult, run_loop};
+use activemap_slam::SlamConfig;
 
 /// One benchmark case and its metrics.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,12 +35,16 @@ impl std::fmt::Display for BenchRow {
     }
 }
 
-/// Runs the loop for each `(resolution, frames)` case (issue 5: `[(200, 500), (400, 500)]`).
-pub fn run(cases: &[(u32, usize)]) -> Result<Vec<BenchRow>, SlamError> {
+/// Runs the loop for each `(resolution, frames)` case (issue 5: `[(200, 500), (400, 500)]`)
+/// with the SLAM settings `slam_for(resolution)` gives.
+pub fn run(
+    cases: &[(u32, usize)],
+    slam_for: impl Fn(u32) -> anyhow::Result<SlamConfig>,
+) -> anyhow::Result<Vec<BenchRow>> {
     cases
         .iter()
         .map(|&(resolution, frames)| {
-            let result = run_loop(&LoopConfig::new(resolution, frames))?;
+            let result = run_loop(&LoopConfig::new(resolution, frames, slam_for(resolution)?))?;
             Ok(BenchRow {
                 case: format!("loop{frames}_{resolution}"),
                 result,

@@ -1,21 +1,21 @@
 //! Mapping quality, independent of tracking (issue 5, mapper half).
 //!
-//! The procedural house (seed 3) and the rectangle loop of `activemap_slam::scripted` are
-//! rendered by the simulator; the [`Mapper`] receives keyframes at their TRUE poses (like the
-//! ICL test that maps frames with their given poses). The tracker is never run: this measures
-//! the mapper alone. Keyframes are chosen by the keyframe rule of `activemap_slam::keyframe`
-//! applied to the true poses (the visible set is the map's projected set at the frame's pose,
-//! as in `Slam`). Metrics: held-out PSNR at poses never mapped (every 10th loop pose shifted
-//! 2.5 cm forward and turned 2.5°, as in `scripted.rs`), training PSNR at the keyframes, the
+//! The procedural house (seed 3) and the rectangle loop of `activemap_bench::slam_loop` are
+//! rendered by the simulator; the mapping session's [`KeyframeMapper`] (the keyframe rule and
+//! the mapper the `mapper` operator runs) receives every frame at its TRUE pose (like the ICL
+//! test that maps frames with their given poses). The tracker is never run: this measures the
+//! mapper alone. Metrics: held-out PSNR at poses never mapped (every 10th loop pose shifted
+//! 2.5 cm forward and turned 2.5°, as in `slam_loop.rs`), training PSNR at the keyframes, the
 //! median depth residual `|D̂/o − D|` over covered keyframe pixels, the Gaussian count and the
 //! mapping wall time per keyframe.
 
+use activemap_bench::slam_loop::{env_or, held_out_pose, rectangle_loop};
 use activemap_geometry::Isometry3;
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{SimConfig, Simulator};
-use activemap_slam::keyframe::decide;
-use activemap_slam::scripted::{env_or, held_out_pose, rectangle_loop};
-use activemap_slam::{Frame, KeyframeConfig, Mapper, MapperConfig};
+use activemap_slam::{
+    Frame, KeyframeConfig, KeyframeMapper, MapperConfig, MappingConfig, PoseQuality,
+};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, Render, RenderOptions, render};
 use std::time::Instant;
 
@@ -92,11 +92,14 @@ fn run(config: &QualityConfig) -> QualityResult {
         ..SimConfig::with_resolution(config.resolution, config.resolution)
     };
     let mut sim = Simulator::new(house.scene, sim_config).expect("simulator");
-    let mut mapper = Mapper::new(config.mapper.clone()).expect("mapper");
+    let mut mapper = KeyframeMapper::new(MappingConfig {
+        mapper: config.mapper.clone(),
+        keyframe: config.keyframe.clone(),
+        ..MappingConfig::default()
+    })
+    .expect("mapper");
     let mut map_seconds = 0.0;
     let mut cpu_seconds = 0.0;
-    let mut last: Option<(Isometry3<f64>, f64, Vec<u64>)> = None;
-    let mut frames_since = 0usize;
     let mut held_out = Vec::new();
     let mut frames = 0;
     let mut totals = [0usize; 3];
@@ -110,43 +113,24 @@ fn run(config: &QualityConfig) -> QualityResult {
         if i % 10 == 5 {
             held_out.push(held_out_pose(&sim));
         }
-        frames_since += 1;
-        let is_keyframe = match &last {
-            None => true,
-            Some((last_pose, last_depth, last_visible)) => {
-                let visible = visible_ids(&mapper, &frame, &pose);
-                decide(
-                    &config.keyframe,
-                    &pose,
-                    last_pose,
-                    *last_depth,
-                    &visible,
-                    last_visible,
-                    frames_since,
-                )
-                .is_keyframe
-            }
-        };
-        if !is_keyframe {
-            continue;
-        }
-        let median_depth = frame.median_depth().unwrap_or(1.0);
         let t = Instant::now();
         let cpu_start = process_cpu_seconds();
-        let report = mapper
-            .add_keyframe(frame.clone(), pose, [0.0, 0.0])
-            .expect("mapping");
+        let Some(report) = mapper
+            .process(frame, &pose, PoseQuality::Ok)
+            .expect("mapping")
+        else {
+            continue;
+        };
         totals[0] += report.inserted;
         totals[1] += report.pruned;
         totals[2] += report.densified;
         map_seconds += t.elapsed().as_secs_f64();
         cpu_seconds += process_cpu_seconds() - cpu_start;
-        last = Some((pose, median_depth, visible_ids(&mapper, &frame, &pose)));
-        frames_since = 0;
-        if mapper.keyframes().len() >= config.max_keyframes {
+        if mapper.keyframes() >= config.max_keyframes {
             break;
         }
     }
+    let mapper = mapper.mapper();
     let map = mapper.map();
     let mut train = Vec::new();
     let mut residuals = Vec::new();
@@ -201,21 +185,7 @@ fn process_cpu_seconds() -> f64 {
     }
 }
 
-/// Sorted ids of the Gaussians the map projects into `frame` at `pose`.
-fn visible_ids(mapper: &Mapper, frame: &Frame, pose: &Isometry3<f64>) -> Vec<u64> {
-    let r = render_clean(mapper.map(), frame, pose);
-    let mut ids: Vec<u64> = mapper
-        .ids()
-        .iter()
-        .zip(&r.context.visible)
-        .filter(|(_, v)| **v)
-        .map(|(id, _)| *id)
-        .collect();
-    ids.sort_unstable();
-    ids
-}
-
-/// Development driver: `RES=160 FRAMES=120 cargo test -p activemap-slam --test
+/// Development driver: `RES=160 FRAMES=120 cargo test -p activemap-bench --test
 /// mapping_quality -- --ignored --nocapture`.
 #[test]
 #[ignore = "development driver; run with --ignored --nocapture"]

@@ -1,0 +1,472 @@
+//! The mapping session (SPEC §4): the keyframe rule and the Gaussian mapper, run frame by
+//! frame in a background worker with a fixed map lag. The `mapper` operator holds a
+//! [`BackgroundMapper`] and only wires messages; the in-process driver
+//! [`crate::lockstep::LockstepSlam`] holds the very same type.
+//!
+//! Each frame is paired with the tracker's estimate of the same frame and goes, in order, to a
+//! worker thread that decides keyframes ([`KeyframeMapper`]) and optimises the map while the
+//! loop goes on. After each frame j the worker hands back the snapshot "every frame ≤ j
+//! mapped" ([`Snapshot`]). The consumers (tracker, occupancy) use, for frame k, exactly the
+//! snapshot of frame [`required_snapshot`]`(k, L)` = k − 1 − L, so a run stays deterministic
+//! (the snapshot's content depends only on frames ≤ k − 1 − L, never on timing) while mapping
+//! overlaps the next L + 1 steps. When frame k has arrived, [`BackgroundMapper::process_ready`]
+//! waits until snapshot k − 1 − L is out, which is what the loop waits for anyway.
+//!
+//! Lost frames are not mapped (a frame the map cannot explain must not corrupt it), except
+//! that after `remap_after_lost` consecutive lost frames the frame is mapped at the tracker's
+//! pose, so the system cannot stay lost forever where the map has a hole.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use activemap_geometry::Isometry3;
+use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
+
+use crate::error::SlamError;
+use crate::frame::Frame;
+use crate::keyframe::{KeyframeConfig, decide};
+use crate::mapper::{Mapper, MapperConfig, MappingReport};
+use crate::session::required_snapshot;
+use crate::tracker::{TrackerConfig, TrackingStatus};
+
+/// Settings of the mapping session.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MappingConfig {
+    /// The window optimisation, insertion, pruning and densification.
+    pub mapper: MapperConfig,
+    /// The keyframe rule.
+    pub keyframe: KeyframeConfig,
+    /// Keyframes are stored and optimised at `1/downscale` resolution (1 = full).
+    pub downscale: usize,
+    /// The co-visibility of the keyframe rule is rendered at `1/visibility_downscale`.
+    pub visibility_downscale: usize,
+    /// After this many consecutive `Lost` frames the current one is mapped anyway at the
+    /// tracker's pose; 0 = never.
+    pub remap_after_lost: usize,
+    /// Map lag L in frames (see the module doc); must equal the tracker's and the occupancy's.
+    pub map_lag: u64,
+}
+
+impl Default for MappingConfig {
+    fn default() -> Self {
+        Self {
+            mapper: MapperConfig::default(),
+            keyframe: KeyframeConfig::default(),
+            downscale: 1,
+            visibility_downscale: TrackerConfig::default().downscale,
+            remap_after_lost: 5,
+            map_lag: 0,
+        }
+    }
+}
+
+impl MappingConfig {
+    /// Checks ranges; names the offending field.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        self.mapper.validate()?;
+        let k = &self.keyframe;
+        if !(1..=k.max_interval).contains(&k.min_interval) {
+            return Err(SlamError::Config {
+                field: "keyframe.min_interval",
+                value: k.min_interval.to_string(),
+                reason: "must be in 1..=keyframe.max_interval",
+            });
+        }
+        for (field, v) in [
+            ("downscale", self.downscale),
+            ("visibility_downscale", self.visibility_downscale),
+        ] {
+            if v == 0 {
+                return Err(SlamError::Config {
+                    field,
+                    value: "0".into(),
+                    reason: "must be ≥ 1",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How the tracker judged the pose a frame is mapped at (all the mapper needs of its status).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoseQuality {
+    /// Tracked: the map explains the frame.
+    Ok,
+    /// Lost: the map does not explain the frame at the estimate.
+    Lost,
+    /// Skipped: the frame was unusable (black, no depth, NaN).
+    Skipped,
+}
+
+impl From<TrackingStatus> for PoseQuality {
+    fn from(s: TrackingStatus) -> Self {
+        match s {
+            TrackingStatus::Ok => Self::Ok,
+            TrackingStatus::Lost => Self::Lost,
+            TrackingStatus::Skipped(_) => Self::Skipped,
+        }
+    }
+}
+
+/// What the keyframe rule needs to remember of the last keyframe.
+#[derive(Debug, Clone)]
+struct LastKeyframe {
+    pose: Isometry3<f64>,
+    median_depth: f64,
+    visible: Vec<u64>,
+}
+
+/// The keyframe rule and the Gaussian mapper, frame by frame (what the worker thread runs).
+#[derive(Debug)]
+pub struct KeyframeMapper {
+    config: MappingConfig,
+    mapper: Mapper,
+    last: Option<LastKeyframe>,
+    frames_since: usize,
+    consecutive_lost: usize,
+    keyframes: usize,
+}
+
+impl KeyframeMapper {
+    /// An empty map.
+    pub fn new(config: MappingConfig) -> Result<Self, SlamError> {
+        config.validate()?;
+        Ok(Self {
+            mapper: Mapper::new(config.mapper.clone())?,
+            config,
+            last: None,
+            frames_since: 0,
+            consecutive_lost: 0,
+            keyframes: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &MappingConfig {
+        &self.config
+    }
+
+    /// The current map.
+    pub fn map(&self) -> &Gaussians<f32> {
+        self.mapper.map()
+    }
+
+    /// The underlying mapper (keyframes, ids).
+    pub fn mapper(&self) -> &Mapper {
+        &self.mapper
+    }
+
+    /// Keyframes mapped so far.
+    pub fn keyframes(&self) -> usize {
+        self.keyframes
+    }
+
+    /// Ids of the map Gaussians visible from `pose` (unknown-space ones excluded), sorted.
+    fn visible_ids(&self, frame: &Frame, pose: &Isometry3<f64>) -> Result<Vec<u64>, SlamError> {
+        let small = frame.downscale(self.config.visibility_downscale);
+        let camera = Camera::from_world_pose(small.intrinsics, pose);
+        let options = RenderOptions {
+            exposure: [0.0, 0.0],
+            exclude_flags: FLAG_UNKNOWN_SPACE,
+        };
+        let rendered = render(self.mapper.map(), &camera, &options)?;
+        let mut ids: Vec<u64> = self
+            .mapper
+            .ids()
+            .iter()
+            .zip(&rendered.context.visible)
+            .filter(|(_, v)| **v)
+            .map(|(id, _)| *id)
+            .collect();
+        ids.sort_unstable();
+        Ok(ids)
+    }
+
+    /// Maps one frame at its estimate when it is a keyframe (see the module doc); returns what
+    /// the mapping did, `None` when the map is unchanged.
+    pub fn process(
+        &mut self,
+        frame: Frame,
+        pose: &Isometry3<f64>,
+        quality: PoseQuality,
+    ) -> Result<Option<MappingReport>, SlamError> {
+        self.frames_since += 1;
+        let is_keyframe = match quality {
+            PoseQuality::Skipped => false,
+            PoseQuality::Lost => {
+                self.consecutive_lost += 1;
+                let remap = self.config.remap_after_lost;
+                remap > 0 && self.consecutive_lost >= remap && frame.usability().is_ok()
+            }
+            PoseQuality::Ok => {
+                self.consecutive_lost = 0;
+                match &self.last {
+                    None => frame.usability().is_ok(),
+                    Some(last) => {
+                        let visible = self.visible_ids(&frame, pose)?;
+                        decide(
+                            &self.config.keyframe,
+                            pose,
+                            &last.pose,
+                            last.median_depth,
+                            &visible,
+                            &last.visible,
+                            self.frames_since,
+                        )
+                        .is_keyframe
+                    }
+                }
+            }
+        };
+        if !is_keyframe {
+            return Ok(None);
+        }
+        self.consecutive_lost = 0;
+        let median_depth = frame.median_depth().unwrap_or(1.0);
+        let map_frame = frame.downscale(self.config.downscale);
+        let report = self.mapper.add_keyframe(map_frame, *pose, [0.0, 0.0])?;
+        let visible = self.visible_ids(&frame, pose)?;
+        self.last = Some(LastKeyframe {
+            pose: *pose,
+            median_depth,
+            visible,
+        });
+        self.frames_since = 0;
+        self.keyframes += 1;
+        Ok(Some(report))
+    }
+}
+
+/// What mapping one frame did, when it was a keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeyframeEvent {
+    /// The keyframe's number (1 = the first).
+    pub keyframe: usize,
+    /// The mapper's summary.
+    pub report: MappingReport,
+    /// Wall time of mapping it, seconds (reporting only).
+    pub seconds: f64,
+}
+
+/// The map after every frame ≤ `frame_id` was mapped.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// The last frame the snapshot includes.
+    pub frame_id: u64,
+    /// That frame's timestamp.
+    pub stamp: f64,
+    /// The map (shared between snapshots while no keyframe changes it).
+    pub map: Arc<Gaussians<f32>>,
+    /// Set when frame `frame_id` became a keyframe.
+    pub keyframe: Option<KeyframeEvent>,
+}
+
+struct Job {
+    frame_id: u64,
+    stamp: f64,
+    frame: Frame,
+    pose: Isometry3<f64>,
+    quality: PoseQuality,
+}
+
+/// The background mapping thread: frames in, snapshots out, both in frame order.
+struct Worker {
+    jobs: Option<Sender<Job>>,
+    snapshots: Receiver<Result<Snapshot, SlamError>>,
+    handle: Option<JoinHandle<KeyframeMapper>>,
+}
+
+impl Worker {
+    fn spawn(mut core: KeyframeMapper) -> Result<Self, SlamError> {
+        let (job_tx, job_rx) = channel::<Job>();
+        let (snap_tx, snap_rx) = channel();
+        let handle = std::thread::Builder::new()
+            .name("mapper-worker".into())
+            .spawn(move || {
+                let mut current = Arc::new(core.map().clone());
+                while let Ok(job) = job_rx.recv() {
+                    let started = Instant::now();
+                    let result = core
+                        .process(job.frame, &job.pose, job.quality)
+                        .map(|report| {
+                            let keyframe = report.map(|report| {
+                                current = Arc::new(core.map().clone());
+                                KeyframeEvent {
+                                    keyframe: core.keyframes(),
+                                    report,
+                                    seconds: started.elapsed().as_secs_f64(),
+                                }
+                            });
+                            Snapshot {
+                                frame_id: job.frame_id,
+                                stamp: job.stamp,
+                                map: current.clone(),
+                                keyframe,
+                            }
+                        });
+                    let failed = result.is_err();
+                    if snap_tx.send(result).is_err() || failed {
+                        break;
+                    }
+                }
+                core
+            })
+            .map_err(|e| SlamError::Input {
+                what: "mapping worker",
+                reason: format!("cannot start the thread: {e}"),
+            })?;
+        Ok(Self {
+            jobs: Some(job_tx),
+            snapshots: snap_rx,
+            handle: Some(handle),
+        })
+    }
+
+    fn stopped() -> SlamError {
+        SlamError::Input {
+            what: "mapping worker",
+            reason: "the worker thread stopped unexpectedly".into(),
+        }
+    }
+
+    fn submit(&self, job: Job) -> Result<(), SlamError> {
+        self.jobs
+            .as_ref()
+            .and_then(|tx| tx.send(job).ok())
+            .ok_or_else(Self::stopped)
+    }
+
+    /// The next finished snapshot; waits for it when `block`.
+    fn next(&self, block: bool) -> Result<Option<Snapshot>, SlamError> {
+        let got = if block {
+            self.snapshots
+                .recv()
+                .map_err(|_| TryRecvError::Disconnected)
+        } else {
+            self.snapshots.try_recv()
+        };
+        match got {
+            Ok(result) => result.map(Some),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(Self::stopped()),
+        }
+    }
+
+    /// Stops the thread after the submitted jobs and returns its mapper.
+    fn finish(mut self) -> Result<KeyframeMapper, SlamError> {
+        self.jobs = None;
+        let handle = self.handle.take().expect("joined once");
+        handle.join().map_err(|_| SlamError::Input {
+            what: "mapping worker",
+            reason: "the worker thread panicked".into(),
+        })
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// The mapping session (see the module doc): pairs frames with their estimates, feeds the
+/// worker in frame order and hands out the snapshots it finishes.
+pub struct BackgroundMapper {
+    lag: u64,
+    worker: Worker,
+    frames: BTreeMap<u64, Frame>,
+    poses: BTreeMap<u64, (f64, Isometry3<f64>, PoseQuality)>,
+    next_submit: u64,
+    /// Newest frame id seen.
+    newest_frame: Option<u64>,
+    /// Frames handed out as snapshots so far (the next snapshot is of frame `published`).
+    published: u64,
+}
+
+impl BackgroundMapper {
+    /// An empty map and a running worker.
+    pub fn new(config: MappingConfig) -> Result<Self, SlamError> {
+        let lag = config.map_lag;
+        Ok(Self {
+            lag,
+            worker: Worker::spawn(KeyframeMapper::new(config)?)?,
+            frames: BTreeMap::new(),
+            poses: BTreeMap::new(),
+            next_submit: 0,
+            newest_frame: None,
+            published: 0,
+        })
+    }
+
+    /// Stores an RGB-D frame.
+    pub fn add_frame(&mut self, frame_id: u64, frame: Frame) {
+        self.newest_frame = Some(self.newest_frame.map_or(frame_id, |n| n.max(frame_id)));
+        self.frames.insert(frame_id, frame);
+    }
+
+    /// Stores the tracker's estimate of frame `frame_id` (taken at `stamp`).
+    pub fn add_pose(
+        &mut self,
+        frame_id: u64,
+        stamp: f64,
+        pose: Isometry3<f64>,
+        quality: PoseQuality,
+    ) {
+        self.poses.insert(frame_id, (stamp, pose, quality));
+    }
+
+    /// Hands every frame whose estimate has arrived to the worker (in order), then returns the
+    /// snapshots finished so far. It waits for the worker only as far as the loop needs: the
+    /// snapshot of frame k − 1 − L once frame k arrived (or every submitted frame when `drain`).
+    pub fn process_ready(&mut self, drain: bool) -> Result<Vec<Snapshot>, SlamError> {
+        while self.frames.contains_key(&self.next_submit)
+            && self.poses.contains_key(&self.next_submit)
+        {
+            let k = self.next_submit;
+            let frame = self.frames.remove(&k).expect("present");
+            let (stamp, pose, quality) = self.poses.remove(&k).expect("present");
+            self.worker.submit(Job {
+                frame_id: k,
+                stamp,
+                frame,
+                pose,
+                quality,
+            })?;
+            self.next_submit += 1;
+        }
+        let needed = self
+            .newest_frame
+            .map(|k| required_snapshot(k, self.lag) + 1)
+            .unwrap_or(0);
+        let wait_until = if drain {
+            self.next_submit
+        } else {
+            needed.min(self.next_submit)
+        };
+        let mut out = Vec::new();
+        loop {
+            let block = self.published < wait_until;
+            match self.worker.next(block)? {
+                Some(s) => {
+                    self.published = s.frame_id + 1;
+                    out.push(s);
+                }
+                None => break,
+            }
+        }
+        Ok(out)
+    }
+
+    /// Maps what was submitted, stops the worker and returns the keyframe mapper (the final
+    /// map and keyframes, for evaluation). Snapshots not yet collected are dropped.
+    pub fn finish(self) -> Result<KeyframeMapper, SlamError> {
+        self.worker.finish()
+    }
+}

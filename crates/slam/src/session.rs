@@ -1,0 +1,394 @@
+//! The tracking session (SPEC §4): the per-frame tracking logic that the `tracker` operator
+//! holds and that the in-process driver [`crate::lockstep::LockstepSlam`] (the scripted loop,
+//! `activemap bench slam`) feeds in exactly the same way.
+//!
+//! Lockstep determinism: frame k is tracked only once the map snapshot of frame
+//! [`required_snapshot`]`(k, L)` = k − 1 − L (L = `map_lag`) and the motion prior from frame
+//! k − 1 to k have arrived, and always against exactly that snapshot, so the result never
+//! depends on message timing. Exactly one estimate per frame, in frame order.
+//!
+//! Prediction: previous pose, constant velocity, or the commanded relative motion (never
+//! ground truth). The first usable frame anchors the world at `TrackingConfig::initial_pose`
+//! and becomes the first reference keyframe of the dense tracker; unusable frames before it
+//! are `Skipped` at the prediction. After that, each frame is aligned to the newest reference
+//! and to older ones of the same place (`crate::references`) under the ground-robot motion
+//! prior, and becomes the new reference once its overlap with the current one falls below
+//! `rereference_below`. The map is needed only for the `Lost` signal, so a lag of a few frames
+//! costs little. `Lost` and `Skipped` frames keep the tracker's pose but update neither the
+//! velocity, the exposure nor the references.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+use activemap_geometry::Isometry3;
+use activemap_splat::Gaussians;
+
+use crate::dense::DenseReference;
+use crate::error::SlamError;
+use crate::frame::Frame;
+use crate::loss::Residuals;
+use crate::references::{ReferenceConfig, References};
+use crate::tracker::{TrackerConfig, TrackingStatus, track};
+
+/// The map snapshot frame `k` is tracked and gridded against under map lag `lag`:
+/// k − 1 − L, clamped at frame 0 (the first frames all use the first snapshot).
+pub fn required_snapshot(k: u64, lag: u64) -> u64 {
+    k.saturating_sub(1 + lag)
+}
+
+/// The motion prediction that seeds tracking of a frame from the previous one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MotionPrior {
+    /// Start from the previous pose.
+    None,
+    /// Repeat the last frame-to-frame motion.
+    ConstantVelocity,
+    /// The commanded motion of the camera since the previous frame, `T_prev_current` (camera
+    /// frame), e.g. from the action sent to the robot. Not ground truth: collisions make it wrong.
+    Relative(Isometry3<f64>),
+}
+
+/// Settings of a [`TrackingSession`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackingConfig {
+    /// The tracker (the default aligns densely under the ground-robot motion prior,
+    /// `DenseConfig::for_ground_robot`).
+    pub tracker: TrackerConfig,
+    /// Which reference keyframes each frame is aligned to.
+    pub references: ReferenceConfig,
+    /// A tracked frame becomes the newest reference once its overlap with the current
+    /// references falls below this fraction.
+    pub rereference_below: f64,
+    /// Map lag L in frames: frame k is tracked against the snapshot of frame k − 1 − L.
+    pub map_lag: u64,
+    /// `T_world_camera` of the first usable frame (the world is anchored there).
+    pub initial_pose: Isometry3<f64>,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        let mut tracker = TrackerConfig::default();
+        tracker.dense = tracker.dense.for_ground_robot();
+        Self {
+            tracker,
+            references: ReferenceConfig::default(),
+            rereference_below: 0.85,
+            map_lag: 0,
+            initial_pose: Isometry3::identity(),
+        }
+    }
+}
+
+impl TrackingConfig {
+    /// Checks ranges; names the offending field.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        self.tracker.validate()?;
+        self.references.validate()?;
+        if !(0.0..=1.0).contains(&self.rereference_below) {
+            return Err(SlamError::Config {
+                field: "rereference_below",
+                value: self.rereference_below.to_string(),
+                reason: "must be in [0, 1]",
+            });
+        }
+        if !finite_pose(&self.initial_pose) {
+            return Err(SlamError::Input {
+                what: "initial_pose",
+                reason: "not finite".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The estimate of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackedFrame {
+    /// The frame's id (its index in the sequence).
+    pub frame_id: u64,
+    /// The frame's timestamp, seconds.
+    pub stamp: f64,
+    /// Estimated `T_world_camera`.
+    pub pose: Isometry3<f64>,
+    /// Ok / lost / skipped.
+    pub status: TrackingStatus,
+    /// Residuals behind the status (zero for the anchor frame).
+    pub residuals: Residuals,
+    /// Tracking iterations (0 for the anchor frame).
+    pub iterations: usize,
+    /// Wall time of tracking this frame, seconds (reporting only; never affects a result).
+    pub seconds: f64,
+}
+
+/// Whether every component of a pose is finite.
+pub(crate) fn finite_pose(p: &Isometry3<f64>) -> bool {
+    p.translation
+        .vector
+        .iter()
+        .chain(p.rotation.coords.iter())
+        .all(|v| v.is_finite())
+}
+
+/// The tracking session (see the module doc): buffers frames, motions and map snapshots by
+/// frame id and tracks every frame whose inputs are complete, in order.
+#[derive(Debug)]
+pub struct TrackingSession {
+    config: TrackingConfig,
+    /// Map snapshots by the frame they include, from the one the next frame needs on.
+    maps: BTreeMap<u64, Arc<Gaussians<f32>>>,
+    frames: BTreeMap<u64, Frame>,
+    /// The motion from frame k to k + 1, by k.
+    motions: BTreeMap<u64, MotionPrior>,
+    next: u64,
+    pose: Isometry3<f64>,
+    velocity: Isometry3<f64>,
+    exposure: [f64; 2],
+    /// The dense tracker's reference keyframes (past tracked frames at their estimates); empty
+    /// until the world is anchored.
+    references: References,
+}
+
+impl TrackingSession {
+    /// A session at the initial pose, not anchored yet.
+    pub fn new(config: TrackingConfig) -> Result<Self, SlamError> {
+        config.validate()?;
+        Ok(Self {
+            references: References::new(config.references.clone())?,
+            pose: config.initial_pose,
+            config,
+            maps: BTreeMap::new(),
+            frames: BTreeMap::new(),
+            motions: BTreeMap::new(),
+            next: 0,
+            velocity: Isometry3::identity(),
+            exposure: [0.0, 0.0],
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &TrackingConfig {
+        &self.config
+    }
+
+    /// The latest estimate (the initial pose before the first frame).
+    pub fn pose(&self) -> Isometry3<f64> {
+        self.pose
+    }
+
+    /// The id of the next frame to track.
+    pub fn next_frame(&self) -> u64 {
+        self.next
+    }
+
+    /// The reference keyframes kept so far.
+    pub fn references(&self) -> &References {
+        &self.references
+    }
+
+    /// Stores an RGB-D frame to track.
+    pub fn add_frame(&mut self, frame_id: u64, frame: Frame) {
+        self.frames.insert(frame_id, frame);
+    }
+
+    /// Stores the map snapshot that includes every frame ≤ `frame_id`.
+    pub fn add_map(&mut self, frame_id: u64, map: Arc<Gaussians<f32>>) {
+        self.maps.insert(frame_id, map);
+    }
+
+    /// Stores the motion prior from frame `step` to frame `step + 1`.
+    pub fn add_motion(&mut self, step: u64, motion: MotionPrior) {
+        self.motions.insert(step, motion);
+    }
+
+    fn predict(&self, motion: &MotionPrior) -> Result<Isometry3<f64>, SlamError> {
+        Ok(match motion {
+            MotionPrior::None => self.pose,
+            MotionPrior::ConstantVelocity => self.pose * self.velocity,
+            MotionPrior::Relative(delta) => {
+                if !finite_pose(delta) {
+                    return Err(SlamError::Input {
+                        what: "relative motion prior",
+                        reason: "not finite".into(),
+                    });
+                }
+                self.pose * delta
+            }
+        })
+    }
+
+    /// Tracks every frame whose inputs are complete, in order; returns their estimates.
+    pub fn process_ready(&mut self) -> Result<Vec<TrackedFrame>, SlamError> {
+        let mut out = Vec::new();
+        while let Some(frame) = self.frames.get(&self.next) {
+            let k = self.next;
+            let motion = if k == 0 {
+                MotionPrior::None
+            } else {
+                match self.motions.get(&(k - 1)) {
+                    Some(m) => *m,
+                    None => break,
+                }
+            };
+            let needed = required_snapshot(k, self.config.map_lag);
+            let anchored = !self.references.is_empty();
+            let map = if anchored {
+                match self.maps.get(&needed) {
+                    Some(m) => Some(m.clone()),
+                    None => break,
+                }
+            } else {
+                None
+            };
+            let predicted = self.predict(&motion)?;
+            let start = Instant::now();
+            let small = frame.downscale(self.config.tracker.downscale);
+            let mut estimate = TrackedFrame {
+                frame_id: k,
+                stamp: frame.stamp,
+                pose: predicted,
+                status: TrackingStatus::Ok,
+                residuals: Residuals::default(),
+                iterations: 0,
+                seconds: 0.0,
+            };
+            match map {
+                None => match frame.usability() {
+                    // Anchor the world at the first usable frame.
+                    Ok(()) => self.references.push(DenseReference::new(
+                        &small,
+                        predicted,
+                        &self.config.tracker.dense,
+                    )),
+                    Err(reason) => estimate.status = TrackingStatus::Skipped(reason),
+                },
+                Some(map) => {
+                    let references = self.references.select(&predicted);
+                    let t = track(
+                        &self.config.tracker,
+                        &map,
+                        &small,
+                        &predicted,
+                        self.exposure,
+                        &references,
+                    )?;
+                    if t.status == TrackingStatus::Ok {
+                        self.velocity = self.pose.inverse() * t.pose;
+                        self.exposure = t.exposure;
+                        if t.reference_overlap < self.config.rereference_below {
+                            self.references.push(DenseReference::new(
+                                &small,
+                                t.pose,
+                                &self.config.tracker.dense,
+                            ));
+                        }
+                    }
+                    estimate.pose = t.pose;
+                    estimate.status = t.status;
+                    estimate.residuals = t.residuals;
+                    estimate.iterations = t.iterations;
+                }
+            }
+            estimate.seconds = start.elapsed().as_secs_f64();
+            self.pose = estimate.pose;
+            out.push(estimate);
+            if k > 0 {
+                self.motions.remove(&(k - 1));
+            }
+            self.maps = self.maps.split_off(&needed);
+            self.frames.remove(&k);
+            self.next += 1;
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::SkipReason;
+    use activemap_geometry::Intrinsics;
+
+    fn frame(stamp: f64) -> Frame {
+        let k = Intrinsics::from_hfov(24, 24, std::f64::consts::FRAC_PI_2);
+        let rgb = (0..576)
+            .map(|i| {
+                if (i / 3 + i / 72) % 2 == 0 {
+                    [0.6, 0.4, 0.2]
+                } else {
+                    [0.3, 0.2, 0.1]
+                }
+            })
+            .collect();
+        Frame::new(k, rgb, vec![2.0; 576], stamp).unwrap()
+    }
+
+    #[test]
+    fn required_snapshot_is_k_minus_one_minus_lag_clamped_at_zero() {
+        assert_eq!(required_snapshot(0, 0), 0);
+        assert_eq!(required_snapshot(1, 0), 0);
+        assert_eq!(required_snapshot(5, 0), 4);
+        assert_eq!(required_snapshot(5, 3), 1);
+        assert_eq!(required_snapshot(4, 3), 0);
+        assert_eq!(required_snapshot(2, 10), 0);
+    }
+
+    /// With map lag L = 3, frame k is tracked once the snapshot of frame k − 4 and the motion
+    /// from k − 1 are there: with only snapshot 0, frames 0–4 come out and frame 5 waits;
+    /// snapshot 1 releases it. Each frame is tracked exactly once, in order.
+    #[test]
+    fn tracking_waits_only_for_the_lagged_snapshot_and_the_motion() {
+        let mut session = TrackingSession::new(TrackingConfig {
+            map_lag: 3,
+            ..TrackingConfig::default()
+        })
+        .unwrap();
+        for k in 0..6u64 {
+            session.add_frame(k, frame(k as f64));
+        }
+        for k in 0..4u64 {
+            session.add_motion(k, MotionPrior::None);
+        }
+        let ids = |v: Vec<TrackedFrame>| v.iter().map(|e| e.frame_id).collect::<Vec<_>>();
+        assert_eq!(
+            ids(session.process_ready().unwrap()),
+            vec![0],
+            "frame 0 needs no map"
+        );
+        session.add_map(0, Arc::new(Gaussians::new()));
+        assert_eq!(ids(session.process_ready().unwrap()), vec![1, 2, 3, 4]);
+        session.add_map(1, Arc::new(Gaussians::new()));
+        assert!(
+            session.process_ready().unwrap().is_empty(),
+            "frame 5 waits for motion 4 → 5"
+        );
+        session.add_motion(4, MotionPrior::None);
+        assert_eq!(ids(session.process_ready().unwrap()), vec![5]);
+        assert!(session.process_ready().unwrap().is_empty());
+    }
+
+    /// An unusable first frame is skipped at the prediction and anchors nothing: the next
+    /// usable frame anchors the world; a non-finite motion prior is an input error, not a NaN.
+    #[test]
+    fn an_unusable_first_frame_does_not_anchor_and_bad_priors_are_errors() {
+        let mut session = TrackingSession::new(TrackingConfig::default()).unwrap();
+        let k = Intrinsics::from_hfov(24, 24, std::f64::consts::FRAC_PI_2);
+        session.add_frame(
+            0,
+            Frame::new(k, vec![[0.5; 3]; 576], vec![0.0; 576], 0.0).unwrap(),
+        );
+        let out = session.process_ready().unwrap();
+        assert_eq!(out[0].status, TrackingStatus::Skipped(SkipReason::NoDepth));
+        assert!(session.references().is_empty());
+        session.add_frame(1, frame(1.0));
+        session.add_motion(0, MotionPrior::None);
+        let out = session.process_ready().unwrap();
+        assert_eq!(out[0].status, TrackingStatus::Ok);
+        assert_eq!(session.references().len(), 1);
+        session.add_frame(2, frame(2.0));
+        session.add_map(1, Arc::new(Gaussians::new()));
+        let nan = Isometry3::translation(f64::NAN, 0.0, 0.0);
+        session.add_motion(1, MotionPrior::Relative(nan));
+        assert!(session.process_ready().is_err());
+    }
+}
