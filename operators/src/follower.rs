@@ -1,26 +1,19 @@
-//! `follower`: executes the scorer's path with the greedy rule of SPEC §6 and emits exactly
-//! one action per step. It asks the planner for a new goal when the path is done (after
-//! turning to face the frontier it came for, unless the frontier is already in view), when the map shows an obstacle on the remaining
-//! path or close ahead, when the goal turns occupied, when no path was found, and when the
-//! robot is stuck (no progress along the path over `stuck_window` steps: the goal then counts
-//! as failed). It also notices a blocked robot at once, as a bumper would: when
-//! `bumps_to_replan` forward moves in a row leave the tracked position within half a step of
-//! where it was, something is in the way (an obstacle the map does not show, or a corner of
-//! one the robot grazes after cutting toward its next waypoint), and it asks for a new path. Wraps `activemap_planning::{follower, replan, stuck}`. The episode starts with a
-//! 360° look-around; while the tracker reports the pose lost the robot only turns on the spot,
-//! and asks for a new plan once tracking is back. When the planner ends the episode (its goal
-//! stream, hence the path stream, closes) it sends `Stop`.
+//! `follower`: executes the scorer's path and emits exactly one action per step. A thin shell
+//! around [`activemap_planning::executor::PathExecutor`], the one path executor (the
+//! in-process explorer runs it too): greedy following (SPEC §6), the start-up look-around,
+//! the look turn at the end of a path, the map's replan triggers, stuck detection, the bumper
+//! (forward moves that do not move the tracked pose) and turning on the spot while tracking
+//! is lost are all the executor's. This operator adds the wiring: the per-step join of grid
+//! and pose, the replan requests (the executor's reason as the wire enum, [`reason_to_wire`])
+//! answered by a path of the same frame, `max_replans_per_step`, and `Stop` when the planner
+//! ends the episode (its goal stream, hence the path stream, closes).
 
 use activemap_geometry::PlanarPose;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
 use activemap_planning::dynamics::Action as PlanAction;
-use activemap_planning::follower::{
-    FollowerConfig, GreedyFollower, greedy_action, look_turn_needed,
-};
-use activemap_planning::replan::{ReplanConfig, ReplanReason as PlanReason, check_replan};
-use activemap_planning::stuck::ProgressMonitor;
+use activemap_planning::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
+use activemap_planning::replan::ReplanReason as PlanReason;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
@@ -28,13 +21,12 @@ use activemap_schemas::{
     Action, ActionKind, MessageKind as K, Path, PoseEstimate, ReplanReason, ReplanRequest,
     TrackingStatus,
 };
-use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{pose_from_wire, read_grid, robot_clearance};
+use crate::convert::{ROBOT_RADIUS_M, pose_from_wire, read_grid};
 use crate::join::FrameJoin;
 
-/// Config.
+/// Config (defaults: [`ExecutorConfig::default`]).
 #[derive(Debug, Clone, Copy, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
@@ -47,18 +39,15 @@ pub struct Config {
     /// Replan requests allowed within one step before the follower turns in place instead.
     #[serde(default = "default_replans")]
     pub max_replans_per_step: usize,
-    /// Turns of the look-around at the start of the episode (72 × 5° = 360°): the camera
-    /// sees nothing closer than ~0.9 m ahead, so the robot maps its surroundings before the
-    /// first plan. 0 disables it.
+    /// Turns of the look-around at the start of the episode (72 × 5° = 360°). 0 disables it.
     #[serde(default = "default_spin")]
     pub initial_spin_steps: usize,
     /// At the end of a path, the turn toward the frontier is skipped when it is already within
-    /// this many degrees of the heading (the camera's half hfov is 45°; 25° keeps it well in
-    /// view, as the in-process explorer's default). 0 always turns.
+    /// this many degrees of the heading. 0 always turns.
     #[serde(default = "default_look_skip")]
     pub look_skip_half_angle_deg: f64,
     /// Forward moves in a row that leave the tracked position within half of
-    /// `forward_step_m` before the follower replans (see the module doc). 0 disables it.
+    /// `forward_step_m` before the follower replans. 0 disables it.
     #[serde(default = "default_bumps")]
     pub bumps_to_replan: usize,
     /// Length of a forward step, metres (SPEC §1: 0.05).
@@ -67,25 +56,27 @@ pub struct Config {
 }
 
 fn default_window() -> usize {
-    40
+    ExecutorConfig::default().stuck_window
 }
 fn default_improvement() -> f64 {
-    0.02
+    ExecutorConfig::default().stuck_min_improvement_m
 }
 fn default_replans() -> usize {
-    6
+    activemap_planning::executor::MAX_REPLANS_PER_STEP
 }
 fn default_spin() -> usize {
-    72
+    ExecutorConfig::default().initial_spin_steps
 }
 fn default_look_skip() -> f64 {
-    25.0
+    ExecutorConfig::default()
+        .look_skip_half_angle_rad
+        .to_degrees()
 }
 fn default_bumps() -> usize {
-    2
+    ExecutorConfig::default().bumps_to_replan
 }
 fn default_forward_step() -> f64 {
-    activemap_planning::dynamics::ActionModel::default().forward_m
+    ExecutorConfig::default().forward_step_m
 }
 
 impl Default for Config {
@@ -102,6 +93,60 @@ impl Default for Config {
     }
 }
 
+impl Config {
+    /// The executor's settings.
+    pub fn executor(&self) -> ExecutorConfig {
+        ExecutorConfig {
+            stuck_window: self.stuck_window,
+            stuck_min_improvement_m: self.stuck_min_improvement,
+            initial_spin_steps: self.initial_spin_steps,
+            look_skip_half_angle_rad: self.look_skip_half_angle_deg.to_radians(),
+            bumps_to_replan: self.bumps_to_replan,
+            forward_step_m: self.forward_step_m,
+            ..ExecutorConfig::default()
+        }
+    }
+}
+
+/// The executor's replan reason on the wire: the three map triggers (goal occupied, path
+/// blocked, obstacle ahead) are all `ObstacleAhead` there.
+pub fn reason_to_wire(reason: PlanReason) -> ReplanReason {
+    match reason {
+        PlanReason::Startup => ReplanReason::Startup,
+        PlanReason::PathDone => ReplanReason::PathDone,
+        PlanReason::GoalOccupied | PlanReason::PathBlocked { .. } | PlanReason::ObstacleAhead => {
+            ReplanReason::ObstacleAhead
+        }
+        PlanReason::NoPath => ReplanReason::NoPath,
+        PlanReason::Stuck => ReplanReason::Stuck,
+        PlanReason::TrackingLost => ReplanReason::TrackingLost,
+        PlanReason::Blocked => ReplanReason::Blocked,
+    }
+}
+
+/// A wire replan reason as the planning library's (for the planner's goal judgement; the
+/// obstacle triggers come back as `ObstacleAhead`, which judges the goal the same way).
+pub fn reason_from_wire(reason: ReplanReason) -> PlanReason {
+    match reason {
+        ReplanReason::Startup => PlanReason::Startup,
+        ReplanReason::PathDone => PlanReason::PathDone,
+        ReplanReason::ObstacleAhead => PlanReason::ObstacleAhead,
+        ReplanReason::NoPath => PlanReason::NoPath,
+        ReplanReason::Stuck => PlanReason::Stuck,
+        ReplanReason::TrackingLost => PlanReason::TrackingLost,
+        ReplanReason::Blocked => PlanReason::Blocked,
+    }
+}
+
+/// The wire action of a planning action.
+pub fn action_to_wire(a: PlanAction) -> ActionKind {
+    match a {
+        PlanAction::Forward => ActionKind::Forward,
+        PlanAction::TurnLeft => ActionKind::TurnLeft,
+        PlanAction::TurnRight => ActionKind::TurnRight,
+    }
+}
+
 /// What the follower wants this step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Decision {
@@ -111,131 +156,38 @@ pub enum Decision {
     Replan(ReplanReason),
 }
 
-enum Phase {
-    /// Turning left on the spot for this many more steps, then asking for a plan.
-    Spin(usize),
-    /// Tracking is lost: turn on the spot (no translation, so no collision on a wrong pose)
-    /// until it recovers, then ask for a new plan.
-    Lost,
-    Idle(ReplanReason),
-    Follow {
-        follower: GreedyFollower,
-        goal: Point2<f64>,
-        look_yaw: f64,
-    },
-    Look {
-        yaw: f64,
-    },
-}
-
-/// Counters of what the follower did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Counters {
-    /// Paths received.
-    pub paths: usize,
-    /// Replans because the map showed an obstacle on or ahead of the path, or at the goal.
-    pub obstacle_replans: usize,
-    /// Stuck detections.
-    pub stuck: usize,
-    /// Empty paths received.
-    pub no_path: usize,
-    /// Steps taken while tracking was lost.
-    pub lost_steps: usize,
-    /// Paths ended without the look turn (the frontier was already in view).
-    pub looks_skipped: usize,
-    /// Forward moves that did not move the robot.
-    pub bumps: usize,
-    /// Replans because forward moves kept not moving the robot.
-    pub blocked_replans: usize,
-}
-
-/// The follower's state machine, without transport.
+/// The executor on wire messages, without transport.
 pub struct FollowerCore {
-    config: FollowerConfig,
-    replan: ReplanConfig,
-    monitor: ProgressMonitor,
-    phase: Phase,
-    /// Skip the look turn within this angle of the heading, radians.
-    look_skip_half_angle: f64,
-    /// The grid the current path was planned on (the first grid seen after it arrived): only
-    /// obstacles that appeared since then trigger an obstacle-ahead replan.
-    plan_grid: Option<PlanGrid>,
-    /// Where the robot was when it last moved forward (cleared by any other decision).
-    forward_from: Option<Point2<f64>>,
-    /// Forward moves in a row that did not move the robot.
-    bumps_in_row: usize,
-    bumps_to_replan: usize,
-    forward_step_m: f64,
-    /// What happened so far.
-    pub counters: Counters,
-}
-
-fn to_kind(a: PlanAction) -> ActionKind {
-    match a {
-        PlanAction::Forward => ActionKind::Forward,
-        PlanAction::TurnLeft => ActionKind::TurnLeft,
-        PlanAction::TurnRight => ActionKind::TurnRight,
-    }
+    executor: PathExecutor,
 }
 
 impl FollowerCore {
-    /// A follower that starts by asking for a plan.
+    /// A follower that starts with the look-around (or by asking for a plan).
     pub fn new(config: &Config) -> anyhow::Result<Self> {
-        let follower = FollowerConfig::default();
-        anyhow::ensure!(
-            config.look_skip_half_angle_deg.is_finite()
-                && (0.0..=180.0).contains(&config.look_skip_half_angle_deg),
-            "follower: look_skip_half_angle_deg must be in [0, 180], got {}",
-            config.look_skip_half_angle_deg
-        );
-        anyhow::ensure!(
-            config.forward_step_m.is_finite() && config.forward_step_m > 0.0,
-            "follower: forward_step_m must be finite and positive, got {}",
-            config.forward_step_m
-        );
         Ok(Self {
-            forward_from: None,
-            bumps_in_row: 0,
-            bumps_to_replan: config.bumps_to_replan,
-            forward_step_m: config.forward_step_m,
-            look_skip_half_angle: config.look_skip_half_angle_deg.to_radians(),
-            config: follower,
-            replan: ReplanConfig {
-                turn_threshold_rad: follower.turn_threshold_rad,
-                ..ReplanConfig::default()
-            },
-            plan_grid: None,
-            monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement)?,
-            phase: if config.initial_spin_steps > 0 {
-                Phase::Spin(config.initial_spin_steps)
-            } else {
-                Phase::Idle(ReplanReason::Startup)
-            },
-            counters: Counters::default(),
+            executor: PathExecutor::new(config.executor(), ROBOT_RADIUS_M)
+                .map_err(|e| anyhow::anyhow!("follower: {e}"))?,
         })
+    }
+
+    /// The executor (its counters, the path being followed).
+    pub fn executor(&self) -> &PathExecutor {
+        &self.executor
+    }
+
+    /// What happened so far.
+    pub fn counters(&self) -> ExecutorCounters {
+        self.executor.counters
     }
 
     /// Takes a new path (an empty one means the scorer found none).
     pub fn set_path(&mut self, path: &Path) -> anyhow::Result<()> {
-        self.counters.paths += 1;
-        let Some(last) = path.waypoints.last() else {
-            self.counters.no_path += 1;
-            self.phase = Phase::Idle(ReplanReason::NoPath);
-            return Ok(());
-        };
-        let points = path
+        let waypoints: Vec<PlanarPose> = path
             .waypoints
             .iter()
-            .map(|w| Point2::new(w.x, w.y))
+            .map(|w| PlanarPose::new(w.x, w.y, w.yaw))
             .collect();
-        self.phase = Phase::Follow {
-            follower: GreedyFollower::new(self.config, points)?,
-            goal: Point2::new(last.x, last.y),
-            look_yaw: last.yaw,
-        };
-        self.plan_grid = None;
-        self.monitor.reset();
-        Ok(())
+        Ok(self.executor.set_path(&waypoints)?)
     }
 
     /// The decision for the robot at `pose` (tracked, or a prediction when `tracking_lost`)
@@ -246,141 +198,10 @@ impl FollowerCore {
         grid: &PlanGrid,
         tracking_lost: bool,
     ) -> anyhow::Result<Decision> {
-        let decision = self.decide_inner(pose, grid, tracking_lost)?;
-        self.forward_from = (decision == Decision::Act(ActionKind::Forward) && !tracking_lost)
-            .then_some(Point2::new(pose.x, pose.y));
-        Ok(decision)
-    }
-
-    /// Counts a forward move that left the robot where it was; true when `bumps_to_replan`
-    /// happened in a row.
-    fn blocked(&mut self, here: Point2<f64>, tracking_lost: bool) -> bool {
-        let Some(from) = self.forward_from.filter(|_| !tracking_lost) else {
-            self.bumps_in_row = 0;
-            return false;
-        };
-        if !activemap_planning::dynamics::forward_was_blocked(from, here, self.forward_step_m) {
-            self.bumps_in_row = 0;
-            return false;
-        }
-        self.counters.bumps += 1;
-        self.bumps_in_row += 1;
-        if self.bumps_to_replan > 0 && self.bumps_in_row >= self.bumps_to_replan {
-            self.bumps_in_row = 0;
-            return true;
-        }
-        false
-    }
-
-    fn decide_inner(
-        &mut self,
-        pose: &PlanarPose,
-        grid: &PlanGrid,
-        tracking_lost: bool,
-    ) -> anyhow::Result<Decision> {
-        let here = Point2::new(pose.x, pose.y);
-        if self.blocked(here, tracking_lost) && matches!(self.phase, Phase::Follow { .. }) {
-            self.counters.blocked_replans += 1;
-            self.phase = Phase::Idle(ReplanReason::Blocked);
-        }
-        let threshold = self.config.turn_threshold_rad;
-        if tracking_lost {
-            self.counters.lost_steps += 1;
-            if !matches!(self.phase, Phase::Spin(_)) {
-                self.phase = Phase::Lost;
-            }
-        } else if matches!(self.phase, Phase::Lost) {
-            self.phase = Phase::Idle(ReplanReason::TrackingLost);
-        }
-        for _ in 0..4 {
-            match &mut self.phase {
-                Phase::Spin(left) => {
-                    if *left > 0 {
-                        *left -= 1;
-                        return Ok(Decision::Act(ActionKind::TurnLeft));
-                    }
-                    self.phase = Phase::Idle(ReplanReason::Startup);
-                }
-                Phase::Lost => return Ok(Decision::Act(ActionKind::TurnLeft)),
-                Phase::Idle(reason) => return Ok(Decision::Replan(*reason)),
-                Phase::Look { yaw } => {
-                    let target = here + nalgebra::Vector2::new(yaw.cos(), yaw.sin());
-                    let a = greedy_action(pose, &target, threshold);
-                    if a != PlanAction::Forward {
-                        return Ok(Decision::Act(to_kind(a)));
-                    }
-                    self.phase = Phase::Idle(ReplanReason::PathDone);
-                }
-                Phase::Follow {
-                    follower,
-                    goal,
-                    look_yaw,
-                } => {
-                    let occupied_only = ClearanceMap::new(
-                        grid,
-                        &ClearanceConfig {
-                            unknown_is_blocked: false,
-                            ..robot_clearance(grid.geometry.resolution)?
-                        },
-                    )?;
-                    let plan_grid = self.plan_grid.get_or_insert_with(|| grid.clone());
-                    let reason = check_replan(
-                        grid,
-                        &occupied_only,
-                        pose,
-                        follower.remaining(),
-                        Some(*goal),
-                        &self.replan,
-                        Some(plan_grid),
-                    )?;
-                    let mut left = 0.0;
-                    let mut previous = here;
-                    for w in follower.remaining() {
-                        left += (w - previous).norm();
-                        previous = *w;
-                    }
-                    if self.monitor.observe(left) {
-                        self.counters.stuck += 1;
-                        self.phase = Phase::Idle(ReplanReason::Stuck);
-                        continue;
-                    }
-                    let yaw = *look_yaw;
-                    match reason {
-                        None => {}
-                        Some(PlanReason::PathDone) => {
-                            self.arrive(pose, yaw);
-                            continue;
-                        }
-                        Some(_) => {
-                            self.counters.obstacle_replans += 1;
-                            self.phase = Phase::Idle(ReplanReason::ObstacleAhead);
-                            continue;
-                        }
-                    }
-                    // Leave a reached waypoint early only along a clear line (the robot's
-                    // own margin aside: from inside it no line is clear, so it closes in).
-                    let geometry = grid.geometry;
-                    let line_is_clear = |a: Point2<f64>, b: Point2<f64>| {
-                        occupied_only.segment_is_clear(geometry.cell_of(a), geometry.cell_of(b))
-                    };
-                    match follower.next_action_checked(pose, line_is_clear) {
-                        Some(a) => return Ok(Decision::Act(to_kind(a))),
-                        None => self.arrive(pose, yaw),
-                    }
-                }
-            }
-        }
-        Ok(Decision::Act(ActionKind::TurnLeft))
-    }
-
-    /// At the end of the path: turn to face the frontier (`look_yaw`) unless it is in view.
-    fn arrive(&mut self, pose: &PlanarPose, look_yaw: f64) {
-        if look_turn_needed(pose.yaw, look_yaw, self.look_skip_half_angle) {
-            self.phase = Phase::Look { yaw: look_yaw };
-        } else {
-            self.counters.looks_skipped += 1;
-            self.phase = Phase::Idle(ReplanReason::PathDone);
-        }
+        Ok(match self.executor.decide(pose, grid, tracking_lost)? {
+            executor::Decision::Act(a) => Decision::Act(action_to_wire(a)),
+            executor::Decision::Replan(r) => Decision::Replan(reason_to_wire(r)),
+        })
     }
 }
 
@@ -391,7 +212,17 @@ struct Slot {
     pose: Option<(PlanarPose, bool)>,
 }
 
-/// The operator.
+/// A message the follower sends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Output {
+    /// On `replan`: a new goal is needed for this frame (the path of the same frame answers).
+    Replan(ReplanRequest),
+    /// On `action`: the step's action.
+    Action(Action),
+}
+
+/// The operator: the per-step join around [`FollowerCore`]. Transport-free except for
+/// [`Operator::on_event`], so it can be driven in process ([`Follower::poll`]).
 pub struct Follower {
     core: FollowerCore,
     max_replans: usize,
@@ -403,8 +234,53 @@ pub struct Follower {
 }
 
 impl Follower {
-    /// Runs the current step as far as the inputs allow.
-    fn run(&mut self, ctx: &mut Context<'_>) -> anyhow::Result<()> {
+    /// A follower at step 0.
+    pub fn from_config(config: &Config) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            config.max_replans_per_step >= 1,
+            "follower: max_replans_per_step must be ≥ 1"
+        );
+        Ok(Self {
+            core: FollowerCore::new(config)?,
+            max_replans: config.max_replans_per_step,
+            step: 0,
+            replans_this_step: 0,
+            awaiting_path: false,
+            join: FrameJoin::new(),
+            paths: Vec::new(),
+        })
+    }
+
+    /// The executor and its wire wrapper.
+    pub fn core(&self) -> &FollowerCore {
+        &self.core
+    }
+
+    /// The step whose action comes next.
+    pub fn step(&self) -> u64 {
+        self.step
+    }
+
+    /// Stores the grid of frame `k`.
+    pub fn add_grid(&mut self, k: u64, grid: PlanGrid) {
+        self.join.slot(k).grid = Some(grid);
+    }
+
+    /// Stores the pose of frame `k` and whether tracking was lost there.
+    pub fn add_pose(&mut self, k: u64, pose: PlanarPose, tracking_lost: bool) {
+        self.join.slot(k).pose = Some((pose, tracking_lost));
+    }
+
+    /// Stores a path from the scorer.
+    pub fn add_path(&mut self, path: Path) {
+        self.paths.push(path);
+    }
+
+    /// Runs the current step as far as the inputs allow: the messages to send, in order. A
+    /// replan request leaves the step waiting for the path of the same frame; after
+    /// `max_replans_per_step` requests in one step the robot turns left instead.
+    pub fn poll(&mut self) -> anyhow::Result<Vec<Output>> {
+        let mut out = Vec::new();
         loop {
             let k = self.step;
             let Some(Slot {
@@ -412,11 +288,11 @@ impl Follower {
                 pose: Some((pose, lost)),
             }) = self.join.get(k)
             else {
-                return Ok(());
+                return Ok(out);
             };
             if self.awaiting_path {
                 let Some(i) = self.paths.iter().position(|p| p.frame_id == k) else {
-                    return Ok(());
+                    return Ok(out);
                 };
                 let path = self.paths.remove(i);
                 self.core.set_path(&path)?;
@@ -427,18 +303,15 @@ impl Follower {
                 Decision::Replan(reason) if self.replans_this_step < self.max_replans => {
                     self.replans_this_step += 1;
                     self.awaiting_path = true;
-                    ctx.send(
-                        "replan",
-                        &ReplanRequest {
-                            frame_id: k,
-                            reason,
-                        },
-                    )?;
+                    out.push(Output::Replan(ReplanRequest {
+                        frame_id: k,
+                        reason,
+                    }));
                     continue;
                 }
                 Decision::Replan(_) => ActionKind::TurnLeft,
             };
-            ctx.send("action", &Action { step: k, action })?;
+            out.push(Output::Action(Action { step: k, action }));
             self.join.take(k);
             self.step += 1;
             self.replans_this_step = 0;
@@ -450,19 +323,7 @@ impl Operator for Follower {
     type Config = Config;
 
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.max_replans_per_step >= 1,
-            "follower: max_replans_per_step must be ≥ 1"
-        );
-        Ok(Self {
-            core: FollowerCore::new(&config)?,
-            max_replans: config.max_replans_per_step,
-            step: 0,
-            replans_this_step: 0,
-            awaiting_path: false,
-            join: FrameJoin::new(),
-            paths: Vec::new(),
-        })
+        Self::from_config(&config)
     }
 
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
@@ -470,15 +331,14 @@ impl Operator for Follower {
             Event::Input(input) => match input.port {
                 "grid" => {
                     let (k, g) = read_grid(input.bytes)?;
-                    self.join.slot(k).grid = Some(g);
+                    self.add_grid(k, g);
                 }
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                    self.join.slot(e.frame_id).pose =
-                        Some((pose, e.status == TrackingStatus::Lost));
+                    self.add_pose(e.frame_id, pose, e.status == TrackingStatus::Lost);
                 }
-                "path" => self.paths.push(input.decode()?),
+                "path" => self.add_path(input.decode()?),
                 other => anyhow::bail!("follower: unexpected input `{other}`"),
             },
             Event::InputClosed { port: "path" } => {
@@ -495,7 +355,12 @@ impl Operator for Follower {
             Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
-        self.run(ctx)?;
+        for output in self.poll()? {
+            match output {
+                Output::Replan(request) => ctx.send("replan", &request)?,
+                Output::Action(action) => ctx.send("action", &action)?,
+            }
+        }
         Ok(Flow::Continue)
     }
 }
@@ -542,133 +407,58 @@ pub fn registered() -> Registered {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use activemap_planning::clearance::ClearanceMap;
     use activemap_planning::frontier::path_distances;
     use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
     use activemap_sim::{
         Action as SimAction, Material, Scene, SimConfig, Simulator, Triangle, Vertex,
     };
+    use nalgebra::Point2;
 
-    /// Drives a 0.5 m straight path along +x on an all-free grid and returns the actions sent
-    /// until the replan request, whose reason must be "path done".
-    fn actions_to_the_end(look_yaw: f64, look_skip_deg: f64) -> Vec<ActionKind> {
-        let geometry = activemap_planning::GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
-        let grid = PlanGrid::filled(geometry, activemap_planning::CellState::Free);
-        let mut core = FollowerCore::new(&Config {
-            initial_spin_steps: 0,
-            look_skip_half_angle_deg: look_skip_deg,
-            ..Config::default()
-        })
-        .unwrap();
-        let waypoint = |x, yaw| activemap_schemas::PlanarPose2 { x, y: 0.0, yaw };
-        core.set_path(&Path {
-            frame_id: 0,
-            waypoints: vec![waypoint(0.25, 0.0), waypoint(0.5, look_yaw)],
-            objective: 0.0,
-        })
-        .unwrap();
-        let model = activemap_planning::dynamics::ActionModel::default();
-        let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
-        let mut actions = Vec::new();
-        for _ in 0..200 {
-            match core.decide(&pose, &grid, false).unwrap() {
-                Decision::Replan(reason) => {
-                    assert_eq!(reason, ReplanReason::PathDone);
-                    return actions;
-                }
-                Decision::Act(kind) => {
-                    let a = match kind {
-                        ActionKind::Forward => PlanAction::Forward,
-                        ActionKind::TurnLeft => PlanAction::TurnLeft,
-                        _ => PlanAction::TurnRight,
-                    };
-                    pose = model.apply(&pose, a);
-                    actions.push(kind);
-                }
+    /// The wire reasons: the three map triggers are `ObstacleAhead` on the wire, every other
+    /// reason round-trips, and the planner judges a goal the same way from either side.
+    #[test]
+    fn replan_reasons_map_onto_the_wire() {
+        use activemap_planning::fbe::outcome;
+        let all = [
+            PlanReason::Startup,
+            PlanReason::PathDone,
+            PlanReason::GoalOccupied,
+            PlanReason::PathBlocked { segment: 2 },
+            PlanReason::ObstacleAhead,
+            PlanReason::NoPath,
+            PlanReason::Stuck,
+            PlanReason::TrackingLost,
+            PlanReason::Blocked,
+        ];
+        for r in all {
+            let wire = reason_to_wire(r);
+            assert_eq!(
+                wire == ReplanReason::ObstacleAhead,
+                r.is_obstacle(),
+                "{r:?}"
+            );
+            if !r.is_obstacle() {
+                assert_eq!(reason_from_wire(wire), r);
             }
+            assert_eq!(outcome(reason_from_wire(wire)), outcome(r), "{r:?}");
         }
-        panic!("no replan request within 200 steps: {actions:?}");
     }
 
-    /// A wall the grid does not show stops the robot 0.2 m along a 0.5 m path: the tracked pose
-    /// stops advancing, and the follower asks for a new path (blocked) at the second forward
-    /// move that did not move it, not after the stuck window. Driving freely counts no bump.
+    /// The defaults are the executor's (one source for the operator and the explorer), and
+    /// the follower's robot is the planning library's.
     #[test]
-    fn forward_moves_that_do_not_move_the_robot_ask_for_a_new_path() {
-        let geometry = activemap_planning::GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
-        let grid = PlanGrid::filled(geometry, activemap_planning::CellState::Free);
-        let model = activemap_planning::dynamics::ActionModel::default();
-        let run = |wall_x: f64, bumps_to_replan: usize| {
-            let mut core = FollowerCore::new(&Config {
-                initial_spin_steps: 0,
-                bumps_to_replan,
-                ..Config::default()
-            })
-            .unwrap();
-            let waypoint = |x| activemap_schemas::PlanarPose2 {
-                x,
-                y: 0.0,
-                yaw: 0.0,
-            };
-            core.set_path(&Path {
-                frame_id: 0,
-                waypoints: vec![waypoint(0.25), waypoint(0.5)],
-                objective: 0.0,
-            })
-            .unwrap();
-            let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
-            let mut forwards = 0;
-            for _ in 0..100 {
-                match core.decide(&pose, &grid, false).unwrap() {
-                    Decision::Replan(reason) => return (reason, forwards, core.counters),
-                    Decision::Act(kind) => {
-                        assert_eq!(kind, ActionKind::Forward);
-                        forwards += 1;
-                        let next = model.apply(&pose, PlanAction::Forward);
-                        if next.x <= wall_x + 1e-9 {
-                            pose = next;
-                        }
-                    }
-                }
-            }
-            panic!("no replan request within 100 steps");
-        };
-        // Free: 9 forward moves to within the waypoint tolerance of the end, no bump.
-        let (reason, forwards, counters) = run(10.0, 2);
+    fn defaults_are_the_executors() {
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.executor(), ExecutorConfig::default());
         assert_eq!(
-            (reason, forwards, counters.bumps),
-            (ReplanReason::PathDone, 9, 0)
+            config.max_replans_per_step,
+            activemap_planning::explorer::ExplorerConfig::default().max_replans_per_step
         );
-        // Blocked at 0.2 m: 4 moves get there, the 5th and 6th do not move it.
-        let (reason, forwards, counters) = run(0.2, 2);
-        assert_eq!(reason, ReplanReason::Blocked);
-        assert_eq!(forwards, 6);
-        assert_eq!((counters.bumps, counters.blocked_replans), (2, 1));
-        // Disabled: only the stuck window (40 steps without progress) ends it.
-        let (reason, forwards, counters) = run(0.2, 0);
-        assert_eq!(reason, ReplanReason::Stuck);
-        assert!(forwards > 40, "{forwards}");
-        assert_eq!(counters.blocked_replans, 0);
-    }
-
-    /// At the end of the path the follower turns to the frontier only when it is out of view:
-    /// a frontier 20° to the left is already seen (no turn); one behind (180°) costs about 36
-    /// turns of 5°; with the skip disabled, the 32° turn is made (6 turns: 2° left, within the
-    /// 5° threshold).
-    #[test]
-    fn the_look_turn_is_skipped_when_the_frontier_is_in_view() {
-        let count = |actions: &[ActionKind]| {
-            actions
-                .iter()
-                .filter(|a| matches!(a, ActionKind::TurnLeft | ActionKind::TurnRight))
-                .count()
-        };
-        let in_view = actions_to_the_end(20f64.to_radians(), 25.0);
-        assert_eq!(count(&in_view), 0, "{in_view:?}");
-        assert!(in_view.iter().all(|a| *a == ActionKind::Forward));
-        let behind = actions_to_the_end(std::f64::consts::PI, 25.0);
-        assert!(count(&behind) >= 35, "{behind:?}");
-        let always = actions_to_the_end(32f64.to_radians(), 0.0);
-        assert_eq!(count(&always), 6, "{always:?}");
+        assert_eq!(
+            ROBOT_RADIUS_M,
+            activemap_planning::clearance::ROBOT_RADIUS_M
+        );
     }
 
     /// Adds a closed box [lo, hi] (world metres) to `scene` in one flat colour.
@@ -791,20 +581,23 @@ mod tests {
                 .map(|(i, d)| (grid.geometry.cell_at(i), *d))
                 .unwrap();
             let look_at = grid.geometry.center(far);
-            let (waypoints, _) = crate::scorer::shortest_path(grid, here, far, look_at)
-                .unwrap()
-                .unwrap();
-            core.set_path(&Path {
-                frame_id: 0,
-                waypoints,
-                objective: 0.0,
-            })
+            let path = activemap_planning::path::shortest_path(
+                grid,
+                here,
+                far,
+                look_at,
+                &clearance,
+                &activemap_planning::astar::AstarConfig::default(),
+            )
+            .unwrap()
             .unwrap();
+            core.set_path(&crate::scorer::path_to_wire(0, &path))
+                .unwrap();
             d
         };
         let d = replan_far(&mut core, &pose, &grid);
         assert!(d > 1.8, "the room is too small for the test: {d} m");
-        let mut replans_before = core.counters.obstacle_replans;
+        let mut replans_before = core.counters().obstacle_replans;
         let mut forward = 0;
         let mut placed: Option<Point2<f64>> = None;
         for _ in 0..400 {
@@ -812,7 +605,7 @@ mod tests {
                 Decision::Act(a) => a,
                 Decision::Replan(_) if placed.is_none() => {
                     replan_far(&mut core, &pose, &grid);
-                    replans_before = core.counters.obstacle_replans;
+                    replans_before = core.counters().obstacle_replans;
                     forward = 0;
                     continue;
                 }
@@ -826,13 +619,13 @@ mod tests {
             }
             // After 6 forward steps (0.3 m) a 0.3 m box appears on the path 1 m ahead.
             if placed.is_none() && forward == 6 {
-                let Phase::Follow { follower, .. } = &core.phase else {
+                let Some(remaining) = core.executor().remaining() else {
                     panic!("not following a path");
                 };
                 let mut left = 1.0;
                 let mut previous = Point2::new(pose.x, pose.y);
                 let mut at = None;
-                for w in follower.remaining() {
+                for w in remaining {
                     let l = (w - previous).norm();
                     if l >= left {
                         at = Some(previous + (w - previous) * (left / l));
@@ -868,6 +661,6 @@ mod tests {
             placed.is_some(),
             "the robot never drove 0.3 m along the path"
         );
-        assert_eq!(core.counters.obstacle_replans, replans_before + 1);
+        assert_eq!(core.counters().obstacle_replans, replans_before + 1);
     }
 }

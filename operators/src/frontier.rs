@@ -1,13 +1,13 @@
 //! `frontier`: frontier regions of each occupancy grid (SPEC §6), wrapping
-//! `activemap_planning::frontier::extract_frontiers`: (3×3 dilation of the connected free space
+//! `activemap_planning::frontier::reachable_regions` (the in-process explorer's too): (3×3 dilation of the connected free space
 //! − free space) ∩ unknown, connected regions above the minimum size, each with its size,
 //! centroid and the closest cell the robot can reach. Only reachable regions are published,
 //! largest first, with ids 0..N−1. One message per grid.
 
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
-use activemap_planning::frontier::{FrontierConfig, extract_frontiers};
+use activemap_planning::clearance::ClearanceConfig;
+use activemap_planning::frontier::{FrontierConfig, reachable_regions};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
@@ -36,7 +36,7 @@ fn default_min() -> usize {
 }
 
 /// The reachable frontier regions of `grid` seen from `robot`, largest first (ties: the
-/// library's order), as wire regions.
+/// library's order), as wire regions with ids 0..N−1 in that order.
 pub fn frontier_regions(
     grid: &PlanGrid,
     robot: Point2<f64>,
@@ -47,14 +47,11 @@ pub fn frontier_regions(
         robot_width_cells: config.robot_width_cells.unwrap_or(shared.robot_width_cells),
         ..shared
     };
-    let map = ClearanceMap::new(grid, &clearance)?;
     let fc = FrontierConfig {
         min_region_cells: config.min_region_cells,
         ..FrontierConfig::default()
     };
-    let found = extract_frontiers(grid, &map, robot, &fc)?;
-    let mut regions: Vec<_> = found
-        .regions
+    let mut regions: Vec<_> = reachable_regions(grid, robot, &clearance, &fc)?
         .iter()
         .filter_map(|r| {
             let a = r.approach?;
@@ -67,7 +64,6 @@ pub fn frontier_regions(
             })
         })
         .collect();
-    regions.sort_by_key(|r| std::cmp::Reverse(r.size_cells));
     for (i, r) in regions.iter_mut().enumerate() {
         r.id = i as u32;
     }

@@ -1,19 +1,19 @@
 //! `planner`: chooses the frontier to explore when the follower asks for a replan. Policy
 //! `fbe` (frontier-based exploration, SPEC §6 baseline): a thin wrapper around
-//! [`activemap_planning::fbe::FbeState`], the decision state the in-process explorer uses too
+//! [`activemap_planning::fbe::FbePlanner`], the decision the in-process explorer makes too
 //! (ranking: `utility` = size / (path + turn cost + offset) by default, or `nearest` / `largest`;
 //! strikes: a reached goal one, or two when its region did not shrink, a failed goal (no path,
 //! stuck) two; amnesty once per growth of the map). The path distances come with the regions
 //! (`FrontierRegion::path_distance_m`), so a replan costs no search here. The LLM policy
-//! (SPEC §7) is a later issue: any other `policy` is a config error. With no reachable frontier
+//! (SPEC §7) is a later issue: `policy: llm` is a config error ([`Policy`]). With no reachable frontier
 //! left the planner ends the episode (end of its `goal` stream).
 
 use activemap_geometry::PlanarPose;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::fbe::{FbeConfig, FbePolicy, FbeState, GoalOutcome};
+use activemap_planning::fbe::{FbeConfig, FbePolicy, FbeState};
 use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
-use activemap_planning::grid::{Cell, CellState};
+use activemap_planning::grid::Cell;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
@@ -24,7 +24,35 @@ use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid};
+use crate::follower::reason_from_wire;
 use crate::join::FrameJoin;
+
+/// The goal-choice policy. Only FBE is built; `llm` (SPEC §7) is refused when the config is
+/// read, the one place it is checked (`activemap validate` and the node's start alike).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(try_from = "String")]
+pub enum Policy {
+    /// Frontier-based exploration.
+    #[default]
+    Fbe,
+}
+
+impl TryFrom<String> for Policy {
+    type Error = String;
+
+    fn try_from(name: String) -> Result<Self, String> {
+        match name.as_str() {
+            "fbe" => Ok(Self::Fbe),
+            "llm" => Err(
+                "policy `llm` is not built yet: only `fbe` (the LLM policy of SPEC §7 comes later)"
+                    .into(),
+            ),
+            other => Err(format!(
+                "unknown policy `{other}`: only `fbe` is built (`llm`, SPEC §7, comes later)"
+            )),
+        }
+    }
+}
 
 /// Which frontier FBE picks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -42,9 +70,9 @@ pub enum Choice {
 #[derive(Debug, Clone, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
-    /// `fbe` (only policy built so far).
-    #[serde(default = "default_policy")]
-    pub policy: String,
+    /// `fbe` (the only policy built so far).
+    #[serde(default)]
+    pub policy: Policy,
     /// FBE choice.
     #[serde(default = "default_choice")]
     pub frontier: Choice,
@@ -53,9 +81,6 @@ pub struct Config {
     pub exclusion_radius_cells: f64,
 }
 
-fn default_policy() -> String {
-    "fbe".into()
-}
 fn default_choice() -> Choice {
     Choice::Utility
 }
@@ -65,12 +90,6 @@ fn default_exclusion() -> f64 {
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
     let config: Config = activemap_runtime::catalog::config_from_value(value)?;
-    if config.policy != "fbe" {
-        return Err(format!(
-            "policy `{}` is not built yet: only `fbe` (the LLM policy of SPEC §7 comes later)",
-            config.policy
-        ));
-    }
     fbe_config(&config).validate().map_err(|e| e.to_string())
 }
 
@@ -84,18 +103,6 @@ fn fbe_config(config: &Config) -> FbeConfig {
         },
         exclusion_radius_cells: config.exclusion_radius_cells,
         ..FbeConfig::default()
-    }
-}
-
-/// How the follower's replan reason judges the last goal.
-pub fn outcome(reason: ReplanReason) -> GoalOutcome {
-    match reason {
-        ReplanReason::PathDone => GoalOutcome::Reached,
-        ReplanReason::NoPath | ReplanReason::Stuck => GoalOutcome::Failed,
-        ReplanReason::ObstacleAhead
-        | ReplanReason::Startup
-        | ReplanReason::TrackingLost
-        | ReplanReason::Blocked => GoalOutcome::Abandoned,
     }
 }
 
@@ -120,22 +127,23 @@ pub fn regions_from_wire(frontiers: &Frontiers) -> Vec<PlanRegion> {
         .collect()
 }
 
-/// The FBE decision on wire messages (testable without transport).
+/// The FBE decision on wire messages (testable without transport): the library's
+/// [`activemap_planning::fbe::FbePlanner`] on the regions of the `frontier` operator.
 pub struct FbePlanner {
-    state: FbeState,
+    planner: activemap_planning::fbe::FbePlanner,
 }
 
 impl FbePlanner {
     /// A planner with no strikes.
     pub fn new(config: &Config) -> anyhow::Result<Self> {
         Ok(Self {
-            state: FbeState::new(fbe_config(config))?,
+            planner: activemap_planning::fbe::FbePlanner::new(fbe_config(config))?,
         })
     }
 
     /// The shared decision state (strikes, amnesties).
     pub fn state(&self) -> &FbeState {
-        &self.state
+        self.planner.state()
     }
 
     /// Judges the last goal by the follower's `reason` against the current `frontiers`, then
@@ -150,11 +158,9 @@ impl FbePlanner {
         robot: &PlanarPose,
     ) -> anyhow::Result<Option<(u32, Point2<f64>)>> {
         let regions = regions_from_wire(frontiers);
-        self.state.record(outcome(reason), &regions, &grid.geometry);
-        let mut choice = self.state.choose(&regions, &grid.geometry, robot);
-        if choice.is_none() && self.state.forgive(grid.count(CellState::Free)) {
-            choice = self.state.choose(&regions, &grid.geometry, robot);
-        }
+        let choice = self
+            .planner
+            .choose(reason_from_wire(reason), grid, &regions, robot);
         // One line per decision in the node's log: what was on offer and what was banned.
         let offered: Vec<String> = frontiers
             .regions
@@ -171,16 +177,12 @@ impl FbePlanner {
             )),
             frontiers.regions.len(),
             offered.join(" "),
-            self.state.strikes().len()
+            self.state().strikes().len()
         );
         let Some(choice) = choice else {
             return Ok(None);
         };
-        let region = &frontiers.regions[choice.region];
-        Ok(Some((
-            region.id,
-            Point2::new(region.centroid[0], region.centroid[1]),
-        )))
+        Ok(Some((frontiers.regions[choice.region].id, choice.focus)))
     }
 }
 
@@ -203,11 +205,6 @@ impl Operator for Planner {
     type Config = Config;
 
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.policy == "fbe",
-            "planner: policy `{}` is not built yet (only `fbe`)",
-            config.policy
-        );
         Ok(Self {
             fbe: FbePlanner::new(&config)?,
             join: FrameJoin::new(),
@@ -323,6 +320,7 @@ pub fn registered() -> Registered {
 mod tests {
     use super::*;
     use activemap_planning::GridGeometry;
+    use activemap_planning::grid::CellState;
     use activemap_schemas::FrontierRegion;
 
     fn wire(id: u32, size: u32, cell: [i32; 2], distance: f64) -> FrontierRegion {
@@ -352,7 +350,7 @@ mod tests {
         let mut grid = PlanGrid::filled(geometry, CellState::Unknown);
         grid.data[0] = CellState::Free;
         let config = Config {
-            policy: "fbe".into(),
+            policy: Policy::Fbe,
             frontier: Choice::Nearest,
             exclusion_radius_cells: 3.0,
         };
@@ -411,5 +409,21 @@ mod tests {
         assert_eq!(c.unwrap().0, 2);
         assert!(check_config(&serde_json::json!({ "frontier": "utility" })).is_ok());
         assert!(check_config(&serde_json::json!({ "frontier": "widest" })).is_err());
+    }
+
+    /// `policy` is checked once, when the config is read: `fbe` (the default) is built, `llm`
+    /// is refused as not built yet, anything else as unknown (naming both).
+    #[test]
+    fn only_the_fbe_policy_is_built() {
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.policy, Policy::Fbe);
+        assert!(check_config(&serde_json::json!({ "policy": "fbe" })).is_ok());
+        let llm = check_config(&serde_json::json!({ "policy": "llm" })).unwrap_err();
+        assert!(llm.contains("`llm` is not built yet"), "{llm}");
+        let other = check_config(&serde_json::json!({ "policy": "random" })).unwrap_err();
+        assert!(
+            other.contains("`random`") && other.contains("llm"),
+            "{other}"
+        );
     }
 }

@@ -1,17 +1,17 @@
-//! `scorer`: turns the planner's goal into a path. Mode `shortest` (what FBE needs): A* with
-//! 3-cell moves, robot-width clearance and proximity cost, then shortcutting
-//! (`activemap_planning::astar`, `shortcut`, SPEC §6) to the chosen region's closest reachable
-//! cell; the last waypoint faces the frontier centroid. The Fisher mode (SPEC §5) is a later
-//! issue: any other `mode` is a config error. No path → an empty path (the follower reports it).
+//! `scorer`: turns the planner's goal into a path. Mode `shortest` (what FBE needs):
+//! [`activemap_planning::path::shortest_path`] (A* with 3-cell moves, robot-width clearance and
+//! proximity cost, then shortcutting, SPEC §6; the in-process explorer calls it too) to the
+//! chosen region's closest reachable cell; the last waypoint faces the frontier centroid. The
+//! Fisher mode (SPEC §5) is a later issue: `mode: fisher` is a config error ([`ScorerMode`]).
+//! No path → an empty path (the follower reports it).
 
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::astar::{AstarConfig, plan};
-use activemap_planning::clearance::ClearanceMap;
+use activemap_planning::astar::AstarConfig;
 use activemap_planning::grid::Cell;
-use activemap_planning::shortcut::shortcut;
+use activemap_planning::path::{PlannedPath, shortest_path};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{
     Frontiers, Goal, MessageKind as K, OccupancyGridView, Path, PlanarPose2, PoseEstimate,
@@ -22,59 +22,104 @@ use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid, robot_clearance};
 use crate::join::FrameJoin;
 
+/// How the scorer makes a path. Only `shortest` is built; `fisher` (SPEC §5) is refused when
+/// the config is read, the one place it is checked (`activemap validate` and the node's start
+/// alike).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(try_from = "String")]
+pub enum ScorerMode {
+    /// The shortest collision-free path.
+    #[default]
+    Shortest,
+}
+
+impl TryFrom<String> for ScorerMode {
+    type Error = String;
+
+    fn try_from(name: String) -> Result<Self, String> {
+        match name.as_str() {
+            "shortest" => Ok(Self::Shortest),
+            "fisher" => Err(
+                "mode `fisher` is not built yet: only `shortest` (the Fisher scorer of SPEC §5 comes later)"
+                    .into(),
+            ),
+            other => Err(format!(
+                "unknown mode `{other}`: only `shortest` is built (`fisher`, SPEC §5, comes later)"
+            )),
+        }
+    }
+}
+
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
-    /// `shortest` (only mode built so far).
-    #[serde(default = "default_mode")]
-    pub mode: String,
+    /// `shortest` (the only mode built so far).
+    #[serde(default)]
+    pub mode: ScorerMode,
 }
 
-fn default_mode() -> String {
-    "shortest".into()
-}
-
-fn check_config(value: &serde_json::Value) -> Result<(), String> {
-    let config: Config = activemap_runtime::catalog::config_from_value(value)?;
-    if config.mode != "shortest" {
-        return Err(format!(
-            "mode `{}` is not built yet: only `shortest` (the Fisher scorer of SPEC §5 comes later)",
-            config.mode
-        ));
+/// A planned path as the wire path of frame `frame_id`.
+pub fn path_to_wire(frame_id: u64, path: &PlannedPath) -> Path {
+    Path {
+        frame_id,
+        waypoints: path
+            .waypoints
+            .iter()
+            .map(|w| PlanarPose2 {
+                x: w.x,
+                y: w.y,
+                yaw: w.yaw,
+            })
+            .collect(),
+        objective: path.cost,
     }
-    Ok(())
 }
 
-/// The shortest collision-free path from `robot` to cell `goal`, shortcut, as waypoints (the
-/// robot's own cell excluded); the last waypoint's yaw faces `look_at`. `None` when A* finds none.
-pub fn shortest_path(
+/// The path answering `goal` (transport-free): the shortest path on `grid` from `robot` to the
+/// closest reachable cell of the goal's region among `frontiers`, facing the goal's focus at
+/// the end; an empty path (objective +∞) when A* finds none. Fails when the goal names a
+/// region the frame does not have.
+pub fn path_for_goal(
     grid: &PlanGrid,
     robot: Point2<f64>,
-    goal: Cell,
-    look_at: Point2<f64>,
-) -> anyhow::Result<Option<(Vec<PlanarPose2>, f64)>> {
-    let map = ClearanceMap::new(grid, &robot_clearance(grid.geometry.resolution)?)?;
-    let start = grid.geometry.require_cell(robot, "robot position")?;
-    let Some(path) = plan(&map, start, goal, &AstarConfig::default())? else {
-        return Ok(None);
-    };
-    let cells = shortcut(&map, &path.cells);
-    let mut previous = robot;
-    let mut waypoints = Vec::new();
-    for c in cells.iter().skip(1) {
-        let p = grid.geometry.center(*c);
-        waypoints.push(PlanarPose2 {
-            x: p.x,
-            y: p.y,
-            yaw: (p.y - previous.y).atan2(p.x - previous.x),
-        });
-        previous = p;
-    }
-    if let Some(last) = waypoints.last_mut() {
-        last.yaw = (look_at.y - last.y).atan2(look_at.x - last.x);
-    }
-    Ok(Some((waypoints, path.cost)))
+    frontiers: &Frontiers,
+    goal: &Goal,
+) -> anyhow::Result<Path> {
+    let k = goal.frame_id;
+    let region = frontiers
+        .regions
+        .iter()
+        .find(|r| r.id as i32 == goal.target)
+        .ok_or_else(|| {
+            anyhow::anyhow!(
+                "scorer: goal frontier {} is not among frame {k}'s regions",
+                goal.target
+            )
+        })?;
+    let cell = Cell::new(
+        region.closest_reachable_cell[0],
+        region.closest_reachable_cell[1],
+    );
+    let look_at = Point2::new(goal.focus[0], goal.focus[1]);
+    let clearance = robot_clearance(grid.geometry.resolution)?;
+    Ok(
+        match shortest_path(
+            grid,
+            robot,
+            cell,
+            look_at,
+            &clearance,
+            &AstarConfig::default(),
+        )? {
+            Some(path) => path_to_wire(k, &path),
+            None => Path {
+                frame_id: k,
+                waypoints: Vec::new(),
+                objective: f64::INFINITY,
+            },
+        },
+    )
 }
 
 /// The inputs of one frame (the grid stays encoded until a goal needs it).
@@ -95,11 +140,8 @@ impl Operator for Scorer {
     type Config = Config;
 
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.mode == "shortest",
-            "scorer: mode `{}` is not built yet (only `shortest`)",
-            config.mode
-        );
+        // `mode` is `shortest`, the only one that deserialises.
+        let ScorerMode::Shortest = config.mode;
         Ok(Self {
             join: FrameJoin::new(),
             goals: Vec::new(),
@@ -145,31 +187,7 @@ impl Operator for Scorer {
             };
             let (_, grid) = read_grid(grid)?;
             self.goals.remove(0);
-            let region = frontiers
-                .regions
-                .iter()
-                .find(|r| r.id as i32 == goal.target)
-                .ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "scorer: goal frontier {} is not among frame {k}'s regions",
-                        goal.target
-                    )
-                })?;
-            let cell = Cell::new(
-                region.closest_reachable_cell[0],
-                region.closest_reachable_cell[1],
-            );
-            let look_at = Point2::new(goal.focus[0], goal.focus[1]);
-            let (waypoints, objective) =
-                shortest_path(&grid, *robot, cell, look_at)?.unwrap_or((Vec::new(), f64::INFINITY));
-            ctx.send(
-                "path",
-                &Path {
-                    frame_id: k,
-                    waypoints,
-                    objective,
-                },
-            )?;
+            ctx.send("path", &path_for_goal(&grid, *robot, frontiers, &goal)?)?;
             self.join.discard_before(k);
         }
         Ok(Flow::Continue)
@@ -211,8 +229,73 @@ pub fn registered() -> Registered {
             inputs: INPUTS,
             outputs: OUTPUTS,
             evaluation: false,
-            check_config,
+            check_config: check_config_as::<Config>,
         },
         implementation: Some(OperatorImpl::of::<Scorer>()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use activemap_planning::grid::{CellState, GridGeometry};
+    use activemap_schemas::FrontierRegion;
+
+    /// `mode` is checked once, when the config is read: `shortest` (the default) is built,
+    /// `fisher` is refused as not built yet, anything else as unknown (naming both).
+    #[test]
+    fn only_the_shortest_mode_is_built() {
+        let check = |v: serde_json::Value| check_config_as::<Config>(&v);
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.mode, ScorerMode::Shortest);
+        assert!(check(serde_json::json!({ "mode": "shortest" })).is_ok());
+        let fisher = check(serde_json::json!({ "mode": "fisher" })).unwrap_err();
+        assert!(fisher.contains("`fisher` is not built yet"), "{fisher}");
+        let other = check(serde_json::json!({ "mode": "random" })).unwrap_err();
+        assert!(
+            other.contains("`random`") && other.contains("fisher"),
+            "{other}"
+        );
+    }
+
+    /// A goal gets a path to its region's closest reachable cell, facing the focus; a goal
+    /// on an unknown region is an error, and a walled-off cell an empty path.
+    #[test]
+    fn a_goal_gets_a_path_to_its_region() {
+        let geometry = GridGeometry::new(0.0, 0.0, 0.05, 60, 60).unwrap();
+        let mut grid = PlanGrid::filled(geometry, CellState::Free);
+        let region = |id, cell: [i32; 2]| FrontierRegion {
+            id,
+            size_cells: 10,
+            centroid: [2.5, 2.5],
+            closest_reachable_cell: cell,
+            path_distance_m: 1.0,
+        };
+        let frontiers = Frontiers {
+            frame_id: 3,
+            stamp: 0.0,
+            regions: vec![region(0, [40, 30]), region(1, [55, 55])],
+        };
+        let goal = |target| Goal {
+            frame_id: 3,
+            target,
+            focus: [2.5, 2.5],
+        };
+        let robot = Point2::new(0.5, 0.5);
+        let p = path_for_goal(&grid, robot, &frontiers, &goal(0)).unwrap();
+        let last = p.waypoints.last().unwrap();
+        let end = geometry.center(Cell::new(40, 30));
+        assert_eq!(p.frame_id, 3);
+        assert!((last.x - end.x).abs() < 1e-12 && (last.y - end.y).abs() < 1e-12);
+        assert!((last.yaw - (2.5 - last.y).atan2(2.5 - last.x)).abs() < 1e-12);
+        assert!(path_for_goal(&grid, robot, &frontiers, &goal(7)).is_err());
+        for x in 50..60 {
+            grid.set(Cell::new(x, 50), CellState::Occupied);
+        }
+        for y in 50..60 {
+            grid.set(Cell::new(50, y), CellState::Occupied);
+        }
+        let none = path_for_goal(&grid, robot, &frontiers, &goal(1)).unwrap();
+        assert!(none.waypoints.is_empty() && none.objective.is_infinite());
     }
 }

@@ -1,84 +1,76 @@
-//! The whole frontier-based exploration loop of issue 6 in one synchronous object, for the
-//! library's own end-to-end tests and benchmark, and as the reference the operators split up:
-//! occupancy update → replan triggers / stuck check → (frontiers → FBE goal → A* → shortcut)
-//! → greedy follower action. The episode starts with a 360° look-around. Once at a goal, the
-//! robot turns to face the frontier cell it came to look at, unless that cell is already within
-//! [`ExplorerConfig::look_skip_half_angle_rad`] of its heading (in the camera's view). Goal
-//! choice, strikes and amnesty are [`FbeState`]'s (the `planner` operator uses the same): when
-//! every frontier is banned, the robot forgives the strikes and looks around again, as long as
-//! the map grew since the last such spin.
+//! The frontier-based exploration loop in one synchronous object: a thin in-process driver of
+//! the very pieces the pipeline's operators run, in the pipeline's order, so that both take the
+//! same actions on the same frames (the `activemap-operators` test
+//! `explorer_and_pipeline_take_the_same_actions` checks it on a house). Per step k:
+//!
+//! 1. occupancy, as the `occupancy` operator: the depth rays of frame k at its pose, the map
+//!    points last given ([`Explorer::mapper_mut`]), the robot's footprint marked free
+//!    ([`ExplorerConfig::footprint_radius_m`]);
+//! 2. the [`PathExecutor`] (the `follower` operator) decides on grid k and pose k;
+//! 3. when it asks for a new path: the reachable frontier regions of grid k
+//!    ([`reachable_regions`], the `frontier` operator), the FBE goal ([`FbePlanner`], the
+//!    `planner` operator; `None` ends the episode), the path to it ([`shortest_path`], the
+//!    `scorer` operator), handed to the executor, which decides again on the same grid and
+//!    pose; after [`ExplorerConfig::max_replans_per_step`] requests in one step the robot
+//!    turns left instead, as the follower does.
+//!
+//! Poses are taken as given (true ones in the benchmark, estimates in the pipeline): no SLAM
+//! and no transport here, and tracking is never lost.
 
 use std::time::{Duration, Instant};
 
+use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::{Intrinsics, Isometry3, PlanarPose};
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
-use crate::astar::{AstarConfig, plan};
-use crate::clearance::{ClearanceConfig, ClearanceMap};
+use crate::astar::AstarConfig;
+use crate::clearance::{ClearanceConfig, ROBOT_RADIUS_M};
 use crate::dynamics::Action;
-use crate::error::PlanningError;
-use crate::fbe::{FbeConfig, FbeState, GoalOutcome};
-use crate::follower::{FollowerConfig, GreedyFollower, greedy_action, look_turn_needed};
-use crate::frontier::{FrontierConfig, Frontiers, extract_frontiers};
-use crate::grid::{Cell, OccupancyGrid};
+use crate::error::{PlanningError, require};
+use crate::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
+use crate::fbe::{FbeConfig, FbePlanner, FbeState};
+use crate::frontier::{FrontierConfig, FrontierRegion, reachable_regions};
+use crate::grid::OccupancyGrid;
 use crate::occupancy::{OccupancyConfig, OccupancyMapper};
-use crate::replan::{ReplanConfig, ReplanReason, check_replan};
-use crate::shortcut::shortcut;
-use crate::stuck::ProgressMonitor;
+use crate::path::shortest_path;
 
-/// Every setting of the loop.
+/// Every setting of the loop (defaults: those of the operators in `dataflow.yaml`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ExplorerConfig {
-    /// Occupancy mapping.
+    /// Occupancy mapping (the `occupancy` operator's `cell_size`, `point_threshold`,
+    /// `pixel_stride`).
     pub occupancy: OccupancyConfig,
-    /// Robot width and unknown handling for planning.
-    pub clearance: ClearanceConfig,
-    /// A*.
-    pub astar: AstarConfig,
+    /// Radius (metres) around the robot always marked free: its own footprint (the
+    /// `occupancy` operator's `footprint_radius`, default the robot's radius).
+    pub footprint_radius_m: f64,
+    /// The robot's radius, metres: one clearance ([`ClearanceConfig::for_disc`]) for the
+    /// frontiers' reachability, A* and the executor's triggers, as in the operators.
+    pub robot_radius_m: f64,
     /// Frontier extraction.
     pub frontier: FrontierConfig,
-    /// Greedy follower.
-    pub follower: FollowerConfig,
-    /// Replan triggers.
-    pub replan: ReplanConfig,
+    /// A*.
+    pub astar: AstarConfig,
     /// Goal ranking, strikes and amnesty.
     pub fbe: FbeConfig,
-    /// Radius (metres) around the robot always marked free (its own footprint).
-    pub footprint_radius_m: f64,
-    /// Steps without progress before the robot counts as stuck.
-    pub stuck_window: usize,
-    /// Progress needed to reset the stuck counter, metres.
-    pub stuck_min_improvement_m: f64,
-    /// At a goal, the look turn toward the frontier is skipped when the frontier's bearing is
-    /// within this angle of the heading (radians; the camera's half hfov is 45°; the default
-    /// 25° keeps the frontier well inside the view: 40° measured worse on `house:4`, see
-    /// `house_episode`). 0 always turns.
-    pub look_skip_half_angle_rad: f64,
-    /// Turns of a full look-around (72 × 5° = 360°), done at the start of the episode and
-    /// when every frontier got banned while the map still grows.
-    pub spin_steps: usize,
-    /// When stuck, an obstacle cell is put this far (metres) ahead of the robot. It must lie
-    /// beyond `footprint_radius_m`, or the next step's footprint clears it again.
-    pub bump_obstacle_ahead_m: f64,
+    /// Path execution.
+    pub executor: ExecutorConfig,
+    /// Replan requests answered within one step before the robot turns left instead (the
+    /// `follower` operator's `max_replans_per_step`).
+    pub max_replans_per_step: usize,
 }
 
 impl Default for ExplorerConfig {
     fn default() -> Self {
         Self {
             occupancy: OccupancyConfig::default(),
-            clearance: ClearanceConfig::default(),
-            astar: AstarConfig::default(),
+            footprint_radius_m: ROBOT_RADIUS_M,
+            robot_radius_m: ROBOT_RADIUS_M,
             frontier: FrontierConfig::default(),
-            follower: FollowerConfig::default(),
-            replan: ReplanConfig::default(),
+            astar: AstarConfig::default(),
             fbe: FbeConfig::default(),
-            footprint_radius_m: 0.15,
-            stuck_window: 40,
-            stuck_min_improvement_m: 0.02,
-            look_skip_half_angle_rad: 25f64.to_radians(),
-            spin_steps: 72,
-            bump_obstacle_ahead_m: 0.2,
+            executor: ExecutorConfig::default(),
+            max_replans_per_step: executor::MAX_REPLANS_PER_STEP,
         }
     }
 }
@@ -88,7 +80,7 @@ impl Default for ExplorerConfig {
 pub enum Decision {
     /// Execute this action.
     Act(Action),
-    /// No reachable frontier is left: the episode is over.
+    /// No reachable frontier is left: the episode is over (the pipeline's `Stop`).
     Finished,
 }
 
@@ -97,7 +89,7 @@ pub enum Decision {
 pub struct StageTimes {
     /// Occupancy update and grid extraction.
     pub occupancy: Duration,
-    /// Replan checks and stuck detection.
+    /// The executor's decisions (replan triggers, stuck detection, the follower).
     pub triggers: Duration,
     /// Frontier extraction and goal choice.
     pub frontiers: Duration,
@@ -108,87 +100,64 @@ pub struct StageTimes {
 /// Counters of what happened during an episode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct ExplorerCounters {
-    /// Plans made.
+    /// Replan requests answered (goal chosen and path made, or the episode ended).
+    pub replans: usize,
+    /// Paths handed to the executor that had waypoints.
     pub plans: usize,
-    /// Replans because the remaining path crossed a new obstacle.
-    pub path_blocked: usize,
-    /// Replans because an obstacle appeared close ahead.
-    pub obstacle_ahead: usize,
-    /// Replans because the goal turned occupied.
-    pub goal_occupied: usize,
-    /// Stuck detections.
-    pub stuck: usize,
     /// Goals A* could not reach.
     pub unreachable_goals: usize,
-    /// Look-around spins after every frontier got banned.
-    pub recovery_spins: usize,
-    /// Goals reached without the look turn (the frontier was already in view).
-    pub looks_skipped: usize,
+    /// Steps that turned left because `max_replans_per_step` requests were used up.
+    pub replan_limit_turns: usize,
+    /// Times every frontier was banned and the strikes were forgiven.
+    pub amnesties: usize,
     /// Goals reached whose frontier did not shrink (banned at once).
     pub unobservable_goals: usize,
-}
-
-enum Phase {
-    Idle,
-    /// Turning on the spot for this many more steps (initial look-around or recovery).
-    Spin(usize),
-    Follow {
-        follower: GreedyFollower,
-        goal: Cell,
-        look_at: Point2<f64>,
-    },
-    Look {
-        look_at: Point2<f64>,
-    },
+    /// The executor's counters (stuck, bumps, obstacle replans, skipped look turns, ...).
+    pub executor: ExecutorCounters,
 }
 
 /// The FBE loop state.
 pub struct Explorer {
     config: ExplorerConfig,
     mapper: OccupancyMapper,
-    phase: Phase,
-    monitor: ProgressMonitor,
-    fbe: FbeState,
-    /// How the last goal ended (judged at the next plan, against the new frontiers).
-    outcome: GoalOutcome,
+    executor: PathExecutor,
+    planner: FbePlanner,
     grid: Option<OccupancyGrid>,
-    frontiers: Option<Frontiers>,
-    plan_grid: Option<OccupancyGrid>,
+    regions: Option<Vec<FrontierRegion>>,
+    counters: ExplorerCounters,
     /// Time per stage.
     pub times: StageTimes,
-    /// Event counters.
-    pub counters: ExplorerCounters,
 }
 
 impl Explorer {
-    /// A loop with an empty map initially covering `[min, max]` (it grows).
+    /// A loop with an empty map initially covering `[min, max]` (it grows; the `occupancy`
+    /// operator starts with (−2, −2)–(2, 2) in the start-anchored frame).
     pub fn new(
         config: ExplorerConfig,
         min: Point2<f64>,
         max: Point2<f64>,
     ) -> Result<Self, PlanningError> {
-        config.clearance.validate()?;
         config.astar.validate()?;
-        config.follower.validate()?;
-        config.replan.validate()?;
-        crate::error::require(
-            config.bump_obstacle_ahead_m.is_finite()
-                && config.bump_obstacle_ahead_m > config.footprint_radius_m,
-            "ExplorerConfig::bump_obstacle_ahead_m",
-            "must be finite and beyond footprint_radius_m (the footprint would clear the bump)",
+        require(
+            config.footprint_radius_m.is_finite() && config.footprint_radius_m >= 0.0,
+            "ExplorerConfig::footprint_radius_m",
+            "must be finite and non-negative",
         )?;
+        require(
+            config.max_replans_per_step >= 1,
+            "ExplorerConfig::max_replans_per_step",
+            "must be at least 1",
+        )?;
+        ClearanceConfig::for_disc(config.robot_radius_m, config.occupancy.resolution)?;
         Ok(Self {
             mapper: OccupancyMapper::new(config.occupancy, min, max)?,
-            monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement_m)?,
-            phase: Phase::Spin(config.spin_steps),
+            executor: PathExecutor::new(config.executor, config.robot_radius_m)?,
+            planner: FbePlanner::new(config.fbe)?,
             config,
-            fbe: FbeState::new(config.fbe)?,
-            outcome: GoalOutcome::Abandoned,
             grid: None,
-            frontiers: None,
-            plan_grid: None,
-            times: StageTimes::default(),
+            regions: None,
             counters: ExplorerCounters::default(),
+            times: StageTimes::default(),
         })
     }
 
@@ -197,45 +166,52 @@ impl Explorer {
         self.grid.as_ref()
     }
 
-    /// The latest frontiers (from the last plan).
-    pub fn frontiers(&self) -> Option<&Frontiers> {
-        self.frontiers.as_ref()
+    /// The reachable frontier regions of the last step that asked for a path, largest first.
+    pub fn regions(&self) -> Option<&[FrontierRegion]> {
+        self.regions.as_deref()
     }
 
     /// The waypoints (world) of the path being followed that are not reached yet; `None`
     /// when no path is being followed.
     pub fn remaining_path(&self) -> Option<&[Point2<f64>]> {
-        match &self.phase {
-            Phase::Follow { follower, .. } => Some(follower.remaining()),
-            _ => None,
-        }
+        self.executor.remaining()
     }
 
-    /// The goal (world centre of the approach cell) and the frontier point being driven to;
-    /// `None` unless a path is being followed.
-    pub fn goal(&self) -> Option<(Point2<f64>, Point2<f64>)> {
-        match (&self.phase, &self.grid) {
-            (Phase::Follow { goal, look_at, .. }, Some(g)) => {
-                Some((g.geometry.center(*goal), *look_at))
-            }
-            _ => None,
-        }
+    /// The end of the path being followed and the yaw the robot will face there (toward the
+    /// frontier); `None` unless a path is being followed.
+    pub fn goal(&self) -> Option<(Point2<f64>, f64)> {
+        self.executor.goal()
     }
 
     /// The FBE decision state (strikes, amnesties).
     pub fn fbe(&self) -> &FbeState {
-        &self.fbe
+        self.planner.state()
     }
 
-    /// The occupancy mapper (to feed map points too).
+    /// The path executor.
+    pub fn executor(&self) -> &PathExecutor {
+        &self.executor
+    }
+
+    /// What happened so far.
+    pub fn counters(&self) -> ExplorerCounters {
+        ExplorerCounters {
+            amnesties: self.planner.state().amnesties,
+            unobservable_goals: self.planner.state().unobservable_goals,
+            executor: self.executor.counters,
+            ..self.counters
+        }
+    }
+
+    /// The occupancy mapper (to feed map points, which count from the next step on).
     pub fn mapper_mut(&mut self) -> &mut OccupancyMapper {
         &mut self.mapper
     }
 
-    /// One step: integrate the depth frame taken at the (estimated) pose, then decide.
+    /// One step: integrate the depth frame taken at camera pose `t_world_camera` (the robot's
+    /// planar pose is derived from it, as every operator does), then decide.
     pub fn step(
         &mut self,
-        pose: &PlanarPose,
         depth: &[f32],
         intrinsics: &Intrinsics,
         t_world_camera: &Isometry3<f64>,
@@ -243,197 +219,79 @@ impl Explorer {
         let t0 = Instant::now();
         self.mapper
             .integrate_depth(depth, intrinsics, t_world_camera)?;
-        let here = Point2::new(pose.x, pose.y);
+        let pose = planar_from_camera_pose(t_world_camera);
         self.mapper
-            .mark_free_disc(here, self.config.footprint_radius_m)?;
+            .mark_free_disc(Point2::new(pose.x, pose.y), self.config.footprint_radius_m)?;
         let grid = self.mapper.grid();
         self.times.occupancy += t0.elapsed();
-        let decision = self.decide(pose, &grid);
+        let decision = self.decide(&pose, &grid);
         self.grid = Some(grid);
         decision
     }
 
+    /// The follower's per-step loop: decide; answer each replan request with a goal and a
+    /// path on the same grid and pose, at most `max_replans_per_step` times.
     fn decide(
         &mut self,
         pose: &PlanarPose,
         grid: &OccupancyGrid,
     ) -> Result<Decision, PlanningError> {
         let here = Point2::new(pose.x, pose.y);
-        let threshold = self.config.follower.turn_threshold_rad;
-        // Up to a few phase changes per step (a finished path hands over to a new plan).
-        for _ in 0..4 {
-            match &mut self.phase {
-                Phase::Spin(left) => {
-                    if *left > 0 {
-                        *left -= 1;
-                        return Ok(Decision::Act(Action::TurnLeft));
-                    }
-                    self.phase = Phase::Idle;
-                }
-                Phase::Idle => {
-                    if !self.make_plan(pose, grid)? {
-                        // Every reachable frontier is banned or none is left. If the map grew
-                        // since the last look-around, forgive the strikes and look around once
-                        // more; otherwise the episode is over.
-                        let free = grid.count(crate::grid::CellState::Free);
-                        if self.fbe.forgive(free) {
-                            self.counters.recovery_spins += 1;
-                            self.phase = Phase::Spin(self.config.spin_steps);
-                            continue;
-                        }
-                        return Ok(Decision::Finished);
-                    }
-                }
-                Phase::Look { look_at } => {
-                    let a = greedy_action(pose, look_at, threshold);
-                    if a != Action::Forward {
-                        return Ok(Decision::Act(a));
-                    }
-                    // Reached: the strikes are counted at the next plan, against the frontiers
-                    // seen from here.
-                    self.outcome = GoalOutcome::Reached;
-                    self.phase = Phase::Idle;
-                }
-                Phase::Follow {
-                    follower,
-                    goal,
-                    look_at,
-                } => {
-                    let (goal, look_at) = (*goal, *look_at);
-                    let t = Instant::now();
-                    let occupied_only = ClearanceMap::new(
-                        grid,
-                        &ClearanceConfig {
-                            unknown_is_blocked: false,
-                            ..self.config.clearance
-                        },
-                    )?;
-                    let goal_world = grid.geometry.center(goal);
-                    let reason = check_replan(
-                        grid,
-                        &occupied_only,
-                        pose,
-                        follower.remaining(),
-                        Some(goal_world),
-                        &self.config.replan,
-                        self.plan_grid.as_ref(),
-                    )?;
-                    // Progress = the remaining path length shrinking (a detour that first moves
-                    // away from the goal is still progress).
-                    let mut left = 0.0;
-                    let mut prev = here;
-                    for w in follower.remaining() {
-                        left += (w - prev).norm();
-                        prev = *w;
-                    }
-                    let stuck = self.monitor.observe(left);
-                    self.times.triggers += t.elapsed();
-                    if stuck {
-                        // No progress: something unseen (too close or too low for the camera)
-                        // may block the way; put it on the map right ahead of the robot.
-                        self.counters.stuck += 1;
-                        let ahead = here
-                            + nalgebra::Vector2::new(pose.yaw.cos(), pose.yaw.sin())
-                                * self.config.bump_obstacle_ahead_m;
-                        self.mapper
-                            .mark_occupied_disc(ahead, 0.5 * grid.geometry.resolution)?;
-                        self.fbe.record(GoalOutcome::Failed, &[], &grid.geometry);
-                        self.outcome = GoalOutcome::Abandoned;
-                        self.phase = Phase::Idle;
-                        continue;
-                    }
-                    match reason {
-                        None => {}
-                        Some(ReplanReason::PathDone) => {
-                            self.arrive(pose, look_at);
-                            continue;
-                        }
-                        Some(r) => {
-                            match r {
-                                ReplanReason::PathBlocked { .. } => self.counters.path_blocked += 1,
-                                ReplanReason::ObstacleAhead => self.counters.obstacle_ahead += 1,
-                                _ => self.counters.goal_occupied += 1,
-                            }
-                            self.outcome = GoalOutcome::Abandoned;
-                            self.phase = Phase::Idle;
-                            continue;
-                        }
-                    }
-                    match follower.next_action(pose) {
-                        Some(a) => return Ok(Decision::Act(a)),
-                        None => self.arrive(pose, look_at),
-                    }
-                }
-            }
-        }
-        // Still undecided after several phase changes: turn in place to look around.
-        Ok(Decision::Act(Action::TurnLeft))
-    }
-
-    /// At the goal: turn to the frontier unless it is already in view.
-    fn arrive(&mut self, pose: &PlanarPose, look_at: Point2<f64>) {
-        let look_yaw = (look_at.y - pose.y).atan2(look_at.x - pose.x);
-        if look_turn_needed(pose.yaw, look_yaw, self.config.look_skip_half_angle_rad) {
-            self.phase = Phase::Look { look_at };
-        } else {
-            self.counters.looks_skipped += 1;
-            self.outcome = GoalOutcome::Reached;
-            self.phase = Phase::Idle;
-        }
-    }
-
-    /// Chooses a frontier and plans to it; false when no reachable frontier is left.
-    fn make_plan(
-        &mut self,
-        pose: &PlanarPose,
-        grid: &OccupancyGrid,
-    ) -> Result<bool, PlanningError> {
-        let here = Point2::new(pose.x, pose.y);
-        let t = Instant::now();
-        let map = ClearanceMap::new(grid, &self.config.clearance)?;
-        let frontiers = extract_frontiers(grid, &map, here, &self.config.frontier)?;
-        self.times.frontiers += t.elapsed();
-        let start = grid.geometry.require_cell(here, "robot position")?;
-        let outcome = std::mem::replace(&mut self.outcome, GoalOutcome::Abandoned);
-        self.fbe.record(outcome, &frontiers.regions, &grid.geometry);
-        self.counters.unobservable_goals = self.fbe.unobservable_goals;
-        let mut result = false;
+        let clearance =
+            ClearanceConfig::for_disc(self.config.robot_radius_m, grid.geometry.resolution)?;
+        let mut replans = 0;
         loop {
             let t = Instant::now();
-            let Some(choice) = self.fbe.choose(&frontiers.regions, &grid.geometry, pose) else {
-                break;
+            let decision = self.executor.decide(pose, grid, false)?;
+            self.times.triggers += t.elapsed();
+            let reason = match decision {
+                executor::Decision::Act(a) => return Ok(Decision::Act(a)),
+                executor::Decision::Replan(_) if replans >= self.config.max_replans_per_step => {
+                    self.counters.replan_limit_turns += 1;
+                    return Ok(Decision::Act(Action::TurnLeft));
+                }
+                executor::Decision::Replan(reason) => reason,
             };
-            self.times.frontiers += t.elapsed();
+            replans += 1;
+            self.counters.replans += 1;
             let t = Instant::now();
-            let path = plan(&map, start, choice.cell, &self.config.astar)?;
-            let Some(path) = path else {
-                self.times.planning += t.elapsed();
-                self.counters.unreachable_goals += 1;
-                self.fbe
-                    .record(GoalOutcome::Failed, &frontiers.regions, &grid.geometry);
-                continue;
+            // The frontier operator's regions of this frame, extracted once per step.
+            if replans == 1 {
+                self.regions = Some(reachable_regions(
+                    grid,
+                    here,
+                    &clearance,
+                    &self.config.frontier,
+                )?);
+            }
+            let found = self.regions.as_deref().unwrap_or_default();
+            let choice = self.planner.choose(reason, grid, found, pose);
+            self.times.frontiers += t.elapsed();
+            let Some(choice) = choice else {
+                return Ok(Decision::Finished);
             };
-            let short = shortcut(&map, &path.cells);
+            let t = Instant::now();
+            let path = shortest_path(
+                grid,
+                here,
+                choice.cell,
+                choice.focus,
+                &clearance,
+                &self.config.astar,
+            )?;
             self.times.planning += t.elapsed();
-            let waypoints = short[1..]
-                .iter()
-                .map(|c| grid.geometry.center(*c))
-                .collect();
-            self.phase = Phase::Follow {
-                follower: GreedyFollower::new(self.config.follower, waypoints)?,
-                goal: choice.cell,
-                look_at: grid
-                    .geometry
-                    .center(frontiers.regions[choice.region].anchor),
+            let waypoints = match &path {
+                Some(p) => p.waypoints.as_slice(),
+                None => {
+                    self.counters.unreachable_goals += 1;
+                    &[]
+                }
             };
-            self.monitor.reset();
-            self.plan_grid = Some(grid.clone());
-            self.counters.plans += 1;
-            result = true;
-            break;
+            if !waypoints.is_empty() {
+                self.counters.plans += 1;
+            }
+            self.executor.set_path(waypoints)?;
         }
-        self.frontiers = Some(frontiers);
-        Ok(result)
     }
 }
 
@@ -441,6 +299,7 @@ impl Explorer {
 mod tests {
     use super::*;
     use crate::dynamics::ActionModel;
+    use crate::grid::Cell;
     use crate::synthetic::SyntheticWorld;
     use activemap_geometry::camera_pose_from_planar;
 
@@ -488,7 +347,7 @@ mod tests {
         for _ in 0..600 {
             let cam = camera_pose_from_planar(&pose, 0.0, 0.88);
             let depth = world.render_depth(&k, &cam);
-            let dec = ex.step(&pose, &depth, &k, &cam).unwrap();
+            let dec = ex.step(&depth, &k, &cam).unwrap();
             let Decision::Act(a) = dec else {
                 break;
             };
@@ -505,7 +364,7 @@ mod tests {
                             world.heights.set(Cell::new(x, y), 0.6);
                         }
                     }
-                    placed = Some(ex.counters);
+                    placed = Some(ex.counters());
                 }
             }
             let next = world.step(&pose, a, &model, 0.05);
@@ -515,12 +374,12 @@ mod tests {
             pose = next;
         }
         let before = placed.expect("the robot never followed a long enough path");
-        let replans = |c: &ExplorerCounters| c.path_blocked + c.obstacle_ahead + c.goal_occupied;
+        let replans = |c: &ExplorerCounters| c.executor.obstacle_replans;
         assert!(
-            replans(&ex.counters) > replans(&before),
+            replans(&ex.counters()) > replans(&before),
             "{:?} -> {:?}",
             before,
-            ex.counters
+            ex.counters()
         );
         assert_eq!(bumps, 0, "drove into the new obstacle");
     }
@@ -545,7 +404,7 @@ mod tests {
         for step in 0..3000 {
             let cam = camera_pose_from_planar(&pose, 0.0, 0.88);
             let depth = world.render_depth(&k, &cam);
-            match ex.step(&pose, &depth, &k, &cam).unwrap() {
+            match ex.step(&depth, &k, &cam).unwrap() {
                 Decision::Finished => {
                     finished_at = Some(step);
                     break;
@@ -575,7 +434,7 @@ mod tests {
                 txt.push('\n');
             }
             std::fs::write("/tmp/planning_grid.txt", txt).unwrap();
-            for r in &ex.frontiers().unwrap().regions {
+            for r in ex.regions().unwrap() {
                 eprintln!(
                     "region size {} first {:?} approach {:?}",
                     r.size(),
@@ -583,11 +442,11 @@ mod tests {
                     r.approach
                 );
             }
-            eprintln!("strikes {:?}", ex.fbe.strikes());
+            eprintln!("strikes {:?}", ex.fbe().strikes());
         }
         eprintln!(
             "finished at {finished_at:?}, coverage {coverage:.3}, blocked forward {blocked_forward}, {:?}",
-            ex.counters
+            ex.counters()
         );
         assert!(finished_at.is_some(), "no end within 3000 steps");
         assert!(coverage >= 0.8, "coverage {coverage}");

@@ -1,6 +1,7 @@
 //! Frontier-based exploration (Yamauchi 1997; SPEC §6 baseline): which frontier region to visit
-//! next, and which goals to stop trying. [`FbeState`] is the one decision state that both the
-//! in-process [`crate::explorer::Explorer`] and the `planner` operator use:
+//! next, and which goals to stop trying. [`FbePlanner`] (the decision per replan request, over
+//! the one decision state [`FbeState`]) is what both the in-process
+//! [`crate::explorer::Explorer`] and the `planner` operator call:
 //!
 //! - ranking ([`FbePolicy`]): the nearest region by path length, the largest, or (default) the
 //!   best utility = size / (path cost + turn cost + offset), which prefers large frontiers
@@ -21,7 +22,8 @@ use serde::{Deserialize, Serialize};
 use crate::dynamics::{ActionModel, wrap_angle};
 use crate::error::{PlanningError, require};
 use crate::frontier::FrontierRegion;
-use crate::grid::{Cell, GridGeometry};
+use crate::grid::{Cell, CellState, GridGeometry, OccupancyGrid};
+use crate::replan::ReplanReason;
 
 /// How FBE ranks reachable frontier regions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -266,6 +268,78 @@ impl FbeState {
         self.pending = None;
         self.amnesties += 1;
         true
+    }
+}
+
+/// How the executor's replan `reason` judges the last goal: reached when the path is done,
+/// failed when no path was found or the robot got stuck, abandoned (no strike) otherwise.
+pub fn outcome(reason: ReplanReason) -> GoalOutcome {
+    match reason {
+        ReplanReason::PathDone => GoalOutcome::Reached,
+        ReplanReason::NoPath | ReplanReason::Stuck => GoalOutcome::Failed,
+        ReplanReason::Startup
+        | ReplanReason::GoalOccupied
+        | ReplanReason::PathBlocked { .. }
+        | ReplanReason::ObstacleAhead
+        | ReplanReason::TrackingLost
+        | ReplanReason::Blocked => GoalOutcome::Abandoned,
+    }
+}
+
+/// The goal FBE chose at a replan request.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FbeChoice {
+    /// Index into the regions slice.
+    pub region: usize,
+    /// The region's approach cell: where the path goes.
+    pub cell: Cell,
+    /// The region's centroid: what the robot faces at the end of the path.
+    pub focus: Point2<f64>,
+}
+
+/// The FBE decision made at each replan request, shared by the `planner` operator and the
+/// in-process explorer so that both choose the same goals.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FbePlanner {
+    state: FbeState,
+}
+
+impl FbePlanner {
+    /// A planner with no strikes.
+    pub fn new(config: FbeConfig) -> Result<Self, PlanningError> {
+        Ok(Self {
+            state: FbeState::new(config)?,
+        })
+    }
+
+    /// The decision state (strikes, amnesties).
+    pub fn state(&self) -> &FbeState {
+        &self.state
+    }
+
+    /// Judges the last goal by the executor's `reason` against the current `regions` (the
+    /// reachable ones, [`crate::frontier::reachable_regions`]) of `grid`, then chooses among
+    /// them for the robot at `robot`. When every region is banned the strikes are forgiven,
+    /// once per growth of the map's free cells, and it chooses again. `None`: nothing is left
+    /// to explore (the episode is over).
+    pub fn choose(
+        &mut self,
+        reason: ReplanReason,
+        grid: &OccupancyGrid,
+        regions: &[FrontierRegion],
+        robot: &PlanarPose,
+    ) -> Option<FbeChoice> {
+        self.state.record(outcome(reason), regions, &grid.geometry);
+        let mut goal = self.state.choose(regions, &grid.geometry, robot);
+        if goal.is_none() && self.state.forgive(grid.count(CellState::Free)) {
+            goal = self.state.choose(regions, &grid.geometry, robot);
+        }
+        let goal = goal?;
+        Some(FbeChoice {
+            region: goal.region,
+            cell: goal.cell,
+            focus: regions[goal.region].centroid,
+        })
     }
 }
 

@@ -149,6 +149,27 @@ pub fn path_distances(map: &ClearanceMap, start: Cell) -> Grid<f64> {
     dist
 }
 
+/// The regions a planner chooses among, as the `frontier` operator publishes them: those of
+/// [`extract_frontiers`] (robot-width check `clearance`) that have an approach cell, largest
+/// first (a stable sort, so equal sizes keep the row-major order). The in-process explorer and
+/// the operator both call this, so their FBE decisions see the same list in the same order.
+pub fn reachable_regions(
+    grid: &OccupancyGrid,
+    robot: Point2<f64>,
+    clearance: &crate::clearance::ClearanceConfig,
+    config: &FrontierConfig,
+) -> Result<Vec<FrontierRegion>, PlanningError> {
+    let map = ClearanceMap::new(grid, clearance)?;
+    let found = extract_frontiers(grid, &map, robot, config)?;
+    let mut regions: Vec<FrontierRegion> = found
+        .regions
+        .into_iter()
+        .filter(|r| r.approach.is_some())
+        .collect();
+    regions.sort_by_key(|r| std::cmp::Reverse(r.size()));
+    Ok(regions)
+}
+
 /// Extracts the frontier regions of `grid` as seen from the robot at `robot` (world metres).
 /// `map` must be built from the same grid.
 pub fn extract_frontiers(

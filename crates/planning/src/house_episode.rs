@@ -13,14 +13,13 @@ use activemap_geometry::PlanarPose;
 use activemap_sim::{Action as SimAction, NavigableMap, SceneSpec, SimConfig};
 use nalgebra::Point2;
 
-use crate::clearance::ClearanceConfig;
 use crate::dynamics::Action;
 use crate::error::PlanningError;
 use crate::explorer::{Decision, Explorer, ExplorerConfig, ExplorerCounters, StageTimes};
 use crate::grid::{CellState, OccupancyGrid};
 
 /// The robot's radius in the simulator (its cylinder agent), metres.
-pub const ROBOT_RADIUS_M: f64 = 0.1;
+pub const ROBOT_RADIUS_M: f64 = crate::clearance::ROBOT_RADIUS_M;
 
 /// What episode to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,8 +41,8 @@ pub struct HouseEpisodeConfig {
 }
 
 impl HouseEpisodeConfig {
-    /// The issue-6 benchmark episode on `house:<seed>`: 2000 steps at 160×160, the robot-disc
-    /// clearance the operators use.
+    /// The issue-6 benchmark episode on `house:<seed>`: 2000 steps at 160×160, the
+    /// operators' settings ([`ExplorerConfig::default`]).
     pub fn benchmark(seed: u64) -> Result<Self, PlanningError> {
         Ok(Self {
             seed,
@@ -51,10 +50,7 @@ impl HouseEpisodeConfig {
             max_area: None,
             steps: 2000,
             image_size: 160,
-            explorer: ExplorerConfig {
-                clearance: ClearanceConfig::for_disc(ROBOT_RADIUS_M, 0.05)?,
-                ..ExplorerConfig::default()
-            },
+            explorer: ExplorerConfig::default(),
             coverage_every: 0,
         })
     }
@@ -145,10 +141,11 @@ pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
         .map_err(sim_error)?;
     let k = sim.config().intrinsics;
     let start = sim.true_planar_pose();
+    // The occupancy operator's initial extent, ±2 m around the start.
     let mut ex = Explorer::new(
         config.explorer,
-        Point2::new(start.x - 1.0, start.y - 1.0),
-        Point2::new(start.x + 1.0, start.y + 1.0),
+        Point2::new(start.x - 2.0, start.y - 2.0),
+        Point2::new(start.x + 2.0, start.y + 2.0),
     )?;
     let mut out = HouseEpisode {
         coverage: 0.0,
@@ -176,7 +173,7 @@ pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
         out.render_time += t.elapsed();
         let cam = sim.true_pose();
         let t = Instant::now();
-        let decision = ex.step(&pose, &frame.depth, &k, &cam)?;
+        let decision = ex.step(&frame.depth, &k, &cam)?;
         out.loop_time += t.elapsed();
         out.steps += 1;
         let action = match decision {
@@ -200,12 +197,10 @@ pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
                 SimAction::TurnRight
             }
         };
-        if trace && ex.counters.plans != plans_seen {
-            plans_seen = ex.counters.plans;
-            let regions = ex.frontiers().map_or(0, |f| f.regions.len());
-            if let Some(f) = ex.frontiers() {
-                let list: Vec<String> = f
-                    .regions
+        if trace && ex.counters().replans != plans_seen {
+            plans_seen = ex.counters().replans;
+            if let Some(regions) = ex.regions() {
+                let list: Vec<String> = regions
                     .iter()
                     .map(|r| {
                         format!(
@@ -220,15 +215,14 @@ pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
                 eprintln!("  regions {}", list.join(" "));
             }
             eprintln!(
-                "step {step} plan {plans_seen} at ({:.2}, {:.2}, {:.0}°) goal {:?} regions {regions} strikes {} cov {:.1}",
+                "step {step} replan {plans_seen} at ({:.2}, {:.2}, {:.0}°) goal {:?} strikes {} cov {:.1}",
                 pose.x,
                 pose.y,
                 pose.yaw.to_degrees(),
-                ex.goal().map(|(g, l)| (
+                ex.goal().map(|(g, yaw)| (
                     (g.x * 100.0).round() / 100.0,
                     (g.y * 100.0).round() / 100.0,
-                    (l.x * 100.0).round() / 100.0,
-                    (l.y * 100.0).round() / 100.0
+                    yaw.to_degrees().round()
                 )),
                 ex.fbe().strikes().len(),
                 ex.grid().map_or(0.0, |g| 100.0 * coverage(g)),
@@ -255,7 +249,7 @@ pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
         }
     }
     out.coverage = ex.grid().map_or(0.0, coverage);
-    out.counters = ex.counters;
+    out.counters = ex.counters();
     out.times = ex.times;
     Ok(out)
 }
@@ -297,7 +291,7 @@ mod tests {
                 .ok()
                 .and_then(|s| s.parse::<f64>().ok())
             {
-                cfg.explorer.look_skip_half_angle_rad = d.to_radians();
+                cfg.explorer.executor.look_skip_half_angle_rad = d.to_radians();
             }
             if let Some(c) = std::env::var("COST_OFFSET")
                 .ok()
@@ -313,7 +307,7 @@ mod tests {
                 e.steps_to(0.85),
                 e.steps_to(0.95),
                 e.counters.unobservable_goals,
-                e.counters.looks_skipped,
+                e.counters.executor.looks_skipped,
                 100.0 * e.coverage,
                 e.steps,
                 e.finished,

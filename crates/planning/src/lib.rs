@@ -9,12 +9,14 @@
 //! - [`segment`]: cells touched by segments (supercover for checks, DDA for rays);
 //! - [`frontier`]: frontier cells and regions with their closest reachable cell;
 //! - [`astar`] and [`shortcut`]: paths;
-//! - [`follower`], [`dynamics`], [`stuck`], [`replan`]: executing paths;
-//! - [`fbe`]: the frontier-based-exploration goal choice;
-//! - [`explorer`]: the whole FBE loop in one synchronous object (reference for the operators);
+//! - [`path`]: the path to a goal as the scorer makes it (A*, shortcut, headings);
+//! - [`follower`], [`dynamics`], [`stuck`], [`replan`]: the pieces of path execution;
+//! - [`executor`]: the one path executor (the `follower` operator and the explorer run it);
+//! - [`fbe`]: the frontier-based-exploration goal choice (the `planner` operator's decision);
+//! - [`explorer`]: the whole FBE loop in process, driving the operators' pieces in their order;
 //! - [`house_episode`]: FBE episodes on the simulator's `house:<seed>` scenes with true poses;
 //! - [`synthetic`]: a 2.5D test world with an exact depth renderer and procedural houses;
-//! - [`bench`]: timings of the pieces the exploration loop runs every step.
+//! - [`bench`](mod@bench): timings of the pieces the exploration loop runs every step.
 
 #![warn(missing_docs)]
 
@@ -24,6 +26,7 @@ pub mod clearance;
 pub mod distance;
 pub mod dynamics;
 pub mod error;
+pub mod executor;
 pub mod explorer;
 pub mod fbe;
 pub mod follower;
@@ -32,6 +35,7 @@ pub mod grid;
 pub mod house_episode;
 pub mod morphology;
 pub mod occupancy;
+pub mod path;
 pub mod replan;
 pub mod segment;
 pub mod shortcut;

@@ -11,10 +11,16 @@ use crate::error::{PlanningError, require};
 use crate::follower::heading_error;
 use crate::grid::{Cell, CellState, OccupancyGrid};
 
-/// Why a new plan is needed.
+/// Why a new plan is needed: the map triggers [`check_replan`] reports (path done, goal
+/// occupied, path blocked, obstacle ahead) and the executor's own reasons (start-up, no path,
+/// stuck, bumper, tracking recovered; [`crate::executor::PathExecutor`]). The planner judges
+/// the last goal by it ([`crate::fbe::outcome`]); the `follower` operator maps it onto the wire
+/// enum `activemap_schemas::ReplanReason` (the three obstacle triggers become `ObstacleAhead`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ReplanReason {
-    /// Every waypoint has been reached.
+    /// No path yet (the episode starts, after the initial look-around).
+    Startup,
+    /// Every waypoint has been reached (and the look turn, if any, is done).
     PathDone,
     /// The goal cell is now occupied.
     GoalOccupied,
@@ -26,6 +32,26 @@ pub enum ReplanReason {
     },
     /// An occupied cell lies in the robot's corridor within the look-ahead distance.
     ObstacleAhead,
+    /// The planner found no path to the goal (an empty path).
+    NoPath,
+    /// No progress along the path over the stuck window: the goal counts as failed.
+    Stuck,
+    /// Tracking was lost and has recovered: the old path was planned on a pose that may be
+    /// wrong.
+    TrackingLost,
+    /// Forward moves did not move the robot (the bumper): something the map does not show is
+    /// in the way. The goal is not at fault.
+    Blocked,
+}
+
+impl ReplanReason {
+    /// Whether the map showed an obstacle on or ahead of the path, or at the goal.
+    pub fn is_obstacle(self) -> bool {
+        matches!(
+            self,
+            Self::GoalOccupied | Self::PathBlocked { .. } | Self::ObstacleAhead
+        )
+    }
 }
 
 /// Settings of the replan triggers.
@@ -130,7 +156,7 @@ pub fn obstacle_within(
 }
 
 /// The first reason to replan, checked in the order done, goal occupied, path blocked,
-/// obstacle ahead; `None` to keep following. The obstacle-ahead corridor only counts when the
+/// obstacle ahead (only these four [`ReplanReason`]s come from here); `None` to keep following. The obstacle-ahead corridor only counts when the
 /// robot is about to move forward (heading error to the next waypoint within
 /// `config.turn_threshold_rad`) and only up to that waypoint (the path may turn there), and only for
 /// cells not already occupied in `plan_grid` (the grid the plan was made on, if given). `remaining` are the waypoints not reached yet

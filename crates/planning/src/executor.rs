@@ -1,0 +1,618 @@
+//! The path executor: the one state machine that turns a path into one action per step, used
+//! by the `follower` operator (what `activemap run` runs) and by the in-process
+//! [`crate::explorer::Explorer`]. Each step it either acts or asks for a new path:
+//!
+//! - the episode starts with a look-around of [`ExecutorConfig::initial_spin_steps`] left turns
+//!   (72 × 5° = 360°: the camera sees nothing closer than ~0.9 m ahead, so the robot maps its
+//!   surroundings before the first plan), then asks ([`ReplanReason::Startup`]);
+//! - along a path it follows the waypoints with the greedy rule of SPEC §6
+//!   ([`GreedyFollower::next_action_checked`]: a reached waypoint is left early only along a
+//!   clear line), and asks for a new path when [`check_replan`] sees an obstacle on the
+//!   remaining path, close ahead or at the goal (only obstacles that appeared since the path's
+//!   first grid count), when the robot is stuck (no progress along the path over
+//!   [`ExecutorConfig::stuck_window`] steps: the goal then counts as failed), and when
+//!   [`ExecutorConfig::bumps_to_replan`] forward moves in a row left the (tracked) position
+//!   within half a step, as a bumper would notice ([`forward_was_blocked`]);
+//! - at the end of the path it turns to face the frontier it came for (the last waypoint's
+//!   yaw) unless that bearing is already within [`ExecutorConfig::look_skip_half_angle_rad`]
+//!   of the heading, then asks ([`ReplanReason::PathDone`]);
+//! - an empty path means the planner found none ([`ReplanReason::NoPath`]);
+//! - while tracking is lost it only turns on the spot (no translation on a pose that may be
+//!   wrong) and asks for a new path once tracking is back ([`ReplanReason::TrackingLost`]).
+//!
+//! No transport and no simulator here: the caller feeds the pose and grid of each step and
+//! answers a replan request with [`PathExecutor::set_path`] before asking again.
+
+use activemap_geometry::PlanarPose;
+use nalgebra::{Point2, Vector2};
+use serde::{Deserialize, Serialize};
+
+use crate::clearance::{ClearanceConfig, ClearanceMap};
+use crate::dynamics::{Action, ActionModel, forward_was_blocked};
+use crate::error::{PlanningError, require};
+use crate::follower::{FollowerConfig, GreedyFollower, greedy_action, look_turn_needed};
+use crate::grid::OccupancyGrid;
+use crate::replan::{ReplanConfig, ReplanReason, check_replan};
+use crate::stuck::ProgressMonitor;
+
+/// Replan requests answered within one step before the robot turns left instead: the
+/// default of the `follower` operator's `max_replans_per_step` and of the explorer's (a
+/// planner that keeps choosing unreachable goals cannot stall a step forever).
+pub const MAX_REPLANS_PER_STEP: usize = 6;
+
+/// Every setting of the executor (defaults: what the `follower` operator runs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ExecutorConfig {
+    /// The greedy follower (SPEC §6: 5° turn threshold).
+    pub follower: FollowerConfig,
+    /// The map triggers; its turn threshold must be the follower's.
+    pub replan: ReplanConfig,
+    /// Steps without progress along the path before the robot counts as stuck (more than
+    /// the 36 turns of a half circle, which make no progress).
+    pub stuck_window: usize,
+    /// Progress (metres of remaining path) that resets the stuck counter.
+    pub stuck_min_improvement_m: f64,
+    /// Left turns of the look-around at the start of the episode (72 × 5° = 360°); 0 asks
+    /// for a path at once.
+    pub initial_spin_steps: usize,
+    /// At the end of a path the turn toward the frontier is skipped when its bearing is
+    /// within this angle of the heading, radians (the camera's half hfov is 45°; 25° keeps
+    /// the frontier well inside the view, 40° measured worse on `house:4`). 0 always turns.
+    pub look_skip_half_angle_rad: f64,
+    /// Forward moves in a row that leave the position within half of `forward_step_m`
+    /// before the executor asks for a new path ([`ReplanReason::Blocked`]); 0 disables it.
+    pub bumps_to_replan: usize,
+    /// Length of a forward step, metres (SPEC §1: 0.05).
+    pub forward_step_m: f64,
+}
+
+impl Default for ExecutorConfig {
+    fn default() -> Self {
+        let follower = FollowerConfig::default();
+        Self {
+            follower,
+            replan: ReplanConfig {
+                turn_threshold_rad: follower.turn_threshold_rad,
+                ..ReplanConfig::default()
+            },
+            stuck_window: 40,
+            stuck_min_improvement_m: 0.02,
+            initial_spin_steps: 72,
+            look_skip_half_angle_rad: 25f64.to_radians(),
+            bumps_to_replan: 2,
+            forward_step_m: ActionModel::default().forward_m,
+        }
+    }
+}
+
+impl ExecutorConfig {
+    /// Checks the ranges of every field.
+    pub fn validate(&self) -> Result<(), PlanningError> {
+        self.follower.validate()?;
+        self.replan.validate()?;
+        require(
+            self.replan.turn_threshold_rad == self.follower.turn_threshold_rad,
+            "ExecutorConfig::replan.turn_threshold_rad",
+            "must equal follower.turn_threshold_rad (the corridor counts when the robot moves)",
+        )?;
+        require(
+            self.look_skip_half_angle_rad.is_finite()
+                && (0.0..=std::f64::consts::PI).contains(&self.look_skip_half_angle_rad),
+            "ExecutorConfig::look_skip_half_angle_rad",
+            "must be in [0, π]",
+        )?;
+        require(
+            self.forward_step_m.is_finite() && self.forward_step_m > 0.0,
+            "ExecutorConfig::forward_step_m",
+            "must be finite and positive",
+        )?;
+        ProgressMonitor::new(self.stuck_window, self.stuck_min_improvement_m).map(|_| ())
+    }
+}
+
+/// What the executor wants this step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Decision {
+    /// Execute this action.
+    Act(Action),
+    /// Ask the planner for a new path (answer with [`PathExecutor::set_path`]).
+    Replan(ReplanReason),
+}
+
+/// Counters of what the executor did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExecutorCounters {
+    /// Paths received (empty ones included).
+    pub paths: usize,
+    /// Empty paths received (the planner found none).
+    pub no_path: usize,
+    /// Replans because the map showed an obstacle on or ahead of the path, or at the goal.
+    pub obstacle_replans: usize,
+    /// Stuck detections.
+    pub stuck: usize,
+    /// Steps taken while tracking was lost.
+    pub lost_steps: usize,
+    /// Paths ended without the look turn (the frontier was already in view).
+    pub looks_skipped: usize,
+    /// Forward moves that did not move the robot.
+    pub bumps: usize,
+    /// Replans because forward moves kept not moving the robot.
+    pub blocked_replans: usize,
+}
+
+#[derive(Debug, Clone)]
+enum Phase {
+    /// Turning left on the spot for this many more steps, then asking for a plan.
+    Spin(usize),
+    /// Tracking is lost: turn on the spot until it recovers, then ask for a new plan.
+    Lost,
+    /// Waiting for a path.
+    Idle(ReplanReason),
+    Follow {
+        follower: GreedyFollower,
+        goal: Point2<f64>,
+        look_yaw: f64,
+    },
+    /// At the end of the path, turning to face `yaw`.
+    Look { yaw: f64 },
+}
+
+/// The executor's state (see the module doc).
+#[derive(Debug, Clone)]
+pub struct PathExecutor {
+    config: ExecutorConfig,
+    /// Clearance radius of the robot, metres (the triggers' swept check).
+    robot_radius_m: f64,
+    monitor: ProgressMonitor,
+    phase: Phase,
+    /// The grid the current path was planned on (the first grid seen after it arrived): only
+    /// obstacles that appeared since then trigger an obstacle-ahead replan.
+    plan_grid: Option<OccupancyGrid>,
+    /// Where the robot was when it last moved forward (cleared by any other decision).
+    forward_from: Option<Point2<f64>>,
+    /// Forward moves in a row that did not move the robot.
+    bumps_in_row: usize,
+    /// What happened so far.
+    pub counters: ExecutorCounters,
+}
+
+impl PathExecutor {
+    /// An executor for a robot disc of `robot_radius_m` that starts with the look-around (or
+    /// by asking for a path when `initial_spin_steps` is 0).
+    pub fn new(config: ExecutorConfig, robot_radius_m: f64) -> Result<Self, PlanningError> {
+        config.validate()?;
+        require(
+            robot_radius_m.is_finite() && robot_radius_m >= 0.0,
+            "PathExecutor robot_radius_m",
+            "must be finite and non-negative",
+        )?;
+        Ok(Self {
+            monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement_m)?,
+            phase: if config.initial_spin_steps > 0 {
+                Phase::Spin(config.initial_spin_steps)
+            } else {
+                Phase::Idle(ReplanReason::Startup)
+            },
+            config,
+            robot_radius_m,
+            plan_grid: None,
+            forward_from: None,
+            bumps_in_row: 0,
+            counters: ExecutorCounters::default(),
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &ExecutorConfig {
+        &self.config
+    }
+
+    /// Takes the answer to a replan request: waypoints as [`crate::path::PlannedPath`] makes
+    /// them (world, the last yaw faces the frontier); an empty slice means no path was found.
+    pub fn set_path(&mut self, waypoints: &[PlanarPose]) -> Result<(), PlanningError> {
+        self.counters.paths += 1;
+        let Some(last) = waypoints.last() else {
+            self.counters.no_path += 1;
+            self.phase = Phase::Idle(ReplanReason::NoPath);
+            return Ok(());
+        };
+        let points = waypoints.iter().map(|w| Point2::new(w.x, w.y)).collect();
+        self.phase = Phase::Follow {
+            follower: GreedyFollower::new(self.config.follower, points)?,
+            goal: Point2::new(last.x, last.y),
+            look_yaw: last.yaw,
+        };
+        self.plan_grid = None;
+        self.monitor.reset();
+        Ok(())
+    }
+
+    /// The waypoints of the path being followed not reached yet; `None` when no path is
+    /// being followed.
+    pub fn remaining(&self) -> Option<&[Point2<f64>]> {
+        match &self.phase {
+            Phase::Follow { follower, .. } => Some(follower.remaining()),
+            _ => None,
+        }
+    }
+
+    /// The end of the path being followed and the yaw to face there; `None` when no path is
+    /// being followed.
+    pub fn goal(&self) -> Option<(Point2<f64>, f64)> {
+        match &self.phase {
+            Phase::Follow { goal, look_yaw, .. } => Some((*goal, *look_yaw)),
+            _ => None,
+        }
+    }
+
+    /// The decision for the robot at `pose` (tracked, or a prediction when `tracking_lost`)
+    /// with the current `grid`. A [`Decision::Replan`] is repeated until a path is set.
+    pub fn decide(
+        &mut self,
+        pose: &PlanarPose,
+        grid: &OccupancyGrid,
+        tracking_lost: bool,
+    ) -> Result<Decision, PlanningError> {
+        let decision = self.decide_inner(pose, grid, tracking_lost)?;
+        self.forward_from = (decision == Decision::Act(Action::Forward) && !tracking_lost)
+            .then_some(Point2::new(pose.x, pose.y));
+        Ok(decision)
+    }
+
+    /// Counts a forward move that left the robot where it was; true when `bumps_to_replan`
+    /// happened in a row.
+    fn blocked(&mut self, here: Point2<f64>, tracking_lost: bool) -> bool {
+        let Some(from) = self.forward_from.filter(|_| !tracking_lost) else {
+            self.bumps_in_row = 0;
+            return false;
+        };
+        if !forward_was_blocked(from, here, self.config.forward_step_m) {
+            self.bumps_in_row = 0;
+            return false;
+        }
+        self.counters.bumps += 1;
+        self.bumps_in_row += 1;
+        if self.config.bumps_to_replan > 0 && self.bumps_in_row >= self.config.bumps_to_replan {
+            self.bumps_in_row = 0;
+            return true;
+        }
+        false
+    }
+
+    fn decide_inner(
+        &mut self,
+        pose: &PlanarPose,
+        grid: &OccupancyGrid,
+        tracking_lost: bool,
+    ) -> Result<Decision, PlanningError> {
+        let here = Point2::new(pose.x, pose.y);
+        if self.blocked(here, tracking_lost) && matches!(self.phase, Phase::Follow { .. }) {
+            self.counters.blocked_replans += 1;
+            self.phase = Phase::Idle(ReplanReason::Blocked);
+        }
+        let threshold = self.config.follower.turn_threshold_rad;
+        if tracking_lost {
+            self.counters.lost_steps += 1;
+            if !matches!(self.phase, Phase::Spin(_)) {
+                self.phase = Phase::Lost;
+            }
+        } else if matches!(self.phase, Phase::Lost) {
+            self.phase = Phase::Idle(ReplanReason::TrackingLost);
+        }
+        // Up to a few phase changes per step (a finished path hands over to the look turn).
+        for _ in 0..4 {
+            match &mut self.phase {
+                Phase::Spin(left) => {
+                    if *left > 0 {
+                        *left -= 1;
+                        return Ok(Decision::Act(Action::TurnLeft));
+                    }
+                    self.phase = Phase::Idle(ReplanReason::Startup);
+                }
+                Phase::Lost => return Ok(Decision::Act(Action::TurnLeft)),
+                Phase::Idle(reason) => return Ok(Decision::Replan(*reason)),
+                Phase::Look { yaw } => {
+                    let target = here + Vector2::new(yaw.cos(), yaw.sin());
+                    let a = greedy_action(pose, &target, threshold);
+                    if a != Action::Forward {
+                        return Ok(Decision::Act(a));
+                    }
+                    self.phase = Phase::Idle(ReplanReason::PathDone);
+                }
+                Phase::Follow {
+                    follower,
+                    goal,
+                    look_yaw,
+                } => {
+                    let occupied_only = ClearanceMap::new(
+                        grid,
+                        &ClearanceConfig {
+                            unknown_is_blocked: false,
+                            ..ClearanceConfig::for_disc(
+                                self.robot_radius_m,
+                                grid.geometry.resolution,
+                            )?
+                        },
+                    )?;
+                    let plan_grid = self.plan_grid.get_or_insert_with(|| grid.clone());
+                    let reason = check_replan(
+                        grid,
+                        &occupied_only,
+                        pose,
+                        follower.remaining(),
+                        Some(*goal),
+                        &self.config.replan,
+                        Some(plan_grid),
+                    )?;
+                    // Progress = the remaining path shrinking (a detour that first moves away
+                    // from the goal is still progress).
+                    let mut left = 0.0;
+                    let mut previous = here;
+                    for w in follower.remaining() {
+                        left += (w - previous).norm();
+                        previous = *w;
+                    }
+                    if self.monitor.observe(left) {
+                        self.counters.stuck += 1;
+                        self.phase = Phase::Idle(ReplanReason::Stuck);
+                        continue;
+                    }
+                    let yaw = *look_yaw;
+                    match reason {
+                        None => {}
+                        Some(ReplanReason::PathDone) => {
+                            self.arrive(pose, yaw);
+                            continue;
+                        }
+                        Some(r) => {
+                            self.counters.obstacle_replans += 1;
+                            self.phase = Phase::Idle(r);
+                            continue;
+                        }
+                    }
+                    // Leave a reached waypoint early only along a clear line (the robot's
+                    // own margin aside: from inside it no line is clear, so it closes in).
+                    let geometry = grid.geometry;
+                    let line_is_clear = |a: Point2<f64>, b: Point2<f64>| {
+                        occupied_only.segment_is_clear(geometry.cell_of(a), geometry.cell_of(b))
+                    };
+                    match follower.next_action_checked(pose, line_is_clear) {
+                        Some(a) => return Ok(Decision::Act(a)),
+                        None => self.arrive(pose, yaw),
+                    }
+                }
+            }
+        }
+        Ok(Decision::Act(Action::TurnLeft))
+    }
+
+    /// At the end of the path: turn to face the frontier (`look_yaw`) unless it is in view.
+    fn arrive(&mut self, pose: &PlanarPose, look_yaw: f64) {
+        if look_turn_needed(pose.yaw, look_yaw, self.config.look_skip_half_angle_rad) {
+            self.phase = Phase::Look { yaw: look_yaw };
+        } else {
+            self.counters.looks_skipped += 1;
+            self.phase = Phase::Idle(ReplanReason::PathDone);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::{CellState, GridGeometry};
+
+    /// The robot's radius in these tests (the simulator's agent).
+    const RADIUS: f64 = 0.1;
+
+    /// Drives a 0.5 m straight path along +x on an all-free grid and returns the actions sent
+    /// until the replan request, whose reason must be "path done".
+    fn actions_to_the_end(look_yaw: f64, look_skip_deg: f64) -> Vec<Action> {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let mut core = PathExecutor::new(
+            ExecutorConfig {
+                initial_spin_steps: 0,
+                look_skip_half_angle_rad: look_skip_deg.to_radians(),
+                ..ExecutorConfig::default()
+            },
+            RADIUS,
+        )
+        .unwrap();
+        core.set_path(&[
+            PlanarPose::new(0.25, 0.0, 0.0),
+            PlanarPose::new(0.5, 0.0, look_yaw),
+        ])
+        .unwrap();
+        let model = ActionModel::default();
+        let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+        let mut actions = Vec::new();
+        for _ in 0..200 {
+            match core.decide(&pose, &grid, false).unwrap() {
+                Decision::Replan(reason) => {
+                    assert_eq!(reason, ReplanReason::PathDone);
+                    return actions;
+                }
+                Decision::Act(a) => {
+                    pose = model.apply(&pose, a);
+                    actions.push(a);
+                }
+            }
+        }
+        panic!("no replan request within 200 steps: {actions:?}");
+    }
+
+    /// A wall the grid does not show stops the robot 0.2 m along a 0.5 m path: the tracked pose
+    /// stops advancing, and the executor asks for a new path (blocked) at the second forward
+    /// move that did not move it, not after the stuck window. Driving freely counts no bump.
+    #[test]
+    fn forward_moves_that_do_not_move_the_robot_ask_for_a_new_path() {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let model = ActionModel::default();
+        let run = |wall_x: f64, bumps_to_replan: usize| {
+            let mut core = PathExecutor::new(
+                ExecutorConfig {
+                    initial_spin_steps: 0,
+                    bumps_to_replan,
+                    ..ExecutorConfig::default()
+                },
+                RADIUS,
+            )
+            .unwrap();
+            core.set_path(&[
+                PlanarPose::new(0.25, 0.0, 0.0),
+                PlanarPose::new(0.5, 0.0, 0.0),
+            ])
+            .unwrap();
+            let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+            let mut forwards = 0;
+            for _ in 0..100 {
+                match core.decide(&pose, &grid, false).unwrap() {
+                    Decision::Replan(reason) => return (reason, forwards, core.counters),
+                    Decision::Act(a) => {
+                        assert_eq!(a, Action::Forward);
+                        forwards += 1;
+                        let next = model.apply(&pose, Action::Forward);
+                        if next.x <= wall_x + 1e-9 {
+                            pose = next;
+                        }
+                    }
+                }
+            }
+            panic!("no replan request within 100 steps");
+        };
+        // Free: 9 forward moves to within the waypoint tolerance of the end, no bump.
+        let (reason, forwards, counters) = run(10.0, 2);
+        assert_eq!(
+            (reason, forwards, counters.bumps),
+            (ReplanReason::PathDone, 9, 0)
+        );
+        // Blocked at 0.2 m: 4 moves get there, the 5th and 6th do not move it.
+        let (reason, forwards, counters) = run(0.2, 2);
+        assert_eq!(reason, ReplanReason::Blocked);
+        assert_eq!(forwards, 6);
+        assert_eq!((counters.bumps, counters.blocked_replans), (2, 1));
+        // Disabled: only the stuck window (40 steps without progress) ends it.
+        let (reason, forwards, counters) = run(0.2, 0);
+        assert_eq!(reason, ReplanReason::Stuck);
+        assert!(forwards > 40, "{forwards}");
+        assert_eq!(counters.blocked_replans, 0);
+    }
+
+    /// At the end of the path the executor turns to the frontier only when it is out of view:
+    /// a frontier 20° to the left is already seen (no turn); one behind (180°) costs about 36
+    /// turns of 5°; with the skip disabled, the 32° turn is made (6 turns: 2° left, within the
+    /// 5° threshold).
+    #[test]
+    fn the_look_turn_is_skipped_when_the_frontier_is_in_view() {
+        let count = |actions: &[Action]| {
+            actions
+                .iter()
+                .filter(|a| matches!(a, Action::TurnLeft | Action::TurnRight))
+                .count()
+        };
+        let in_view = actions_to_the_end(20f64.to_radians(), 25.0);
+        assert_eq!(count(&in_view), 0, "{in_view:?}");
+        assert!(in_view.iter().all(|a| *a == Action::Forward));
+        let behind = actions_to_the_end(std::f64::consts::PI, 25.0);
+        assert!(count(&behind) >= 35, "{behind:?}");
+        let always = actions_to_the_end(32f64.to_radians(), 0.0);
+        assert_eq!(count(&always), 6, "{always:?}");
+    }
+
+    /// The start-up look-around is `initial_spin_steps` left turns, then a start-up request
+    /// that repeats until a path comes; an empty path asks again (no path); while tracking is
+    /// lost the robot only turns, and asks once tracking is back.
+    #[test]
+    fn spin_then_startup_request_no_path_and_lost_tracking() {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let mut core = PathExecutor::new(
+            ExecutorConfig {
+                initial_spin_steps: 3,
+                ..ExecutorConfig::default()
+            },
+            RADIUS,
+        )
+        .unwrap();
+        let pose = PlanarPose::new(0.0, 0.0, 0.0);
+        for _ in 0..3 {
+            assert_eq!(
+                core.decide(&pose, &grid, false).unwrap(),
+                Decision::Act(Action::TurnLeft)
+            );
+        }
+        for _ in 0..2 {
+            assert_eq!(
+                core.decide(&pose, &grid, false).unwrap(),
+                Decision::Replan(ReplanReason::Startup)
+            );
+        }
+        core.set_path(&[]).unwrap();
+        assert_eq!(
+            core.decide(&pose, &grid, false).unwrap(),
+            Decision::Replan(ReplanReason::NoPath)
+        );
+        core.set_path(&[PlanarPose::new(1.0, 0.0, 0.0)]).unwrap();
+        assert_eq!(
+            core.decide(&pose, &grid, false).unwrap(),
+            Decision::Act(Action::Forward)
+        );
+        for _ in 0..3 {
+            assert_eq!(
+                core.decide(&pose, &grid, true).unwrap(),
+                Decision::Act(Action::TurnLeft)
+            );
+        }
+        assert_eq!(
+            core.decide(&pose, &grid, false).unwrap(),
+            Decision::Replan(ReplanReason::TrackingLost)
+        );
+        assert_eq!(
+            (
+                core.counters.paths,
+                core.counters.no_path,
+                core.counters.lost_steps
+            ),
+            (2, 1, 3)
+        );
+    }
+
+    /// An obstacle the map shows on the remaining path asks for a new path with the trigger's
+    /// own reason; one that was already on the path's first grid does not.
+    #[test]
+    fn an_obstacle_new_on_the_path_asks_for_a_new_path() {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let mut grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let mut core = PathExecutor::new(
+            ExecutorConfig {
+                initial_spin_steps: 0,
+                ..ExecutorConfig::default()
+            },
+            RADIUS,
+        )
+        .unwrap();
+        core.set_path(&[PlanarPose::new(1.5, 0.0, 0.0)]).unwrap();
+        let pose = PlanarPose::new(0.0, 0.0, 0.0);
+        assert_eq!(
+            core.decide(&pose, &grid, false).unwrap(),
+            Decision::Act(Action::Forward)
+        );
+        grid.set(geometry.cell_of(Point2::new(0.8, 0.0)), CellState::Occupied);
+        let d = core.decide(&pose, &grid, false).unwrap();
+        let Decision::Replan(reason) = d else {
+            panic!("{d:?}")
+        };
+        assert!(reason.is_obstacle(), "{reason:?}");
+        assert_eq!(core.counters.obstacle_replans, 1);
+        assert!(
+            ExecutorConfig {
+                look_skip_half_angle_rad: -1.0,
+                ..ExecutorConfig::default()
+            }
+            .validate()
+            .is_err()
+        );
+    }
+}
