@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use activemap_runtime::dataflow::Dataflow;
+use activemap_eval::run_folder::{RunError, RunFolder};
 use activemap_runtime::launch::{LaunchOptions, run_local};
 use activemap_runtime::node::install_stop_signals;
 use anyhow::{Context as _, bail};
@@ -44,53 +44,23 @@ pub struct ExploreArgs {
     out: PathBuf,
 }
 
-/// One node's busy time in a run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StageTime {
-    /// Node id.
-    pub stage: String,
-    /// Wall seconds inside `on_event`.
-    pub seconds: f64,
-    /// Calls of `on_event`.
-    pub calls: u64,
-}
+/// One node's busy time in a run (a row of the run folder's `timings.csv`).
+pub use activemap_eval::run_folder::StageTime;
 
-/// Reads a run folder's `timings.csv` (header `stage,seconds,calls`); rows of the same stage (a
-/// restarted node) are summed. Sorted by busy time, largest first.
-pub fn read_timings(path: &Path) -> anyhow::Result<Vec<StageTime>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut lines = text.lines();
-    let header = lines.next().unwrap_or_default();
-    if header.trim() != "stage,seconds,calls" {
-        bail!(
-            "{}: header `{header}`, expected `stage,seconds,calls`",
-            path.display()
-        );
-    }
-    let mut out: Vec<StageTime> = Vec::new();
-    for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        let bad = || format!("{}:{}: `{line}`", path.display(), i + 2);
-        let mut f = line.split(',');
-        let (Some(stage), Some(seconds), Some(calls), None) =
-            (f.next(), f.next(), f.next(), f.next())
-        else {
-            bail!("{}: expected 3 fields", bad());
-        };
-        let seconds: f64 = seconds.trim().parse().with_context(bad)?;
-        let calls: u64 = calls.trim().parse().with_context(bad)?;
-        match out.iter_mut().find(|s| s.stage == stage) {
-            Some(s) => {
-                s.seconds += seconds;
-                s.calls += calls;
-            }
-            None => out.push(StageTime {
-                stage: stage.to_string(),
-                seconds,
-                calls,
-            }),
+/// Reads the run folder `dir`'s `timings.csv` through the run-folder contract; rows of the same
+/// stage (a restarted node) are summed. Sorted by busy time, largest first. A malformed row is
+/// an error naming the file and line (`timings.csv:LINE`).
+pub fn read_timings(dir: &Path) -> anyhow::Result<Vec<StageTime>> {
+    let run = RunFolder::new(dir);
+    let rows = match run.read_timings() {
+        Ok(Some(rows)) => rows,
+        Ok(None) => bail!("{}: missing", run.path(RunFolder::TIMINGS).display()),
+        Err(RunError::MalformedRow { path, line, detail }) => {
+            bail!("{}:{line}: {detail}", path.display())
         }
-    }
+        Err(e) => return Err(e.into()),
+    };
+    let mut out = StageTime::summed(&rows);
     out.sort_by(|a, b| b.seconds.total_cmp(&a.seconds));
     Ok(out)
 }
@@ -215,13 +185,8 @@ pub fn house_flow(
         out.push_str(&line);
         out.push('\n');
     }
-    let flow = Dataflow::parse(
-        "bench explore flow",
-        &out,
-        PathBuf::new(),
-        &activemap_operators::catalog(),
-    )
-    .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let flow = activemap_operators::checks::parse("bench explore flow", &out, Path::new(""))
+        .map_err(|d| anyhow::anyhow!("{d}"))?;
     let sim = flow
         .nodes
         .iter()
@@ -257,8 +222,7 @@ fn run_house(
     let flow_path = dir.join("explore_dataflow.yaml");
     std::fs::write(&flow_path, &text)
         .with_context(|| format!("writing {}", flow_path.display()))?;
-    let flow = Dataflow::load(&flow_path, &activemap_operators::catalog())
-        .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let flow = activemap_operators::checks::load(&flow_path).map_err(|d| anyhow::anyhow!("{d}"))?;
     let run_dir = dir.join("run");
     if run_dir.exists() {
         std::fs::remove_dir_all(&run_dir)
@@ -278,30 +242,20 @@ fn run_house(
     if report.interrupted {
         bail!("{scene}: interrupted");
     }
-    let summary_path = run_dir.join(activemap_eval::run_folder::files::SUMMARY);
-    let summary: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&summary_path)
-            .with_context(|| format!("reading {}", summary_path.display()))?,
-    )
-    .with_context(|| format!("parsing {}", summary_path.display()))?;
-    let number = |key: &str| {
-        summary[key]
-            .as_f64()
-            .with_context(|| format!("{}: no number `{key}`", summary_path.display()))
-    };
-    let steps = number("steps")? as u64;
+    let run = RunFolder::new(&run_dir);
+    let summary = run.read_summary()?;
+    let coverage = summary
+        .coverage
+        .with_context(|| format!("{}: no `coverage`", run.path(RunFolder::SUMMARY).display()))?;
     Ok(HouseResult {
         scene: scene.to_string(),
-        coverage_pct: 100.0 * number("coverage")?,
-        ate_cm: summary["ate_m"].as_f64().map(|a| 100.0 * a),
-        steps,
-        steps_per_s: steps as f64 / wall.max(1e-9),
-        path_length_m: number("path_length_m")?,
-        forwards: (
-            summary["forward_actions"].as_u64().unwrap_or(0),
-            summary["blocked_forwards"].as_u64().unwrap_or(0),
-        ),
-        stages: read_timings(&run_dir.join(activemap_runtime::node::TIMINGS_FILE))?,
+        coverage_pct: 100.0 * coverage,
+        ate_cm: summary.ate_m.map(|a| 100.0 * a),
+        steps: summary.steps,
+        steps_per_s: summary.steps as f64 / wall.max(1e-9),
+        path_length_m: summary.path_length_m,
+        forwards: (summary.forward_actions, summary.blocked_forwards),
+        stages: read_timings(&run_dir)?,
     })
 }
 
@@ -340,6 +294,7 @@ pub fn run(args: &ExploreArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use activemap_runtime::dataflow::Dataflow;
 
     /// A restarted node's two rows are summed; shares are of the summed busy time and add up
     /// to 100 %; a malformed row is an error naming the file and line.
@@ -352,7 +307,7 @@ mod tests {
             "stage,seconds,calls\ntracker,3.0,10\nsim,1.0,10\ntracker,1.0,5\n",
         )
         .unwrap();
-        let t = read_timings(&path).unwrap();
+        let t = read_timings(dir.path()).unwrap();
         assert_eq!(
             t,
             vec![
@@ -372,7 +327,7 @@ mod tests {
         assert_eq!(s[0], ("tracker".to_string(), 80.0));
         assert_eq!(s[1], ("sim".to_string(), 20.0));
         std::fs::write(&path, "stage,seconds,calls\ntracker,x,1\n").unwrap();
-        let e = format!("{:#}", read_timings(&path).unwrap_err());
+        let e = format!("{:#}", read_timings(dir.path()).unwrap_err());
         assert!(e.contains("timings.csv:2"), "{e}");
     }
 

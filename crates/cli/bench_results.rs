@@ -16,7 +16,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use activemap_eval::results::{self, Cell, CellOutcome, GridSettings, Method};
-use activemap_runtime::dataflow::Dataflow;
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
 use anyhow::{Context as _, bail};
 use serde_json::Value;
@@ -251,11 +250,10 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     );
     emit(&tree, 0, &mut text);
     text.push('\n');
-    Dataflow::parse(
+    activemap_operators::checks::parse(
         &format!("{} ({})", file.display(), cell.label()),
         &text,
-        base.to_path_buf(),
-        &activemap_operators::catalog(),
+        base,
     )
     .map_err(|d| anyhow::anyhow!("{d}"))?;
     Ok(text)
@@ -424,6 +422,7 @@ mod tests {
 
     use super::*;
     use activemap_eval::MetricsReport;
+    use activemap_runtime::dataflow::Dataflow;
 
     fn root() -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -659,7 +658,8 @@ mod tests {
             "{md}"
         );
         // Every run folder has the per-stage timings.
-        let timings = std::fs::read_to_string(second.join("timings.csv")).unwrap();
+        let timings =
+            std::fs::read_to_string(second.join(activemap_eval::RunFolder::TIMINGS)).unwrap();
         assert!(timings.starts_with("stage,seconds,calls\n"), "{timings}");
         for node in ["sim", "tracker", "mapper", "evaluator"] {
             assert!(timings.contains(&format!("\n{node},")), "{node}: {timings}");

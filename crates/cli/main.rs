@@ -251,8 +251,10 @@ enum Format {
     Dot,
 }
 
+/// Reads a dataflow file, validated against the operator catalog and across nodes
+/// (`activemap_operators::checks`).
 fn load(file: &Path) -> anyhow::Result<Dataflow> {
-    Dataflow::load(file, &activemap_operators::catalog()).map_err(|d| anyhow::anyhow!("{d}"))
+    activemap_operators::checks::load(file).map_err(|d| anyhow::anyhow!("{d}"))
 }
 
 fn main() -> ExitCode {
@@ -501,7 +503,10 @@ fn run(
             stats.messages,
             stats.bytes as f64 / 1e6,
             stats.written_bytes as f64 / 1e6,
-            report.run_dir.join("recording.mcap").display()
+            report
+                .run_dir
+                .join(activemap_eval::RunFolder::RECORDING)
+                .display()
         );
         for (topic, n) in &stats.dropped {
             eprintln!("activemap: warning: the recorder lost {n} messages on {topic}");
@@ -522,10 +527,7 @@ fn run(
 /// After a successful run whose flow wrote an evaluation summary (an `evaluator` node): the
 /// metrics of SPEC §8 (unless disabled) and report.html, so one command leaves a report.
 fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Result<()> {
-    if !run_dir
-        .join(activemap_eval::run_folder::files::SUMMARY)
-        .exists()
-    {
+    if !activemap_eval::RunFolder::new(run_dir).has_summary() {
         return Ok(());
     }
     match eval {

@@ -14,8 +14,9 @@
 //! The loop's world is anchored at the robot's start pose; coverage maps each reachable
 //! navigable cell of the scene (ground truth) into that frame with the true start pose.
 
-use std::path::{Path as FsPath, PathBuf};
+use std::path::PathBuf;
 
+use activemap_eval::run_folder::{Bev, BevCell, CoverageRow, RunFolder};
 use activemap_eval::{AteOptions, ate, coverage_2d};
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::tum::Trajectory;
@@ -77,40 +78,9 @@ fn default_scale() -> u32 {
     4
 }
 
-/// What the evaluator measured (also `summary.json`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Summary {
-    /// Pose estimates received.
-    pub steps: u64,
-    /// Final 2D coverage in [0, 1].
-    pub coverage: f64,
-    /// RMSE ATE after SE(3) alignment, metres (None with fewer than 3 poses).
-    pub ate_m: Option<f64>,
-    /// Length of the true path, metres.
-    pub path_length_m: f64,
-    /// Forward actions whose result the true poses show (0 when the `action` input is not
-    /// connected).
-    #[serde(default)]
-    pub forward_actions: u64,
-    /// Of those, the ones that moved the robot less than half a step (see the module doc).
-    #[serde(default)]
-    pub blocked_forwards: u64,
-    /// Last episode status message.
-    pub episode: String,
-    /// Whether `recording.mcap` was in the output folder when the evaluator finished.
-    pub recording_present: bool,
-    /// Gaussians in the last map.
-    pub map_gaussians: usize,
-    /// The scene the run explored (`house:<seed>` or a file), so `activemap eval` can rebuild it.
-    pub scene: String,
-    /// As in the `sim` config.
-    pub max_rooms: Option<u32>,
-    /// As in the `sim` config.
-    pub max_area: Option<f64>,
-    /// As in the `sim` config: `y` or `z` (absent = the scene format's default).
-    #[serde(default)]
-    pub up_axis: Option<String>,
-}
+/// What the evaluator measured: `summary.json`, defined with the rest of the run folder in
+/// `activemap-eval` ([`RunFolder`]).
+pub use activemap_eval::run_folder::Summary;
 
 /// Ground-truth coverage: the reachable navigable floor of the scene.
 pub struct CoverageTruth {
@@ -152,13 +122,13 @@ impl CoverageTruth {
 
 /// The operator.
 pub struct Evaluator {
-    out: PathBuf,
+    out: RunFolder,
     scene: SceneSpec,
     scale: u32,
     truth: Option<(CoverageTruth, PlanarPose, Isometry3<f64>)>,
     estimated: Trajectory,
     true_traj: Trajectory,
-    coverage: Vec<(u64, f64)>,
+    coverage: Vec<CoverageRow>,
     grid: Option<PlanGrid>,
     regions: Option<Frontiers>,
     map: Option<Gaussians<f32>>,
@@ -196,7 +166,10 @@ impl Evaluator {
             return Ok(());
         };
         for (k, grid) in self.pending_grids.drain(..) {
-            self.coverage.push((k, truth.coverage(&grid, start)?));
+            self.coverage.push(CoverageRow {
+                step: k,
+                coverage: truth.coverage(&grid, start)?,
+            });
             self.grid = Some(grid);
         }
         Ok(())
@@ -204,28 +177,23 @@ impl Evaluator {
 
     /// Writes every output file; returns the summary.
     pub fn write_outputs(&mut self) -> anyhow::Result<Summary> {
-        std::fs::create_dir_all(&self.out)?;
-        self.estimated.write(&self.out.join("trajectory_est.tum"))?;
-        self.true_traj
-            .write(&self.out.join("trajectory_true.tum"))?;
-        let mut csv = String::from("step,coverage\n");
-        for (k, c) in &self.coverage {
-            csv.push_str(&format!("{k},{c:.6}\n"));
-        }
-        std::fs::write(self.out.join("coverage.csv"), csv)?;
+        let out = &self.out;
+        out.create()?;
+        out.write_trajectory(RunFolder::TRAJECTORY_EST, &self.estimated)?;
+        out.write_trajectory(RunFolder::TRAJECTORY_TRUE, &self.true_traj)?;
+        out.write_coverage(&self.coverage)?;
         if let Some(map) = &self.map {
-            activemap_splat::ply::write_ply(&self.out.join("map.ply"), &observed_only(map)?)?;
+            out.write_map(&observed_only(map)?)?;
         }
         if let (Some(grid), Some((_, _, anchor))) = (&self.grid, &self.truth) {
-            write_bev(
-                &self.out.join("bev.png"),
+            out.write_bev(&bev(
                 grid,
                 &self.estimated,
                 &self.true_traj,
                 anchor,
                 self.regions.as_ref(),
                 self.scale,
-            )?;
+            ))?;
         }
         let ate_m = if self.estimated.len() >= 3 {
             Some(ate(&self.true_traj, &self.estimated, AteOptions::default())?.rmse)
@@ -243,34 +211,31 @@ impl Evaluator {
         );
         let summary = Summary {
             steps: self.estimated.len() as u64,
-            coverage: self.coverage.last().map_or(0.0, |c| c.1),
+            coverage: Some(self.coverage.last().map_or(0.0, |c| c.coverage)),
             ate_m,
             path_length_m,
             forward_actions,
             blocked_forwards: blocked,
             episode: self.episode.clone(),
-            recording_present: self.out.join("recording.mcap").exists(),
+            recording_present: out.has_recording(),
             map_gaussians: self.map.as_ref().map_or(0, |m| m.len()),
-            scene: self.scene.scene.clone(),
+            scene: Some(self.scene.scene.clone()),
             max_rooms: self.scene.max_rooms,
             max_area: self.scene.max_area,
             up_axis: self.scene.up_axis.map(|up| up.name().to_string()),
         };
-        std::fs::write(
-            self.out.join("summary.json"),
-            serde_json::to_string_pretty(&summary)?,
-        )?;
+        out.write_summary(&summary)?;
         eprintln!(
             "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m, {} of {} forward moves blocked → {}",
             summary.steps,
-            summary.coverage * 100.0,
+            summary.coverage.unwrap_or(0.0) * 100.0,
             summary
                 .ate_m
                 .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0)),
             summary.path_length_m,
             summary.blocked_forwards,
             summary.forward_actions,
-            self.out.display()
+            out.dir().display()
         );
         Ok(summary)
     }
@@ -289,80 +254,55 @@ pub fn observed_only(map: &Gaussians<f32>) -> anyhow::Result<Gaussians<f32>> {
     Ok(out)
 }
 
-/// Draws the bird's-eye PNG: grid (free white, occupied black, unknown grey), true path (blue,
-/// mapped into the start frame by `anchor` = T_world_start-camera⁻¹ alignment), estimated path
-/// (green), frontier centroids (red squares). Image up = +y.
-pub fn write_bev(
-    path: &FsPath,
+/// What `bev.png` shows ([`Bev`], drawn by the run folder): the grid, the true path (mapped
+/// into the start frame by `start_from_world`), the estimated path and the frontier centroids,
+/// all in the grid's cell units.
+pub fn bev(
     grid: &PlanGrid,
     estimated: &Trajectory,
     truth: &Trajectory,
     start_from_world: &Isometry3<f64>,
     regions: Option<&Frontiers>,
-    scale: u32,
-) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        (1..=16).contains(&scale),
-        "evaluator: bev_pixels_per_cell must be in 1..=16"
-    );
+    pixels_per_cell: u32,
+) -> Bev {
     let g = &grid.geometry;
-    let (w, h) = (g.width as u32 * scale, g.height as u32 * scale);
-    let mut img = image::RgbImage::new(w, h);
-    for (i, state) in grid.data.iter().enumerate() {
-        let cell = g.cell_at(i);
-        let colour = match state {
-            CellState::Free => [255, 255, 255],
-            CellState::Occupied => [0, 0, 0],
-            CellState::Unknown => [160, 160, 160],
-        };
-        for dy in 0..scale {
-            for dx in 0..scale {
-                let px = cell.x as u32 * scale + dx;
-                let py = h - 1 - (cell.y as u32 * scale + dy);
-                img.put_pixel(px, py, image::Rgb(colour));
-            }
-        }
-    }
-    let mut dot = |p: Point2<f64>, colour: [u8; 3], radius: i64| {
-        let u = g.to_cell_units(p);
-        let (cx, cy) = (
-            (u.x * scale as f64) as i64,
-            h as i64 - 1 - (u.y * scale as f64) as i64,
-        );
-        for y in cy - radius..=cy + radius {
-            for x in cx - radius..=cx + radius {
-                if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
-                    img.put_pixel(x as u32, y as u32, image::Rgb(colour));
-                }
-            }
-        }
+    let units = |x: f64, y: f64| {
+        let u = g.to_cell_units(Point2::new(x, y));
+        [u.x, u.y]
     };
-    for p in &truth.poses {
-        let q = start_from_world * p;
-        dot(
-            Point2::new(q.translation.x, q.translation.y),
-            [40, 80, 255],
-            0,
-        );
+    Bev {
+        width: g.width,
+        height: g.height,
+        cells: grid
+            .data
+            .iter()
+            .map(|state| match state {
+                CellState::Free => BevCell::Free,
+                CellState::Occupied => BevCell::Occupied,
+                CellState::Unknown => BevCell::Unknown,
+            })
+            .collect(),
+        truth: truth
+            .poses
+            .iter()
+            .map(|p| {
+                let q = start_from_world * p;
+                units(q.translation.x, q.translation.y)
+            })
+            .collect(),
+        estimated: estimated
+            .poses
+            .iter()
+            .map(|p| units(p.translation.x, p.translation.y))
+            .collect(),
+        frontiers: regions.map_or_else(Vec::new, |f| {
+            f.regions
+                .iter()
+                .map(|r| units(r.centroid[0], r.centroid[1]))
+                .collect()
+        }),
+        pixels_per_cell,
     }
-    for p in &estimated.poses {
-        dot(
-            Point2::new(p.translation.x, p.translation.y),
-            [0, 170, 0],
-            0,
-        );
-    }
-    if let Some(f) = regions {
-        for r in &f.regions {
-            dot(
-                Point2::new(r.centroid[0], r.centroid[1]),
-                [230, 0, 0],
-                scale as i64,
-            );
-        }
-    }
-    img.save(path)?;
-    Ok(())
 }
 
 impl Operator for Evaluator {
@@ -379,8 +319,13 @@ impl Operator for Evaluator {
             .clone()
             .or_else(|| std::env::var_os("ACTIVEMAP_RUN_DIR").map(PathBuf::from))
             .unwrap_or_else(|| PathBuf::from("."));
+        anyhow::ensure!(
+            (1..=16).contains(&config.bev_pixels_per_cell),
+            "evaluator: bev_pixels_per_cell must be in 1..=16, got {}",
+            config.bev_pixels_per_cell
+        );
         Ok(Self {
-            out,
+            out: RunFolder::new(out),
             scene: SceneSpec {
                 scene: config.scene,
                 max_rooms: config.max_rooms,
@@ -546,10 +491,105 @@ mod tests {
         assert_eq!(xs, [0.0, 2.0, 3.0, 5.0]);
         // Through the file the operator writes.
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("map.ply");
-        activemap_splat::ply::write_ply(&path, &kept).unwrap();
-        let back = activemap_splat::ply::read_ply::<f32>(&path).unwrap();
+        let run = RunFolder::new(dir.path());
+        run.write_map(&kept).unwrap();
+        let back = run.read_map().unwrap();
         assert_eq!(back.len(), 4);
         assert_eq!(back.means[3][0], 5.0);
+    }
+
+    /// The evaluator writes its run folder through the contract: everything it wrote reads
+    /// back through `RunFolder` as the same values, and the drawn BEV has the grid's size.
+    #[test]
+    fn outputs_read_back_through_the_run_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        let mut estimated = Trajectory::default();
+        let mut true_traj = Trajectory::default();
+        for k in 0..4 {
+            let x = 0.05 * k as f64;
+            estimated.push(k as f64, Isometry3::translation(x, 0.0, 0.0));
+            true_traj.push(k as f64, Isometry3::translation(x, 1.0, 0.0));
+        }
+        let geometry =
+            activemap_planning::grid::GridGeometry::new(-1.0, -1.0, 0.1, 20, 10).unwrap();
+        let mut grid = PlanGrid::filled(geometry, CellState::Unknown);
+        grid.data[0] = CellState::Free;
+        grid.data[1] = CellState::Occupied;
+        let coverage = vec![
+            CoverageRow {
+                step: 1,
+                coverage: 0.25,
+            },
+            CoverageRow {
+                step: 3,
+                coverage: 0.5,
+            },
+        ];
+        let mut ev = Evaluator {
+            out: run.clone(),
+            scene: SceneSpec::new("house:7"),
+            scale: 3,
+            truth: None,
+            estimated,
+            true_traj,
+            coverage: coverage.clone(),
+            grid: Some(grid.clone()),
+            regions: None,
+            map: None,
+            episode: "Finished at step 3: test".into(),
+            pending_grids: Vec::new(),
+            written: false,
+            true_positions: Default::default(),
+            forward_steps: Vec::new(),
+            forward_step_m: 0.05,
+        };
+        let summary = ev.write_outputs().unwrap();
+        assert_eq!(run.read_summary().unwrap(), summary);
+        assert_eq!(summary.coverage, Some(0.5));
+        assert_eq!(summary.scene.as_deref(), Some("house:7"));
+        assert_eq!(run.read_coverage().unwrap().unwrap(), coverage);
+        let est = run.read_trajectory(RunFolder::TRAJECTORY_EST).unwrap();
+        assert_eq!(est.len(), 4);
+        assert!((est.poses[3].translation.x - 0.15).abs() < 1e-9);
+        // No truth yet: no BEV; the drawing of the same grid is 20×10 cells at 3 px.
+        assert!(!run.path(RunFolder::BEV).exists());
+        let b = bev(
+            &grid,
+            &ev.estimated,
+            &ev.true_traj,
+            &Isometry3::identity(),
+            None,
+            3,
+        );
+        assert_eq!((b.width, b.height, b.cells[1]), (20, 10, BevCell::Occupied));
+        // The start of the estimate (0, 0) is the centre of cell (10, 10) − ½: cell units.
+        assert_eq!(b.estimated[0], [9.5, 9.5]);
+        run.write_bev(&b).unwrap();
+        let img = image::open(run.path(RunFolder::BEV)).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (60, 30));
+    }
+
+    /// `timings.csv` is written by the node hosts (activemap-runtime) and read through the
+    /// run folder contract: same file name, same columns, same values.
+    #[test]
+    fn node_timings_read_back_through_the_run_folder() {
+        use activemap_runtime::node::{StageTiming, TIMINGS_FILE, append_timing};
+        assert_eq!(TIMINGS_FILE, RunFolder::TIMINGS);
+        let dir = tempfile::tempdir().unwrap();
+        for (node, seconds, calls) in [
+            ("tracker", 2.5, 10),
+            ("mapper", 1.25, 4),
+            ("tracker", 0.5, 2),
+        ] {
+            append_timing(dir.path(), node, StageTiming { seconds, calls }).unwrap();
+        }
+        let rows = RunFolder::new(dir.path()).read_timings().unwrap().unwrap();
+        let summed = activemap_eval::run_folder::StageTime::summed(&rows);
+        let got: Vec<(&str, f64, u64)> = summed
+            .iter()
+            .map(|r| (r.stage.as_str(), r.seconds, r.calls))
+            .collect();
+        assert_eq!(got, [("tracker", 3.0, 12), ("mapper", 1.25, 4)]);
     }
 }

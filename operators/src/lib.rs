@@ -5,12 +5,16 @@
 //! built yet are registered with their descriptor only ([`planned`]), so the reference
 //! `dataflow.yaml` validates; `activemap run` refuses to launch them with a clear message.
 //!
+//! Checks that span several nodes (the mapper's `map_lag` against its consumers') are in
+//! [`checks`]; [`checks::load`] validates a file with both.
+//!
 //! Adding an operator: write a module with a type implementing
 //! [`activemap_runtime::Operator`] and a `pub fn registered() -> Registered`, then add one line to
 //! [`registry`] (and drop its entry from [`planned`]).
 
 use activemap_runtime::{OperatorDescriptor, OperatorImpl};
 
+pub mod checks;
 pub mod convert;
 pub mod evaluator;
 pub mod follower;

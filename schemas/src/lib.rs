@@ -9,8 +9,9 @@
 //!
 //! Every payload carries its schema version; decoding a payload with another version, a truncated
 //! payload or garbage is an [`SchemaError`], never a panic. [`MessageKind`] names every type, its
-//! transport class and whether it is evaluation-only (ground truth), and [`topics`] lists the
-//! canonical topic of each stage.
+//! transport class and whether it is evaluation-only (ground truth). Topics are `node/output` of
+//! the dataflow file that declares them; the runtime resolves each input's message kind from its
+//! producer's port, so no list of canonical topic names is kept here.
 
 pub mod error;
 pub mod gaussian_map;
@@ -20,7 +21,6 @@ pub mod messages;
 pub mod occupancy;
 pub mod rgbd;
 pub mod small;
-pub mod topics;
 
 pub use error::SchemaError;
 pub use gaussian_map::{GaussianMap, GaussianMapHeader, GaussianMapMut, GaussianMapView};

@@ -7,6 +7,7 @@
 use std::time::Duration;
 
 use super::harness;
+use activemap_eval::{RunFolder, Summary};
 
 /// The reference dataflow with a smaller house, a 64×64 camera and a step budget.
 fn small_flow(max_steps: u64) -> String {
@@ -38,7 +39,7 @@ fn small_flow(max_steps: u64) -> String {
 }
 
 /// Runs the small episode and returns the run folder (kept alive by the returned tempdir).
-fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, serde_json::Value) {
+fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, Summary) {
     let tmp = tempfile::tempdir().unwrap();
     let flow = tmp.path().join("explore.yaml");
     std::fs::write(&flow, small_flow(max_steps)).unwrap();
@@ -57,15 +58,15 @@ fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, serde_
     );
     assert!(done.status.success(), "run failed:\n{}", done.stderr);
     for file in [
-        "trajectory_est.tum",
-        "trajectory_true.tum",
-        "map.ply",
-        "bev.png",
-        "coverage.csv",
-        "summary.json",
-        "recording.mcap",
-        "metrics.json",
-        "report.html",
+        RunFolder::TRAJECTORY_EST,
+        RunFolder::TRAJECTORY_TRUE,
+        RunFolder::MAP,
+        RunFolder::BEV,
+        RunFolder::COVERAGE,
+        RunFolder::SUMMARY,
+        RunFolder::RECORDING,
+        RunFolder::METRICS_JSON,
+        RunFolder::REPORT,
     ] {
         assert!(
             out.join(file).exists(),
@@ -73,9 +74,8 @@ fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, serde_
             done.stderr
         );
     }
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    eprintln!("explore summary: {summary}");
+    let summary = RunFolder::new(&out).read_summary().unwrap();
+    eprintln!("explore summary: {summary:?}");
     (tmp, out, summary)
 }
 
@@ -84,15 +84,11 @@ fn run_episode(max_steps: u64) -> (tempfile::TempDir, std::path::PathBuf, serde_
 #[test]
 fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
     let (_tmp, out, summary) = run_episode(120);
-    let steps = summary["steps"].as_u64().unwrap();
-    assert!(steps > 50, "the loop stopped early: {summary}");
-    assert_eq!(summary["scene"], "house:3");
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
-    assert!(
-        metrics["test_views"].as_u64() == Some(20),
-        "metrics.json: {metrics}"
-    );
+    let steps = summary.steps;
+    assert!(steps > 50, "the loop stopped early: {summary:?}");
+    assert_eq!(summary.scene.as_deref(), Some("house:3"));
+    let metrics = RunFolder::new(&out).read_metrics().unwrap().unwrap();
+    assert!(metrics.test_views == 20, "metrics.json: {metrics:?}");
 }
 
 /// Issue 6's target: a short episode on a small house at 64×64 reaches 80 % coverage and ends
@@ -103,33 +99,30 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
 #[test]
 fn fbe_episode_reaches_80_percent_coverage() {
     let (_tmp, _out, summary) = run_episode(400);
-    let coverage = summary["coverage"].as_f64().unwrap();
+    let coverage = summary.coverage.unwrap();
     assert!(
         coverage >= 0.8,
-        "coverage {coverage} below the issue's 80 %: {summary}"
+        "coverage {coverage} below the issue's 80 %: {summary:?}"
     );
-    let episode = summary["episode"].as_str().unwrap();
+    let episode = summary.episode.as_str();
     assert!(
         episode.contains("no reachable frontier left"),
-        "the episode did not end by itself: {summary}"
+        "the episode did not end by itself: {summary:?}"
     );
+    assert!(summary.steps < 400, "the step budget ran out: {summary:?}");
     assert!(
-        summary["steps"].as_u64().unwrap() < 400,
-        "the step budget ran out: {summary}"
+        summary.path_length_m > 3.0,
+        "the robot hardly moved: {summary:?}"
     );
-    assert!(
-        summary["path_length_m"].as_f64().unwrap() > 3.0,
-        "the robot hardly moved: {summary}"
-    );
-    let ate_m = summary["ate_m"].as_f64().unwrap();
-    assert!(ate_m < 0.05, "ATE {ate_m} m: {summary}");
+    let ate_m = summary.ate_m.unwrap();
+    assert!(ate_m < 0.05, "ATE {ate_m} m: {summary:?}");
     // The evaluator counts forward moves that did not move the robot (it drove into
     // something): a few may happen where the map lags, a loop of them may not.
-    let forwards = summary["forward_actions"].as_u64().unwrap();
-    let blocked = summary["blocked_forwards"].as_u64().unwrap();
-    assert!(forwards > 50, "too few forward moves: {summary}");
+    let forwards = summary.forward_actions;
+    let blocked = summary.blocked_forwards;
+    assert!(forwards > 50, "too few forward moves: {summary:?}");
     assert!(
         blocked * 20 <= forwards,
-        "{blocked} of {forwards} forward moves blocked: {summary}"
+        "{blocked} of {forwards} forward moves blocked: {summary:?}"
     );
 }

@@ -8,6 +8,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use super::harness;
+use activemap_eval::RunFolder;
 
 /// The Python package, pinned to the version of the Rust `zenoh` crate in Cargo.lock (1.10.2).
 const ZENOH_PACKAGE: &str = "eclipse-zenoh==1.10.2";
@@ -178,13 +179,15 @@ fn python_client_drives_the_loop_in_lockstep() {
     }
     assert_eq!(records.last().unwrap()["state"], "finished");
     // The tracker consumed every frame over Zenoh (its operator ran once per input at least).
-    let timings = std::fs::read_to_string(out.join("timings.csv")).unwrap_or_default();
+    let timings = RunFolder::new(&out)
+        .read_timings()
+        .unwrap()
+        .unwrap_or_default();
     let tracker_calls: u64 = timings
-        .lines()
-        .find_map(|l| l.strip_prefix("tracker,"))
-        .and_then(|rest| rest.split(',').nth(1))
-        .and_then(|c| c.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no tracker row in timings.csv:\n{timings}"));
+        .iter()
+        .find(|t| t.stage == "tracker")
+        .map(|t| t.calls)
+        .unwrap_or_else(|| panic!("no tracker row in timings.csv: {timings:?}"));
     assert!(
         tracker_calls > STEPS,
         "tracker ran {tracker_calls} times for {} frames",

@@ -12,8 +12,9 @@
 //! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
 //! - [`results`]: `activemap bench results` (methods × scenes × seeds, Table 1 layout);
 //! - [`bench`](mod@bench): timings of every metric (`bench::run`);
-//! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder
-//!   ([`run_folder`]);
+//! - [`run_folder`]: the run folder as one typed contract ([`RunFolder`]: every file's name
+//!   and format, [`Summary`], the CSV rows, the bird's-eye PNG);
+//! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder;
 //! - [`html`]: the self-contained `report.html` of a run ([`html::write_report`]).
 //!
 //! Images are [`ImageView`]s: borrowed row-major `f32` buffers, RGB in [0, 1], depth in metres.
@@ -49,6 +50,7 @@ pub use image::ImageView;
 pub use lpips::LpipsAlex;
 pub use psnr::{mean_squared_error, psnr};
 pub use report::MetricsReport;
+pub use run_folder::{RunError, RunFolder, Summary};
 pub use ssim::ssim;
 pub use test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 pub use views::{ViewMeans, ViewMetrics, evaluate_view};

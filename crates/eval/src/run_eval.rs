@@ -23,7 +23,7 @@
 //! first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`, `eval/view_NN_truth.png`).
 
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
-use crate::run_folder::{RunError, files, read_coverage, read_map, read_summary, read_trajectory};
+use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
 use crate::{AteOptions, EvalError, ImageView, MetricsReport, ate, completeness};
@@ -56,7 +56,8 @@ pub fn scene_simulator(spec: &SceneSpec, intrinsics: Intrinsics) -> Result<Simul
 
 /// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area`,
 /// `up_axis`), else one consistent value of each key in `dataflow.yaml`.
-pub fn scene_from_run(dir: &Path, summary: &serde_json::Value) -> Result<SceneSpec, RunError> {
+pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunError> {
+    let run = RunFolder::new(dir);
     let up_axis = |value: Option<String>, source: &Path| -> Result<Option<UpAxis>, RunError> {
         value
             .map(|v| {
@@ -67,30 +68,26 @@ pub fn scene_from_run(dir: &Path, summary: &serde_json::Value) -> Result<SceneSp
             })
             .transpose()
     };
-    if let Some(scene) = summary.get("scene").and_then(|s| s.as_str()) {
-        let text = |key: &str| summary.get(key).and_then(|v| v.as_str()).map(String::from);
+    if let Some(scene) = &summary.scene {
         return Ok(SceneSpec {
-            scene: scene.to_string(),
-            max_rooms: summary
-                .get("max_rooms")
-                .and_then(|v| v.as_u64())
-                .map(|v| v.min(u32::MAX as u64) as u32),
-            max_area: summary.get("max_area").and_then(|v| v.as_f64()),
-            up_axis: up_axis(text("up_axis"), &dir.join(files::SUMMARY))?,
+            scene: scene.clone(),
+            max_rooms: summary.max_rooms,
+            max_area: summary.max_area,
+            up_axis: up_axis(summary.up_axis.clone(), &run.path(RunFolder::SUMMARY))?,
         });
     }
-    let path = dir.join(files::DATAFLOW);
+    let path = run.path(RunFolder::DATAFLOW);
     let text = std::fs::read_to_string(&path).map_err(|_| {
         RunError::Scene(format!(
             "{} has no `scene` and {} cannot be read; pass the scene explicitly",
-            dir.join(files::SUMMARY).display(),
+            run.path(RunFolder::SUMMARY).display(),
             path.display()
         ))
     })?;
     let scene = yaml_scalar(&text, "scene", &path)?.ok_or_else(|| {
         RunError::Scene(format!(
             "neither {} nor {} names the scene; pass it explicitly",
-            dir.join(files::SUMMARY).display(),
+            run.path(RunFolder::SUMMARY).display(),
             path.display()
         ))
     })?;
@@ -202,11 +199,12 @@ pub fn start_from_world(true_start: &Isometry3<f64>, floor_z: f64) -> Isometry3<
 
 /// Evaluates the run folder `dir` and writes `metrics.json`, `metrics.md` and `eval/`.
 pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, RunError> {
-    let summary = read_summary(dir)?;
-    let truth = read_trajectory(dir, files::TRAJECTORY_TRUE)?;
-    let estimate = read_trajectory(dir, files::TRAJECTORY_EST)?;
-    let map = read_map(dir)?;
-    let coverage = read_coverage(dir)?;
+    let run = RunFolder::new(dir);
+    let summary = run.read_summary()?;
+    let truth = run.read_trajectory(RunFolder::TRAJECTORY_TRUE)?;
+    let estimate = run.read_trajectory(RunFolder::TRAJECTORY_EST)?;
+    let map = run.read_map()?;
+    let coverage = run.read_coverage()?;
     let spec = match &options.scene {
         Some(s) => s.clone(),
         None => scene_from_run(dir, &summary)?,
@@ -248,7 +246,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let lpips = load_lpips(&options.lpips, &mut report);
     let lpips_usable = (options.width as usize).min(options.height as usize) >= LpipsAlex::MIN_SIDE;
     let lpips = if lpips_usable { lpips } else { None };
-    let eval_dir = dir.join(files::EVAL_DIR);
+    let eval_dir = run.eval_dir();
     std::fs::create_dir_all(&eval_dir).map_err(|source| RunError::Io {
         path: eval_dir.clone(),
         source,
@@ -269,18 +267,8 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
                 lpips.as_ref(),
             )?;
             if i < options.saved_views {
-                save_png(
-                    &eval_dir.join(format!("view_{i:02}_map.png")),
-                    &map_rgb,
-                    w,
-                    h,
-                )?;
-                save_png(
-                    &eval_dir.join(format!("view_{i:02}_truth.png")),
-                    &truth_rgb,
-                    w,
-                    h,
-                )?;
+                save_png(&run.view_image(i, ViewImage::Map), &map_rgb, w, h)?;
+                save_png(&run.view_image(i, ViewImage::Truth), &truth_rgb, w, h)?;
             }
             Ok(view)
         })
@@ -297,7 +285,18 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             format!("test images smaller than {0}×{0}", LpipsAlex::MIN_SIDE),
         );
     }
-    write_views_csv(&eval_dir.join("views.csv"), &views)?;
+    let rows: Vec<ViewRow> = views
+        .iter()
+        .enumerate()
+        .map(|(view, v)| ViewRow {
+            view,
+            psnr_db: v.psnr_db,
+            ssim: v.ssim,
+            lpips: v.lpips,
+            depth_mae_m: v.depth_mae_m,
+        })
+        .collect();
+    run.write_views(&rows)?;
 
     if estimate.len() >= 3 {
         match ate(&truth, &estimate, AteOptions::default()) {
@@ -307,7 +306,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     } else {
         report.mark_missing(
             "ate_rmse_m",
-            format!("{} holds fewer than 3 poses", files::TRAJECTORY_EST),
+            format!("{} holds fewer than 3 poses", RunFolder::TRAJECTORY_EST),
         );
     }
 
@@ -326,16 +325,19 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
 
     report.coverage_2d = coverage
         .as_ref()
-        .and_then(|rows| rows.last().map(|r| r.1))
-        .or_else(|| summary.get("coverage").and_then(|v| v.as_f64()));
+        .and_then(|rows| rows.last().map(|r| r.coverage))
+        .or(summary.coverage);
     if report.coverage_2d.is_none() {
         report.mark_missing(
             "coverage_2d",
-            format!("neither {} nor summary.json records it", files::COVERAGE),
+            format!(
+                "neither {} nor {} records it",
+                RunFolder::COVERAGE,
+                RunFolder::SUMMARY
+            ),
         );
     }
 
-    crate::run_folder::write_file(&dir.join(files::METRICS_JSON), report.to_json())?;
     let markdown = format!(
         "# Metrics of {}\n\nScene `{}`, {} test views at {}×{} px, {}° FOV, seed {}.\n\n{}",
         dir.display(),
@@ -347,7 +349,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         options.seed,
         report.to_markdown()
     );
-    crate::run_folder::write_file(&dir.join(files::METRICS_MD), markdown)?;
+    run.write_metrics(&report, &markdown)?;
     Ok(report)
 }
 
@@ -425,22 +427,6 @@ fn save_png(path: &Path, rgb: &[f32], width: usize, height: usize) -> Result<(),
     })
 }
 
-/// Writes the per-view metrics (`view,psnr_db,ssim,lpips,depth_mae_m`; empty = not computed).
-fn write_views_csv(path: &Path, views: &[ViewMetrics]) -> Result<(), RunError> {
-    let opt = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.6}"));
-    let mut text = String::from("view,psnr_db,ssim,lpips,depth_mae_m\n");
-    for (i, v) in views.iter().enumerate() {
-        text.push_str(&format!(
-            "{i},{:.6},{:.6},{},{}\n",
-            v.psnr_db,
-            v.ssim,
-            opt(v.lpips),
-            opt(v.depth_mae_m)
-        ));
-    }
-    crate::run_folder::write_file(path, text)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -467,7 +453,9 @@ mod tests {
         // Independent truth: a black, depth-0 render against the simulator's frames at the same
         // seeded poses gives PSNR −10·log10(mean(gt²)) and depth MAE = mean valid gt depth.
         let mut sim = simulator(48);
-        let truth = read_trajectory(dir.path(), files::TRAJECTORY_TRUE).unwrap();
+        let truth = RunFolder::new(dir.path())
+            .read_trajectory(RunFolder::TRAJECTORY_TRUE)
+            .unwrap();
         let start = planar_from_camera_pose(&truth.poses[0]);
         let nav = sim.navigation().map().clone();
         let reachable = nav.reachable_from(start.x, start.y);
@@ -514,9 +502,9 @@ mod tests {
             "exact estimate: {report:?}"
         );
         assert!(report.lpips.is_none() && report.missing["lpips"].contains("disabled"));
-        let json = std::fs::read_to_string(dir.path().join(files::METRICS_JSON)).unwrap();
+        let json = std::fs::read_to_string(dir.path().join(RunFolder::METRICS_JSON)).unwrap();
         assert_eq!(MetricsReport::from_json(&json).unwrap(), report);
-        let md = std::fs::read_to_string(dir.path().join(files::METRICS_MD)).unwrap();
+        let md = std::fs::read_to_string(dir.path().join(RunFolder::METRICS_MD)).unwrap();
         assert!(md.contains("house:3") && md.contains("| 42.00 |"), "{md}");
         for name in ["view_00_map.png", "view_01_truth.png", "views.csv"] {
             assert!(dir.path().join("eval").join(name).exists(), "{name}");
@@ -552,19 +540,19 @@ mod tests {
             .to_string();
         assert!(e.contains("summary.json: missing"), "{e}");
         write_run(dir.path(), MapKind::Empty);
-        std::fs::remove_file(dir.path().join(files::MAP)).unwrap();
+        std::fs::remove_file(dir.path().join(RunFolder::MAP)).unwrap();
         let e = evaluate_run(dir.path(), &options())
             .unwrap_err()
             .to_string();
         assert!(e.contains("map.ply: missing"), "{e}");
         write_run(dir.path(), MapKind::Empty);
-        std::fs::write(dir.path().join(files::TRAJECTORY_TRUE), "0 1 2 3\n").unwrap();
+        std::fs::write(dir.path().join(RunFolder::TRAJECTORY_TRUE), "0 1 2 3\n").unwrap();
         let e = evaluate_run(dir.path(), &options())
             .unwrap_err()
             .to_string();
         assert!(e.contains("trajectory_true.tum"), "{e}");
         write_run(dir.path(), MapKind::Empty);
-        std::fs::write(dir.path().join(files::SUMMARY), "{\"steps\": 3}").unwrap();
+        std::fs::write(dir.path().join(RunFolder::SUMMARY), "{\"steps\": 3}").unwrap();
         let e = evaluate_run(dir.path(), &options())
             .unwrap_err()
             .to_string();
@@ -585,15 +573,18 @@ mod tests {
     #[test]
     fn scene_comes_from_the_dataflow_when_the_summary_lacks_it() {
         let dir = tempfile::tempdir().unwrap();
-        let summary = serde_json::json!({"steps": 1});
+        let summary = Summary {
+            steps: 1,
+            ..Summary::default()
+        };
         std::fs::write(
-            dir.path().join(files::DATAFLOW),
+            dir.path().join(RunFolder::DATAFLOW),
             "nodes:\n  - id: sim\n    config:\n      scene: \"house:3\"  # the house\n      max_rooms: 1\n      max_area: 12\n  - id: evaluator\n    config:\n      scene: house:3\n",
         )
         .unwrap();
         assert_eq!(scene_from_run(dir.path(), &summary).unwrap(), small_house());
         std::fs::write(
-            dir.path().join(files::DATAFLOW),
+            dir.path().join(RunFolder::DATAFLOW),
             "a:\n  scene: house:3\nb:\n  scene: house:4\n",
         )
         .unwrap();
@@ -606,22 +597,29 @@ mod tests {
     #[test]
     fn the_up_axis_of_a_scene_file_comes_from_the_run() {
         let dir = tempfile::tempdir().unwrap();
-        let summary = serde_json::json!({"scene": "room.glb", "up_axis": "z"});
+        let summary = Summary {
+            scene: Some("room.glb".into()),
+            up_axis: Some("z".into()),
+            ..Summary::default()
+        };
         let spec = scene_from_run(dir.path(), &summary).unwrap();
         assert_eq!(
             (spec.scene.as_str(), spec.up_axis),
             ("room.glb", Some(UpAxis::Z))
         );
-        let summary = serde_json::json!({"steps": 1});
+        let summary = Summary {
+            steps: 1,
+            ..Summary::default()
+        };
         let flow = |up: &str| {
             format!(
                 "nodes:\n  - id: sim\n    config:\n      scene: room.glb\n      up_axis: {up}\n"
             )
         };
-        std::fs::write(dir.path().join(files::DATAFLOW), flow("y")).unwrap();
+        std::fs::write(dir.path().join(RunFolder::DATAFLOW), flow("y")).unwrap();
         let spec = scene_from_run(dir.path(), &summary).unwrap();
         assert_eq!(spec.up_axis, Some(UpAxis::Y));
-        std::fs::write(dir.path().join(files::DATAFLOW), flow("x")).unwrap();
+        std::fs::write(dir.path().join(RunFolder::DATAFLOW), flow("x")).unwrap();
         let e = scene_from_run(dir.path(), &summary)
             .unwrap_err()
             .to_string();

@@ -1,40 +1,605 @@
-//! Reading a run folder (written by the `evaluator` operator, operators/src/evaluator.rs):
-//! `trajectory_est.tum` (map frame = the robot's start frame), `trajectory_true.tum` (world),
-//! `map.ply` (3DGS PLY of the last map, map frame), `coverage.csv` (`step,coverage`),
-//! `summary.json` (steps, coverage, ATE, …, and the scene when the evaluator records it) and the
-//! `dataflow.yaml` copy the launcher puts there. Every error names the file and what is wrong.
+//! The run folder as one typed contract: every file of a run folder, its name and its format,
+//! read and written through [`RunFolder`] and nowhere else.
+//!
+//! | file | written by | format |
+//! | --- | --- | --- |
+//! | `trajectory_est.tum`, `trajectory_true.tum` | `evaluator` node | TUM (map frame = the robot's start frame; world) |
+//! | `map.ply` | `evaluator` node | 3DGS PLY of the last map, map frame |
+//! | `bev.png` | `evaluator` node | bird's-eye view ([`Bev`]) |
+//! | `coverage.csv` | `evaluator` node | [`CoverageRow`]s: `step,coverage` |
+//! | `summary.json` | `evaluator` node | [`Summary`] |
+//! | `timings.csv` | every node host (`activemap_runtime::node::append_timing`) | [`StageTime`]s: `stage,seconds,calls` |
+//! | `recording.mcap` | the launcher's recorder | MCAP |
+//! | `dataflow.yaml` | the launcher | the flow that ran |
+//! | `metrics.json`, `metrics.md` | `activemap eval` | [`MetricsReport`] |
+//! | `eval/views.csv`, `eval/view_NN_{map,truth}.png` | `activemap eval` | [`ViewRow`]s; test renders |
+//! | `llm.jsonl` | the LLM planner | [`LlmRecord`] per line |
+//! | `report.html` | `activemap report` | the self-contained page |
+//!
+//! JSON files are (de)serialised by serde into typed structs; CSV files by the `csv` crate with
+//! serde into typed rows (numbers with 6 decimals, as before). Every error names the file and,
+//! for a CSV row, its line.
 
+use crate::MetricsReport;
 use activemap_geometry::tum::Trajectory;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
-/// File names inside a run folder.
-pub mod files {
+/// A run folder: the directory one `activemap run` writes, with the name and format of each of
+/// its files. Cheap to build; touches the disk only in its `read_*` / `write_*` methods.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunFolder {
+    dir: PathBuf,
+}
+
+impl RunFolder {
     /// Estimated trajectory (TUM, map frame).
-    pub const TRAJECTORY_EST: &str = "trajectory_est.tum";
+    pub const TRAJECTORY_EST: &'static str = "trajectory_est.tum";
     /// True trajectory (TUM, world frame).
-    pub const TRAJECTORY_TRUE: &str = "trajectory_true.tum";
-    /// Final map (3DGS PLY, map frame).
-    pub const MAP: &str = "map.ply";
-    /// 2D coverage per step (`step,coverage`).
-    pub const COVERAGE: &str = "coverage.csv";
-    /// The evaluator's summary.
-    pub const SUMMARY: &str = "summary.json";
+    pub const TRAJECTORY_TRUE: &'static str = "trajectory_true.tum";
+    /// Final map (3DGS PLY, map frame, without unknown-space Gaussians).
+    pub const MAP: &'static str = "map.ply";
+    /// 2D coverage per step ([`CoverageRow`]).
+    pub const COVERAGE: &'static str = "coverage.csv";
+    /// The evaluator's [`Summary`].
+    pub const SUMMARY: &'static str = "summary.json";
     /// The launcher's copy of the dataflow.
-    pub const DATAFLOW: &str = "dataflow.yaml";
+    pub const DATAFLOW: &'static str = "dataflow.yaml";
     /// Bird's-eye PNG of the last occupancy grid with both trajectories and the frontiers.
-    pub const BEV: &str = "bev.png";
-    /// Metrics written by `evaluate_run`.
-    pub const METRICS_JSON: &str = "metrics.json";
+    pub const BEV: &'static str = "bev.png";
+    /// Metrics written by `activemap eval` ([`MetricsReport`]).
+    pub const METRICS_JSON: &'static str = "metrics.json";
     /// The metrics as a Markdown table.
-    pub const METRICS_MD: &str = "metrics.md";
-    /// Folder of the test renders `evaluate_run` keeps for the report.
-    pub const EVAL_DIR: &str = "eval";
-    /// Per-stage time breakdown (`stage,seconds,calls`), when the run records it.
-    pub const TIMINGS: &str = "timings.csv";
-    /// LLM exchanges, one JSON object per line, when the run had any.
-    pub const LLM: &str = "llm.jsonl";
+    pub const METRICS_MD: &'static str = "metrics.md";
+    /// Folder of the test renders and per-view metrics `activemap eval` keeps for the report.
+    pub const EVAL_DIR: &'static str = "eval";
+    /// Per-view metrics inside [`Self::EVAL_DIR`] ([`ViewRow`]).
+    pub const VIEWS: &'static str = "views.csv";
+    /// Per-stage time breakdown ([`StageTime`]), when the run records it.
+    pub const TIMINGS: &'static str = "timings.csv";
+    /// LLM exchanges, one [`LlmRecord`] per line, when the run had any.
+    pub const LLM: &'static str = "llm.jsonl";
     /// The report page.
-    pub const REPORT: &str = "report.html";
+    pub const REPORT: &'static str = "report.html";
+    /// The recording of every message of the run.
+    pub const RECORDING: &'static str = "recording.mcap";
+
+    /// The run folder at `dir` (not created).
+    pub fn new(dir: impl Into<PathBuf>) -> Self {
+        Self { dir: dir.into() }
+    }
+
+    /// The folder itself.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The path of file `name` of the folder (one of the constants).
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// Creates the folder (and its parents) when absent.
+    pub fn create(&self) -> Result<(), RunError> {
+        std::fs::create_dir_all(&self.dir).map_err(|source| RunError::Io {
+            path: self.dir.clone(),
+            source,
+        })
+    }
+
+    /// Whether the run left a `summary.json` (it had an `evaluator` node and it finished).
+    pub fn has_summary(&self) -> bool {
+        self.path(Self::SUMMARY).exists()
+    }
+
+    /// Whether the run was recorded (`recording.mcap` is there).
+    pub fn has_recording(&self) -> bool {
+        self.path(Self::RECORDING).exists()
+    }
+
+    /// The folder of `activemap eval`'s per-view outputs.
+    pub fn eval_dir(&self) -> PathBuf {
+        self.path(Self::EVAL_DIR)
+    }
+
+    /// `eval/views.csv`.
+    pub fn views_path(&self) -> PathBuf {
+        self.eval_dir().join(Self::VIEWS)
+    }
+
+    /// `eval/view_NN_map.png` or `eval/view_NN_truth.png` of test view `index`.
+    pub fn view_image(&self, index: usize, image: ViewImage) -> PathBuf {
+        let which = match image {
+            ViewImage::Map => "map",
+            ViewImage::Truth => "truth",
+        };
+        self.eval_dir().join(format!("view_{index:02}_{which}.png"))
+    }
+
+    /// Reads `summary.json`; a file that is not a JSON object of summary fields is
+    /// [`RunError::Malformed`].
+    pub fn read_summary(&self) -> Result<Summary, RunError> {
+        let path = self.path(Self::SUMMARY);
+        let text = read_text(&path, "the evaluator's summary")?;
+        // serde would also read a struct from a JSON array; the file holds an object.
+        if !text.trim_start().starts_with('{') {
+            return Err(RunError::Malformed {
+                path,
+                detail: "expected a JSON object".into(),
+            });
+        }
+        serde_json::from_str(&text).map_err(|e| RunError::Malformed {
+            path,
+            detail: e.to_string(),
+        })
+    }
+
+    /// Writes `summary.json` (pretty JSON).
+    pub fn write_summary(&self, summary: &Summary) -> Result<(), RunError> {
+        let text = serde_json::to_string_pretty(summary).map_err(|e| RunError::Malformed {
+            path: self.path(Self::SUMMARY),
+            detail: e.to_string(),
+        })?;
+        write_file(&self.path(Self::SUMMARY), text)
+    }
+
+    /// Reads the TUM trajectory `name` ([`Self::TRAJECTORY_EST`] or [`Self::TRAJECTORY_TRUE`]);
+    /// empty files are refused.
+    pub fn read_trajectory(&self, name: &str) -> Result<Trajectory, RunError> {
+        let path = self.path(name);
+        let text = read_text(&path, "TUM trajectory `t tx ty tz qx qy qz qw`")?;
+        let trajectory = Trajectory::parse(&text, &path.display().to_string()).map_err(|e| {
+            RunError::Malformed {
+                path: path.clone(),
+                detail: e.to_string(),
+            }
+        })?;
+        if trajectory.is_empty() {
+            return Err(RunError::Malformed {
+                path,
+                detail: "the trajectory holds no pose".into(),
+            });
+        }
+        Ok(trajectory)
+    }
+
+    /// Writes the TUM trajectory `name`.
+    pub fn write_trajectory(&self, name: &str, trajectory: &Trajectory) -> Result<(), RunError> {
+        let path = self.path(name);
+        trajectory
+            .write(&path)
+            .map_err(|source| RunError::Io { path, source })
+    }
+
+    /// Reads `map.ply` (every Gaussian; the PLY layout stores no flags, see the crate docs of
+    /// `activemap-splat`).
+    pub fn read_map(&self) -> Result<activemap_splat::Gaussians<f32>, RunError> {
+        let path = self.path(Self::MAP);
+        if !path.exists() {
+            return Err(RunError::Missing {
+                path,
+                what: "3DGS PLY of the final map",
+            });
+        }
+        activemap_splat::ply::read_ply(&path).map_err(|e| RunError::Malformed {
+            path,
+            detail: e.to_string(),
+        })
+    }
+
+    /// Writes `map.ply` (the caller leaves out what must not be shown as a surface).
+    pub fn write_map(&self, map: &activemap_splat::Gaussians<f32>) -> Result<(), RunError> {
+        let path = self.path(Self::MAP);
+        activemap_splat::ply::write_ply(&path, map).map_err(|e| RunError::Io {
+            path,
+            source: std::io::Error::other(e.to_string()),
+        })
+    }
+
+    /// Reads `coverage.csv`; `None` when the file is absent. Every coverage must lie in [0, 1].
+    pub fn read_coverage(&self) -> Result<Option<Vec<CoverageRow>>, RunError> {
+        let path = self.path(Self::COVERAGE);
+        let Some(rows) = read_rows::<CoverageRow>(&path, "2D coverage per step")? else {
+            return Ok(None);
+        };
+        for (line, row) in &rows {
+            if !(0.0..=1.0).contains(&row.coverage) {
+                return Err(RunError::MalformedRow {
+                    path,
+                    line: *line,
+                    detail: format!("coverage {} is outside [0, 1]", row.coverage),
+                });
+            }
+        }
+        Ok(Some(rows.into_iter().map(|(_, r)| r).collect()))
+    }
+
+    /// Writes `coverage.csv` (header even when there is no row).
+    pub fn write_coverage(&self, rows: &[CoverageRow]) -> Result<(), RunError> {
+        write_rows(&self.path(Self::COVERAGE), rows)
+    }
+
+    /// Reads `timings.csv` as written, one row per node process (a restarted node has several:
+    /// see [`StageTime::summed`]); `None` when the run recorded no timings. Times must be finite
+    /// and non-negative.
+    pub fn read_timings(&self) -> Result<Option<Vec<StageTime>>, RunError> {
+        let path = self.path(Self::TIMINGS);
+        let Some(rows) = read_rows::<StageTime>(&path, "per-stage times")? else {
+            return Ok(None);
+        };
+        for (line, row) in &rows {
+            if !(row.seconds.is_finite() && row.seconds >= 0.0) {
+                return Err(RunError::MalformedRow {
+                    path,
+                    line: *line,
+                    detail: format!("seconds {} must be finite and ≥ 0", row.seconds),
+                });
+            }
+        }
+        Ok(Some(rows.into_iter().map(|(_, r)| r).collect()))
+    }
+
+    /// Writes `timings.csv` whole (the node hosts append to it themselves; this is for tools
+    /// and fixtures).
+    pub fn write_timings(&self, rows: &[StageTime]) -> Result<(), RunError> {
+        write_rows(&self.path(Self::TIMINGS), rows)
+    }
+
+    /// Reads `eval/views.csv`; `None` when absent.
+    pub fn read_views(&self) -> Result<Option<Vec<ViewRow>>, RunError> {
+        let rows = read_rows::<ViewRow>(&self.views_path(), "per-view metrics")?;
+        Ok(rows.map(|rows| rows.into_iter().map(|(_, r)| r).collect()))
+    }
+
+    /// Writes `eval/views.csv` (the `eval` folder must exist).
+    pub fn write_views(&self, rows: &[ViewRow]) -> Result<(), RunError> {
+        write_rows(&self.views_path(), rows)
+    }
+
+    /// Reads `metrics.json`; `None` when `activemap eval` has not written it.
+    pub fn read_metrics(&self) -> Result<Option<MetricsReport>, RunError> {
+        let path = self.path(Self::METRICS_JSON);
+        let text = match read_text(&path, "metrics of `activemap eval`") {
+            Ok(t) => t,
+            Err(RunError::Missing { .. }) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        MetricsReport::from_json(&text)
+            .map(Some)
+            .map_err(|e| RunError::Malformed {
+                path,
+                detail: e.to_string(),
+            })
+    }
+
+    /// Writes `metrics.json` and its Markdown rendering `metrics.md`.
+    pub fn write_metrics(&self, report: &MetricsReport, markdown: &str) -> Result<(), RunError> {
+        write_file(&self.path(Self::METRICS_JSON), report.to_json())?;
+        write_file(&self.path(Self::METRICS_MD), markdown)
+    }
+
+    /// Reads `llm.jsonl`; `None` when the run made no LLM exchange. Blank lines are skipped.
+    pub fn read_llm(&self) -> Result<Option<Vec<LlmRecord>>, RunError> {
+        let path = self.path(Self::LLM);
+        let text = match read_text(&path, "LLM exchanges") {
+            Ok(t) => t,
+            Err(RunError::Missing { .. }) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        let mut records = Vec::new();
+        for (n, line) in text.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            records.push(
+                serde_json::from_str(line).map_err(|e| RunError::MalformedRow {
+                    path: path.clone(),
+                    line: n as u64 + 1,
+                    detail: e.to_string(),
+                })?,
+            );
+        }
+        Ok(Some(records))
+    }
+
+    /// Draws `bev` and writes it as `bev.png`.
+    pub fn write_bev(&self, bev: &Bev) -> Result<(), RunError> {
+        let path = self.path(Self::BEV);
+        let image = bev.render().map_err(RunError::Settings)?;
+        image.save(&path).map_err(|e| RunError::Io {
+            path,
+            source: std::io::Error::other(e.to_string()),
+        })
+    }
+
+    /// The bytes of the file at `path` (e.g. a PNG of the folder to inline); `None` when absent.
+    pub fn read_optional_bytes(&self, path: &Path) -> Result<Option<Vec<u8>>, RunError> {
+        match std::fs::read(path) {
+            Ok(bytes) => Ok(Some(bytes)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(RunError::Io {
+                path: path.to_path_buf(),
+                source,
+            }),
+        }
+    }
+
+    /// Writes `report.html`; returns its path.
+    pub fn write_report(&self, html: &str) -> Result<PathBuf, RunError> {
+        let path = self.path(Self::REPORT);
+        write_file(&path, html)?;
+        Ok(path)
+    }
+}
+
+/// Which image of a test view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ViewImage {
+    /// The render of the run's map.
+    Map,
+    /// The simulator's ground truth.
+    Truth,
+}
+
+/// `summary.json`: what the `evaluator` node measured, and the scene so `activemap eval` can
+/// rebuild it. Fields absent from an older or partial summary read as their defaults
+/// (`Option`s as `None`); unknown fields are ignored.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Summary {
+    /// Pose estimates received.
+    pub steps: u64,
+    /// Final 2D coverage in [0, 1] (`None`: not recorded).
+    pub coverage: Option<f64>,
+    /// RMSE ATE after SE(3) alignment, metres (None with fewer than 3 poses).
+    pub ate_m: Option<f64>,
+    /// Length of the true path, metres.
+    pub path_length_m: f64,
+    /// Forward actions whose result the true poses show (0 when the `action` input is not
+    /// connected).
+    pub forward_actions: u64,
+    /// Of those, the ones that moved the robot less than half a step.
+    pub blocked_forwards: u64,
+    /// Last episode status message.
+    pub episode: String,
+    /// Whether `recording.mcap` was in the output folder when the evaluator finished.
+    pub recording_present: bool,
+    /// Gaussians in the last map.
+    pub map_gaussians: usize,
+    /// The scene the run explored (`house:<seed>` or a file); `None`: not recorded (the
+    /// evaluation then reads it from `dataflow.yaml`).
+    pub scene: Option<String>,
+    /// As in the `sim` config.
+    pub max_rooms: Option<u32>,
+    /// As in the `sim` config.
+    pub max_area: Option<f64>,
+    /// As in the `sim` config: `y` or `z` (absent = the scene format's default).
+    pub up_axis: Option<String>,
+}
+
+impl Summary {
+    /// `(field, value)` for display (the report's summary table): numbers with 4 decimals,
+    /// absent values as `—`.
+    pub fn rows(&self) -> Vec<(&'static str, String)> {
+        let real = |v: f64| format!("{v:.4}");
+        let opt_real = |v: Option<f64>| v.map_or_else(|| "—".to_string(), real);
+        let opt = |v: Option<String>| v.unwrap_or_else(|| "—".to_string());
+        vec![
+            ("steps", self.steps.to_string()),
+            ("coverage", opt_real(self.coverage)),
+            ("ate_m", opt_real(self.ate_m)),
+            ("path_length_m", real(self.path_length_m)),
+            ("forward_actions", self.forward_actions.to_string()),
+            ("blocked_forwards", self.blocked_forwards.to_string()),
+            ("episode", self.episode.clone()),
+            ("recording_present", self.recording_present.to_string()),
+            ("map_gaussians", self.map_gaussians.to_string()),
+            ("scene", opt(self.scene.clone())),
+            ("max_rooms", opt(self.max_rooms.map(|v| v.to_string()))),
+            ("max_area", opt_real(self.max_area)),
+            ("up_axis", opt(self.up_axis.clone())),
+        ]
+    }
+}
+
+/// A row of a run-folder CSV file: its header, in the order of the serde fields.
+pub trait CsvRow: Serialize + DeserializeOwned {
+    /// The column names, as the file's first line holds them.
+    const HEADER: &'static [&'static str];
+}
+
+/// A row of `coverage.csv`: 2D coverage after scoring the grid of frame `step`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CoverageRow {
+    /// Frame id of the scored grid.
+    pub step: u64,
+    /// Seen / reachable navigable floor, in [0, 1].
+    #[serde(serialize_with = "six_decimals")]
+    pub coverage: f64,
+}
+
+impl CsvRow for CoverageRow {
+    const HEADER: &'static [&'static str] = &["step", "coverage"];
+}
+
+/// A row of `timings.csv`: one node process's busy time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTime {
+    /// Node id.
+    pub stage: String,
+    /// Wall seconds inside `on_event`.
+    #[serde(serialize_with = "six_decimals")]
+    pub seconds: f64,
+    /// Calls of `on_event`.
+    pub calls: u64,
+}
+
+impl CsvRow for StageTime {
+    const HEADER: &'static [&'static str] = &["stage", "seconds", "calls"];
+}
+
+impl StageTime {
+    /// One row per stage, rows of the same stage (a node restarted by its restart policy)
+    /// summed, in the order stages first appear.
+    pub fn summed(rows: &[StageTime]) -> Vec<StageTime> {
+        let mut out: Vec<StageTime> = Vec::new();
+        for row in rows {
+            match out.iter_mut().find(|s| s.stage == row.stage) {
+                Some(s) => {
+                    s.seconds += row.seconds;
+                    s.calls += row.calls;
+                }
+                None => out.push(row.clone()),
+            }
+        }
+        out
+    }
+}
+
+/// A row of `eval/views.csv`: the image metrics of one test view (empty = not computed).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ViewRow {
+    /// Index of the test view.
+    pub view: usize,
+    /// PSNR, dB (`inf` for identical images).
+    #[serde(serialize_with = "six_decimals")]
+    pub psnr_db: f64,
+    /// SSIM.
+    #[serde(serialize_with = "six_decimals")]
+    pub ssim: f64,
+    /// LPIPS, when its weights were there.
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub lpips: Option<f64>,
+    /// Depth mean absolute error, metres, when the view had valid depth.
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub depth_mae_m: Option<f64>,
+}
+
+impl CsvRow for ViewRow {
+    const HEADER: &'static [&'static str] = &["view", "psnr_db", "ssim", "lpips", "depth_mae_m"];
+}
+
+/// One line of `llm.jsonl`: an exchange with the LLM planner (absent fields = not recorded).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LlmRecord {
+    /// Step the decision was made on.
+    pub step: Option<u64>,
+    /// Text prompt sent.
+    pub prompt: Option<String>,
+    /// Raw reply.
+    pub reply: Option<String>,
+    /// Parsed target frontier, if the reply held a valid one.
+    pub target: Option<i64>,
+}
+
+/// One cell of the bird's-eye view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BevCell {
+    /// Observed free (white).
+    Free,
+    /// Observed occupied (black).
+    Occupied,
+    /// Not observed (grey).
+    Unknown,
+}
+
+/// What `bev.png` shows: the last occupancy grid (free white, occupied black, unknown grey),
+/// the true path (blue), the estimated path (green, drawn over it) and the frontier centroids
+/// (red squares). Positions are in grid cell units (the centre of cell (i, j) at (i, j), as
+/// `GridGeometry::to_cell_units` of `activemap-planning` gives them); image up = +y.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bev {
+    /// Grid width, cells.
+    pub width: usize,
+    /// Grid height, cells.
+    pub height: usize,
+    /// Row-major cells, row 0 at the lowest y.
+    pub cells: Vec<BevCell>,
+    /// The true path, mapped into the grid's frame.
+    pub truth: Vec<[f64; 2]>,
+    /// The estimated path.
+    pub estimated: Vec<[f64; 2]>,
+    /// Frontier centroids.
+    pub frontiers: Vec<[f64; 2]>,
+    /// Pixels per cell side, 1..=16.
+    pub pixels_per_cell: u32,
+}
+
+impl Bev {
+    /// Colour of free cells.
+    pub const FREE: [u8; 3] = [255, 255, 255];
+    /// Colour of occupied cells.
+    pub const OCCUPIED: [u8; 3] = [0, 0, 0];
+    /// Colour of unknown cells.
+    pub const UNKNOWN: [u8; 3] = [160, 160, 160];
+    /// Colour of the true path.
+    pub const TRUTH: [u8; 3] = [40, 80, 255];
+    /// Colour of the estimated path.
+    pub const ESTIMATED: [u8; 3] = [0, 170, 0];
+    /// Colour of the frontier centroids.
+    pub const FRONTIER: [u8; 3] = [230, 0, 0];
+
+    /// The image; an error when the scale or the cell count is wrong.
+    pub fn render(&self) -> Result<image::RgbImage, String> {
+        let scale = self.pixels_per_cell;
+        if !(1..=16).contains(&scale) {
+            return Err(format!(
+                "{}: pixels per cell must be in 1..=16, got {scale}",
+                RunFolder::BEV
+            ));
+        }
+        if self.cells.len() != self.width * self.height || self.cells.is_empty() {
+            return Err(format!(
+                "{}: {} cells for a {}×{} grid",
+                RunFolder::BEV,
+                self.cells.len(),
+                self.width,
+                self.height
+            ));
+        }
+        let (w, h) = (self.width as u32 * scale, self.height as u32 * scale);
+        let mut img = image::RgbImage::new(w, h);
+        for (i, state) in self.cells.iter().enumerate() {
+            let (cx, cy) = ((i % self.width) as u32, (i / self.width) as u32);
+            let colour = match state {
+                BevCell::Free => Self::FREE,
+                BevCell::Occupied => Self::OCCUPIED,
+                BevCell::Unknown => Self::UNKNOWN,
+            };
+            for dy in 0..scale {
+                for dx in 0..scale {
+                    img.put_pixel(
+                        cx * scale + dx,
+                        h - 1 - (cy * scale + dy),
+                        image::Rgb(colour),
+                    );
+                }
+            }
+        }
+        let mut dot = |p: [f64; 2], colour: [u8; 3], radius: i64| {
+            let (cx, cy) = (
+                (p[0] * scale as f64) as i64,
+                h as i64 - 1 - (p[1] * scale as f64) as i64,
+            );
+            for y in cy - radius..=cy + radius {
+                for x in cx - radius..=cx + radius {
+                    if x >= 0 && y >= 0 && (x as u32) < w && (y as u32) < h {
+                        img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+                    }
+                }
+            }
+        };
+        self.truth.iter().for_each(|p| dot(*p, Self::TRUTH, 0));
+        self.estimated
+            .iter()
+            .for_each(|p| dot(*p, Self::ESTIMATED, 0));
+        self.frontiers
+            .iter()
+            .for_each(|p| dot(*p, Self::FRONTIER, scale as i64));
+        Ok(img)
+    }
 }
 
 /// Why a run folder could not be evaluated or reported.
@@ -53,7 +618,17 @@ pub enum RunError {
     Malformed {
         /// The file.
         path: PathBuf,
-        /// What is wrong, with the line when known.
+        /// What is wrong.
+        detail: String,
+    },
+    /// A line of a CSV or JSON-lines file cannot be parsed.
+    #[error("{}: malformed: line {line}: {detail}", path.display())]
+    MalformedRow {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line of the file (the header is line 1).
+        line: u64,
+        /// What is wrong.
         detail: String,
     },
     /// Reading or writing a file failed.
@@ -67,8 +642,8 @@ pub enum RunError {
     /// The scene of the run is unknown or cannot be built.
     #[error("scene: {0}")]
     Scene(String),
-    /// A benchmark setting is invalid (e.g. a method given as something other than
-    /// `NAME=DATAFLOW`).
+    /// A setting is invalid (e.g. a benchmark method given as something other than
+    /// `NAME=DATAFLOW`, or a bird's-eye scale out of range).
     #[error("{0}")]
     Settings(String),
     /// A metric failed.
@@ -102,94 +677,97 @@ pub fn write_file(path: &Path, bytes: impl AsRef<[u8]>) -> Result<(), RunError> 
     })
 }
 
-/// Reads a TUM trajectory of the run folder; empty files are refused.
-pub fn read_trajectory(dir: &Path, name: &str) -> Result<Trajectory, RunError> {
-    let path = dir.join(name);
-    let text = read_text(&path, "TUM trajectory `t tx ty tz qx qy qz qw`")?;
-    let trajectory =
-        Trajectory::parse(&text, &path.display().to_string()).map_err(|e| RunError::Malformed {
-            path: path.clone(),
-            detail: e.to_string(),
-        })?;
-    if trajectory.is_empty() {
-        return Err(RunError::Malformed {
-            path,
-            detail: "the trajectory holds no pose".into(),
-        });
-    }
-    Ok(trajectory)
+/// Serialises a real with 6 decimals (the run folder's CSV number format).
+fn six_decimals<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{v:.6}"))
 }
 
-/// Reads `coverage.csv` (`step,coverage` header, then one row per scored grid); `None` when the
-/// file is absent.
-pub fn read_coverage(dir: &Path) -> Result<Option<Vec<(u64, f64)>>, RunError> {
-    let path = dir.join(files::COVERAGE);
-    let text = match read_text(&path, "2D coverage per step") {
+/// As [`six_decimals`]; `None` as an empty field.
+fn six_decimals_opt<S: Serializer>(v: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+    match v {
+        Some(v) => six_decimals(v, s),
+        None => s.serialize_str(""),
+    }
+}
+
+/// Reads the CSV file `path` of rows `T` with their 1-based line numbers; `None` when the file
+/// is absent. The header must be `T::HEADER`; fields are trimmed; blank lines are skipped.
+fn read_rows<T: CsvRow>(
+    path: &Path,
+    what: &'static str,
+) -> Result<Option<Vec<(u64, T)>>, RunError> {
+    let text = match read_text(path, what) {
         Ok(t) => t,
         Err(RunError::Missing { .. }) => return Ok(None),
         Err(e) => return Err(e),
     };
-    let mut rows = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || (n == 0 && line.starts_with("step")) {
-            continue;
-        }
-        let bad = |detail: String| RunError::Malformed {
-            path: path.clone(),
-            detail: format!("line {}: {detail}", n + 1),
+    let expected = T::HEADER.join(",");
+    let row_error = |e: csv::Error, fallback_line: u64| {
+        let line = e.position().map_or(fallback_line, |p| p.line());
+        let detail = match e.kind() {
+            csv::ErrorKind::UnequalLengths { len, .. } => {
+                format!("expected `{expected}`, found {len} field(s)")
+            }
+            csv::ErrorKind::Deserialize { err, .. } => format!("expected `{expected}`: {err}"),
+            _ => e.to_string(),
         };
-        let (step, value) = line
-            .split_once(',')
-            .ok_or_else(|| bad(format!("expected `step,coverage`, found `{line}`")))?;
-        let step: u64 = step
-            .trim()
-            .parse()
-            .map_err(|e| bad(format!("step `{step}`: {e}")))?;
-        let value: f64 = value
-            .trim()
-            .parse()
-            .map_err(|e| bad(format!("coverage `{value}`: {e}")))?;
-        if !(0.0..=1.0).contains(&value) {
-            return Err(bad(format!("coverage {value} is outside [0, 1]")));
+        RunError::MalformedRow {
+            path: path.to_path_buf(),
+            line,
+            detail,
         }
-        rows.push((step, value));
+    };
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let header = reader.headers().map_err(|e| row_error(e, 1))?;
+    if header.iter().ne(T::HEADER.iter().copied()) {
+        return Err(RunError::MalformedRow {
+            path: path.to_path_buf(),
+            line: 1,
+            detail: format!(
+                "header `{}`, expected `{expected}`",
+                header.iter().collect::<Vec<_>>().join(",")
+            ),
+        });
+    }
+    let mut rows = Vec::new();
+    let mut record = csv::StringRecord::new();
+    let header = header.clone();
+    loop {
+        let fallback = rows.len() as u64 + 2;
+        match reader.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(row_error(e, fallback)),
+        }
+        let line = record.position().map_or(fallback, |p| p.line());
+        let row: T = record
+            .deserialize(Some(&header))
+            .map_err(|e| row_error(e, line))?;
+        rows.push((line, row));
     }
     Ok(Some(rows))
 }
 
-/// Reads `summary.json` as free-form JSON (its fields grow with the pipeline).
-pub fn read_summary(dir: &Path) -> Result<serde_json::Value, RunError> {
-    let path = dir.join(files::SUMMARY);
-    let text = read_text(&path, "the evaluator's summary")?;
-    let value: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| RunError::Malformed {
-            path: path.clone(),
-            detail: e.to_string(),
-        })?;
-    if !value.is_object() {
-        return Err(RunError::Malformed {
-            path,
-            detail: "expected a JSON object".into(),
-        });
+/// Writes `rows` as the CSV file `path`, header first (also with no row).
+fn write_rows<T: CsvRow>(path: &Path, rows: &[T]) -> Result<(), RunError> {
+    let io = |e: csv::Error| RunError::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(e.to_string()),
+    };
+    let mut writer = csv::WriterBuilder::new()
+        .has_headers(false)
+        .from_writer(Vec::new());
+    writer.write_record(T::HEADER).map_err(io)?;
+    for row in rows {
+        writer.serialize(row).map_err(io)?;
     }
-    Ok(value)
-}
-
-/// Reads `map.ply` (every Gaussian; the PLY layout stores no flags, see the crate docs of
-/// `activemap-splat`).
-pub fn read_map(dir: &Path) -> Result<activemap_splat::Gaussians<f32>, RunError> {
-    let path = dir.join(files::MAP);
-    if !path.exists() {
-        return Err(RunError::Missing {
-            path,
-            what: "3DGS PLY of the final map",
-        });
-    }
-    activemap_splat::ply::read_ply(&path).map_err(|e| RunError::Malformed {
-        path,
-        detail: e.to_string(),
-    })
+    let bytes = writer.into_inner().map_err(|e| RunError::Io {
+        path: path.to_path_buf(),
+        source: std::io::Error::other(e.to_string()),
+    })?;
+    write_file(path, bytes)
 }
 
 #[cfg(test)]
@@ -199,38 +777,339 @@ mod tests {
     #[test]
     fn coverage_rows_are_parsed_and_bad_rows_named() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(read_coverage(dir.path()).unwrap().is_none());
-        let p = dir.path().join(files::COVERAGE);
+        let run = RunFolder::new(dir.path());
+        assert!(run.read_coverage().unwrap().is_none());
+        let p = run.path(RunFolder::COVERAGE);
         std::fs::write(&p, "step,coverage\n1,0.25\n2,0.5\n").unwrap();
         assert_eq!(
-            read_coverage(dir.path()).unwrap().unwrap(),
-            vec![(1, 0.25), (2, 0.5)]
+            run.read_coverage().unwrap().unwrap(),
+            vec![
+                CoverageRow {
+                    step: 1,
+                    coverage: 0.25
+                },
+                CoverageRow {
+                    step: 2,
+                    coverage: 0.5
+                }
+            ]
         );
         std::fs::write(&p, "step,coverage\n1,0.25\n2;0.5\n").unwrap();
-        let e = read_coverage(dir.path()).unwrap_err().to_string();
+        let e = run.read_coverage().unwrap_err().to_string();
         assert!(e.contains("coverage.csv") && e.contains("line 3"), "{e}");
         std::fs::write(&p, "step,coverage\n1,1.5\n").unwrap();
-        let e = read_coverage(dir.path()).unwrap_err().to_string();
+        let e = run.read_coverage().unwrap_err().to_string();
         assert!(e.contains("outside [0, 1]"), "{e}");
     }
 
     #[test]
     fn missing_and_malformed_files_are_named() {
         let dir = tempfile::tempdir().unwrap();
-        let e = read_trajectory(dir.path(), files::TRAJECTORY_EST)
+        let run = RunFolder::new(dir.path());
+        let e = run
+            .read_trajectory(RunFolder::TRAJECTORY_EST)
             .unwrap_err()
             .to_string();
         assert!(e.contains("trajectory_est.tum: missing"), "{e}");
-        std::fs::write(dir.path().join(files::TRAJECTORY_EST), "").unwrap();
-        let e = read_trajectory(dir.path(), files::TRAJECTORY_EST)
+        std::fs::write(run.path(RunFolder::TRAJECTORY_EST), "").unwrap();
+        let e = run
+            .read_trajectory(RunFolder::TRAJECTORY_EST)
             .unwrap_err()
             .to_string();
         assert!(e.contains("no pose"), "{e}");
-        std::fs::write(dir.path().join(files::SUMMARY), "[1, 2]").unwrap();
-        let e = read_summary(dir.path()).unwrap_err().to_string();
+        std::fs::write(run.path(RunFolder::SUMMARY), "[1, 2]").unwrap();
+        let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("summary.json: malformed"), "{e}");
-        std::fs::write(dir.path().join(files::MAP), "ply\nnonsense").unwrap();
-        let e = read_map(dir.path()).unwrap_err().to_string();
+        std::fs::write(run.path(RunFolder::MAP), "ply\nnonsense").unwrap();
+        let e = run.read_map().unwrap_err().to_string();
         assert!(e.contains("map.ply: malformed"), "{e}");
+    }
+
+    fn summary() -> Summary {
+        Summary {
+            steps: 301,
+            coverage: Some(0.875),
+            ate_m: Some(0.0021),
+            path_length_m: 7.25,
+            forward_actions: 128,
+            blocked_forwards: 2,
+            episode: "Finished at step 301: done".into(),
+            recording_present: true,
+            map_gaussians: 77_000,
+            scene: Some("house:7".into()),
+            max_rooms: Some(3),
+            max_area: None,
+            up_axis: Some("z".into()),
+        }
+    }
+
+    /// The summary survives the file; its JSON keeps the field names and `null`s the evaluator
+    /// always wrote; a partial one reads with defaults; a wrongly typed field names the file.
+    #[test]
+    fn summary_round_trips_through_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        assert!(!run.has_summary());
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("summary.json: missing"), "{e}");
+        run.write_summary(&summary()).unwrap();
+        assert!(run.has_summary());
+        assert_eq!(run.read_summary().unwrap(), summary());
+        let text = std::fs::read_to_string(run.path(RunFolder::SUMMARY)).unwrap();
+        for key in [
+            "\"steps\": 301",
+            "\"coverage\": 0.875",
+            "\"scene\": \"house:7\"",
+            "\"max_area\": null",
+            "\"blocked_forwards\": 2",
+        ] {
+            assert!(text.contains(key), "{key} in {text}");
+        }
+        std::fs::write(run.path(RunFolder::SUMMARY), "{\"steps\": 3, \"extra\": 1}").unwrap();
+        let partial = run.read_summary().unwrap();
+        assert_eq!(
+            (partial.steps, partial.scene, partial.coverage),
+            (3, None, None)
+        );
+        std::fs::write(run.path(RunFolder::SUMMARY), "{\"steps\": \"many\"}").unwrap();
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("summary.json: malformed"), "{e}");
+        std::fs::write(run.path(RunFolder::SUMMARY), "{\"steps\": 3").unwrap();
+        let e = run.read_summary().unwrap_err().to_string();
+        assert!(e.contains("summary.json: malformed"), "{e}");
+        let rows = summary().rows();
+        assert!(rows.contains(&("coverage", "0.8750".into())), "{rows:?}");
+        assert!(rows.contains(&("max_area", "—".into())), "{rows:?}");
+    }
+
+    /// Each CSV is written with its header and 6-decimal numbers and reads back the same rows.
+    #[test]
+    fn csv_files_round_trip_with_their_headers() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        run.write_coverage(&[]).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(run.path(RunFolder::COVERAGE)).unwrap(),
+            "step,coverage\n"
+        );
+        assert_eq!(run.read_coverage().unwrap(), Some(vec![]));
+        let coverage = [
+            CoverageRow {
+                step: 1,
+                coverage: 0.1,
+            },
+            CoverageRow {
+                step: 11,
+                coverage: 0.42,
+            },
+        ];
+        run.write_coverage(&coverage).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(run.path(RunFolder::COVERAGE)).unwrap(),
+            "step,coverage\n1,0.100000\n11,0.420000\n"
+        );
+        assert_eq!(run.read_coverage().unwrap().unwrap(), coverage);
+
+        let timings = vec![
+            StageTime {
+                stage: "tracker".into(),
+                seconds: 2.0,
+                calls: 8,
+            },
+            StageTime {
+                stage: "mapper".into(),
+                seconds: 1.5,
+                calls: 4,
+            },
+            StageTime {
+                stage: "tracker".into(),
+                seconds: 1.0,
+                calls: 4,
+            },
+        ];
+        assert!(run.read_timings().unwrap().is_none());
+        run.write_timings(&timings).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(run.path(RunFolder::TIMINGS)).unwrap(),
+            "stage,seconds,calls\ntracker,2.000000,8\nmapper,1.500000,4\ntracker,1.000000,4\n"
+        );
+        let back = run.read_timings().unwrap().unwrap();
+        assert_eq!(back, timings);
+        let summed = StageTime::summed(&back);
+        assert_eq!(summed.len(), 2);
+        assert_eq!((summed[0].seconds, summed[0].calls), (3.0, 12));
+        std::fs::write(
+            run.path(RunFolder::TIMINGS),
+            "stage,seconds,calls\n\n sim , 1.5 , 3 \n",
+        )
+        .unwrap();
+        assert_eq!(
+            run.read_timings().unwrap().unwrap(),
+            vec![StageTime {
+                stage: "sim".into(),
+                seconds: 1.5,
+                calls: 3
+            }]
+        );
+        std::fs::write(
+            run.path(RunFolder::TIMINGS),
+            "stage,seconds,calls\nsim,-1,3\n",
+        )
+        .unwrap();
+        let e = run.read_timings().unwrap_err().to_string();
+        assert!(e.contains("timings.csv") && e.contains("line 2"), "{e}");
+        std::fs::write(
+            run.path(RunFolder::TIMINGS),
+            "node,seconds,calls\nsim,1,3\n",
+        )
+        .unwrap();
+        let e = run.read_timings().unwrap_err().to_string();
+        assert!(
+            e.contains("line 1") && e.contains("expected `stage,seconds,calls`"),
+            "{e}"
+        );
+
+        std::fs::create_dir_all(run.eval_dir()).unwrap();
+        let views = [
+            ViewRow {
+                view: 0,
+                psnr_db: f64::INFINITY,
+                ssim: 1.0,
+                lpips: None,
+                depth_mae_m: Some(0.012345),
+            },
+            ViewRow {
+                view: 1,
+                psnr_db: 21.5,
+                ssim: 0.75,
+                lpips: Some(0.25),
+                depth_mae_m: None,
+            },
+        ];
+        run.write_views(&views).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(run.views_path()).unwrap(),
+            "view,psnr_db,ssim,lpips,depth_mae_m\n0,inf,1.000000,,0.012345\n1,21.500000,0.750000,0.250000,\n"
+        );
+        assert_eq!(run.read_views().unwrap().unwrap(), views);
+    }
+
+    /// Each row type's `HEADER` is what serde writes for its fields.
+    #[test]
+    fn headers_match_the_serde_fields() {
+        fn header_of<T: CsvRow>(row: &T) -> String {
+            let mut w = csv::Writer::from_writer(Vec::new());
+            w.serialize(row).unwrap();
+            let text = String::from_utf8(w.into_inner().unwrap()).unwrap();
+            text.lines().next().unwrap().to_string()
+        }
+        let coverage = CoverageRow {
+            step: 0,
+            coverage: 0.0,
+        };
+        assert_eq!(header_of(&coverage), CoverageRow::HEADER.join(","));
+        let timing = StageTime {
+            stage: "a".into(),
+            seconds: 0.0,
+            calls: 0,
+        };
+        assert_eq!(header_of(&timing), StageTime::HEADER.join(","));
+        let view = ViewRow {
+            view: 0,
+            psnr_db: 0.0,
+            ssim: 0.0,
+            lpips: None,
+            depth_mae_m: None,
+        };
+        assert_eq!(header_of(&view), ViewRow::HEADER.join(","));
+    }
+
+    #[test]
+    fn llm_lines_are_typed_and_bad_lines_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        assert!(run.read_llm().unwrap().is_none());
+        std::fs::write(
+            run.path(RunFolder::LLM),
+            "{\"step\": 5, \"prompt\": \"p\", \"reply\": \"r\", \"target\": 1}\n\n{\"step\": 6}\n",
+        )
+        .unwrap();
+        let records = run.read_llm().unwrap().unwrap();
+        assert_eq!(records.len(), 2);
+        assert_eq!((records[0].step, records[0].target), (Some(5), Some(1)));
+        assert_eq!(records[1].prompt, None);
+        std::fs::write(run.path(RunFolder::LLM), "{\"step\": 5}\n{oops\n").unwrap();
+        let e = run.read_llm().unwrap_err().to_string();
+        assert!(e.contains("llm.jsonl") && e.contains("line 2"), "{e}");
+    }
+
+    /// The drawing: cells as blocks with +y up, paths over the grid, frontiers as squares.
+    #[test]
+    fn bev_draws_cells_paths_and_frontiers() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        // 3×2 grid: bottom row free, free, occupied; top row unknown.
+        let bev = Bev {
+            width: 3,
+            height: 2,
+            cells: vec![
+                BevCell::Free,
+                BevCell::Free,
+                BevCell::Occupied,
+                BevCell::Unknown,
+                BevCell::Unknown,
+                BevCell::Unknown,
+            ],
+            truth: vec![[0.0, 0.0]],
+            estimated: vec![[1.0, 0.0]],
+            frontiers: vec![[2.0, 1.5]],
+            pixels_per_cell: 2,
+        };
+        run.write_bev(&bev).unwrap();
+        let img = image::open(run.path(RunFolder::BEV)).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (6, 4));
+        let px = |x, y| img.get_pixel(x, y).0;
+        // The bottom grid row is image rows 2..4; a point at cell units (x, y) lands on pixel
+        // (2x, 3 − 2y).
+        assert_eq!(px(0, 3), Bev::TRUTH);
+        assert_eq!(px(1, 2), Bev::FREE);
+        assert_eq!(px(2, 3), Bev::ESTIMATED);
+        assert_eq!(px(5, 3), Bev::OCCUPIED);
+        assert_eq!(px(0, 0), Bev::UNKNOWN);
+        // The frontier at (2, 1.5): a square of radius 2 around pixel (4, 0).
+        assert_eq!(px(3, 0), Bev::FRONTIER);
+        assert_eq!(px(5, 2), Bev::FRONTIER);
+        assert_eq!(px(1, 0), Bev::UNKNOWN);
+        let bad = Bev {
+            pixels_per_cell: 0,
+            ..bev.clone()
+        };
+        let e = run.write_bev(&bad).unwrap_err().to_string();
+        assert!(e.contains("bev.png") && e.contains("1..=16"), "{e}");
+        let bad = Bev {
+            cells: vec![BevCell::Free],
+            ..bev
+        };
+        assert!(run.write_bev(&bad).is_err());
+    }
+
+    #[test]
+    fn metrics_are_absent_until_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        assert!(run.read_metrics().unwrap().is_none());
+        let report = MetricsReport {
+            psnr_db: Some(21.0),
+            ..Default::default()
+        };
+        run.write_metrics(&report, "# table\n").unwrap();
+        assert_eq!(run.read_metrics().unwrap(), Some(report));
+        std::fs::write(run.path(RunFolder::METRICS_JSON), "{\"psnr_db\": 1").unwrap();
+        let e = run.read_metrics().unwrap_err().to_string();
+        assert!(e.contains("metrics.json: malformed"), "{e}");
+        assert_eq!(
+            run.view_image(3, ViewImage::Truth),
+            dir.path().join("eval/view_03_truth.png")
+        );
     }
 }

@@ -2,7 +2,7 @@
 //! `evaluator` operator writes them.
 
 use crate::run_eval::{SceneSpec, scene_simulator, start_from_world};
-use crate::run_folder::files;
+use crate::run_folder::{CoverageRow, RunFolder, Summary};
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Intrinsics, Isometry3};
 use activemap_sim::{Action, Simulator};
@@ -54,8 +54,11 @@ pub fn write_run(dir: &Path, kind: MapKind) {
     for (t, p) in truth.stamps.iter().zip(&truth.poses) {
         estimate.push(*t, to_map * p);
     }
-    truth.write(&dir.join(files::TRAJECTORY_TRUE)).unwrap();
-    estimate.write(&dir.join(files::TRAJECTORY_EST)).unwrap();
+    let run = RunFolder::new(dir);
+    run.write_trajectory(RunFolder::TRAJECTORY_TRUE, &truth)
+        .unwrap();
+    run.write_trajectory(RunFolder::TRAJECTORY_EST, &estimate)
+        .unwrap();
     let mut map = Gaussians::<f32>::new();
     let frame = match kind {
         MapKind::Empty => None,
@@ -74,20 +77,21 @@ pub fn write_run(dir: &Path, kind: MapKind) {
             );
         }
     }
-    activemap_splat::ply::write_ply(&dir.join(files::MAP), &map).unwrap();
-    std::fs::write(
-        dir.join(files::COVERAGE),
-        "step,coverage\n1,0.100000\n5,0.300000\n11,0.420000\n",
-    )
-    .unwrap();
-    let summary = serde_json::json!({
-        "steps": 12, "coverage": 0.42, "ate_m": 0.0, "path_length_m": 0.3,
-        "episode": "Running at step 12: synthetic", "recording_present": false,
-        "map_gaussians": map.len(), "scene": "house:3", "max_rooms": 1, "max_area": 12.0
-    });
-    std::fs::write(
-        dir.join(files::SUMMARY),
-        serde_json::to_string_pretty(&summary).unwrap(),
-    )
+    run.write_map(&map).unwrap();
+    let row = |step, coverage| CoverageRow { step, coverage };
+    run.write_coverage(&[row(1, 0.1), row(5, 0.3), row(11, 0.42)])
+        .unwrap();
+    run.write_summary(&Summary {
+        steps: 12,
+        coverage: Some(0.42),
+        ate_m: Some(0.0),
+        path_length_m: 0.3,
+        episode: "Running at step 12: synthetic".into(),
+        map_gaussians: map.len(),
+        scene: Some("house:3".into()),
+        max_rooms: Some(1),
+        max_area: Some(12.0),
+        ..Summary::default()
+    })
     .unwrap();
 }

@@ -12,19 +12,15 @@
 //! Figures carry stable ids (`fig-bev`, `fig-trajectories`, `fig-coverage`, `fig-ate`,
 //! `fig-renders`, `fig-timings`, `llm-exchanges`) so tests and people can find them.
 
-mod base64;
 mod svg;
 
-use crate::run_folder::{
-    RunError, files, read_coverage, read_summary, read_trajectory, write_file,
-};
+use crate::run_folder::{CoverageRow, RunError, RunFolder, StageTime, Summary, ViewImage};
 use crate::{AteOptions, MetricsReport, ate};
 use activemap_geometry::tum::Trajectory;
+use base64::Engine as _;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use svg::Series;
-
-pub use base64::encode as base64_encode;
 
 /// Escapes text for HTML element content and attribute values.
 pub fn escape(text: &str) -> String {
@@ -55,18 +51,17 @@ pre{white-space:pre-wrap;background:#f7f7f7;padding:8px;font-size:.85em}";
 /// the two trajectories; every other input is optional and shown as missing when absent.
 pub fn write_report(dir: &Path) -> Result<PathBuf, RunError> {
     let html = render_report(dir)?;
-    let path = dir.join(files::REPORT);
-    write_file(&path, html)?;
-    Ok(path)
+    RunFolder::new(dir).write_report(&html)
 }
 
 /// The report page of the run folder `dir` as text.
 pub fn render_report(dir: &Path) -> Result<String, RunError> {
-    let summary = read_summary(dir)?;
-    let truth = read_trajectory(dir, files::TRAJECTORY_TRUE)?;
-    let estimate = read_trajectory(dir, files::TRAJECTORY_EST)?;
-    let coverage = read_coverage(dir)?;
-    let metrics = read_metrics(dir)?;
+    let run = RunFolder::new(dir);
+    let summary = run.read_summary()?;
+    let truth = run.read_trajectory(RunFolder::TRAJECTORY_TRUE)?;
+    let estimate = run.read_trajectory(RunFolder::TRAJECTORY_EST)?;
+    let coverage = run.read_coverage()?;
+    let metrics = run.read_metrics()?;
     let name = dir
         .canonicalize()
         .ok()
@@ -79,49 +74,24 @@ pub fn render_report(dir: &Path) -> Result<String, RunError> {
         n = escape(&name)
     );
     page += &summary_section(&summary, metrics.as_ref());
-    page += &map_section(dir, &truth, &estimate)?;
+    page += &map_section(&run, &truth, &estimate)?;
     page += &progress_section(coverage.as_deref(), &truth, &estimate);
-    page += &renders_section(dir)?;
-    page += &timings_section(dir)?;
-    page += &llm_section(dir)?;
+    page += &renders_section(&run)?;
+    page += &timings_section(&run)?;
+    page += &llm_section(&run)?;
     page += "</body></html>\n";
     Ok(page)
 }
 
-/// `metrics.json` when `activemap eval` wrote it.
-fn read_metrics(dir: &Path) -> Result<Option<MetricsReport>, RunError> {
-    let path = dir.join(files::METRICS_JSON);
-    if !path.exists() {
-        return Ok(None);
-    }
-    let text = crate::run_folder::read_text(&path, "metrics of `activemap eval`")?;
-    MetricsReport::from_json(&text)
-        .map(Some)
-        .map_err(|e| RunError::Malformed {
-            path,
-            detail: e.to_string(),
-        })
-}
-
-fn summary_section(summary: &serde_json::Value, metrics: Option<&MetricsReport>) -> String {
+fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>) -> String {
     let mut s = String::from("<h2>Summary</h2><table id=\"summary\">");
-    if let Some(obj) = summary.as_object() {
-        for (k, v) in obj {
-            let v = match v {
-                serde_json::Value::String(t) => t.clone(),
-                serde_json::Value::Number(n) => match n.as_f64() {
-                    Some(f) if n.is_f64() => format!("{f:.4}"),
-                    _ => n.to_string(),
-                },
-                other => other.to_string(),
-            };
-            let _ = write!(
-                s,
-                "<tr><td class=\"k\">{}</td><td>{}</td></tr>",
-                escape(k),
-                escape(&v)
-            );
-        }
+    for (k, v) in summary.rows() {
+        let _ = write!(
+            s,
+            "<tr><td class=\"k\">{}</td><td>{}</td></tr>",
+            escape(k),
+            escape(&v)
+        );
     }
     s += "</table><h2>Metrics (SPEC §8)</h2>";
     match metrics {
@@ -155,25 +125,25 @@ fn summary_section(summary: &serde_json::Value, metrics: Option<&MetricsReport>)
     s
 }
 
-/// `<img>` of a PNG file as a data URI, or `None` when the file is absent.
-fn png_img(path: &Path, attrs: &str) -> Result<Option<String>, RunError> {
-    match std::fs::read(path) {
-        Ok(bytes) => Ok(Some(format!(
+/// `<img>` of a PNG file of the run folder as a data URI, or `None` when the file is absent.
+fn png_img(run: &RunFolder, path: &Path, attrs: &str) -> Result<Option<String>, RunError> {
+    Ok(run.read_optional_bytes(path)?.map(|bytes| {
+        format!(
             "<img {attrs} src=\"data:image/png;base64,{}\">",
-            base64::encode(&bytes)
-        ))),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(source) => Err(RunError::Io {
-            path: path.to_path_buf(),
-            source,
-        }),
-    }
+            base64::engine::general_purpose::STANDARD.encode(bytes)
+        )
+    }))
 }
 
-fn map_section(dir: &Path, truth: &Trajectory, estimate: &Trajectory) -> Result<String, RunError> {
+fn map_section(
+    run: &RunFolder,
+    truth: &Trajectory,
+    estimate: &Trajectory,
+) -> Result<String, RunError> {
     let mut s = String::from("<h2>Bird's-eye map</h2><div class=\"row\">");
     match png_img(
-        &dir.join(files::BEV),
+        run,
+        &run.path(RunFolder::BEV),
         "id=\"fig-bev\" class=\"px\" alt=\"bird's-eye map\" style=\"max-width:560px;width:100%\"",
     )? {
         Some(img) => {
@@ -249,7 +219,7 @@ pub fn ate_against_steps(truth: &Trajectory, estimate: &Trajectory) -> Vec<(f64,
 }
 
 fn progress_section(
-    coverage: Option<&[(u64, f64)]>,
+    coverage: Option<&[CoverageRow]>,
     truth: &Trajectory,
     estimate: &Trajectory,
 ) -> String {
@@ -264,7 +234,10 @@ fn progress_section(
                 &[Series {
                     name: "seen / navigable floor",
                     colour: "#d07a00",
-                    points: rows.iter().map(|&(k, c)| (k as f64, c * 100.0)).collect(),
+                    points: rows
+                        .iter()
+                        .map(|r| (r.step as f64, r.coverage * 100.0))
+                        .collect(),
                 }],
             )
         }
@@ -286,29 +259,39 @@ fn progress_section(
     s + "</div>"
 }
 
-fn renders_section(dir: &Path) -> Result<String, RunError> {
-    let eval_dir = dir.join(files::EVAL_DIR);
-    let per_view = read_views_csv(&eval_dir.join("views.csv"))?;
+fn renders_section(run: &RunFolder) -> Result<String, RunError> {
+    let per_view = run.read_views()?.unwrap_or_default();
     let mut s = String::from(
         "<h2>Test renders: map (left) and ground truth (right)</h2><div class=\"row\" id=\"fig-renders\">",
     );
     let mut shown = 0;
     for i in 0..100 {
         let map = png_img(
-            &eval_dir.join(format!("view_{i:02}_map.png")),
+            run,
+            &run.view_image(i, ViewImage::Map),
             &format!("class=\"px render\" alt=\"map render {i}\" width=\"200\""),
         )?;
         let truth = png_img(
-            &eval_dir.join(format!("view_{i:02}_truth.png")),
+            run,
+            &run.view_image(i, ViewImage::Truth),
             &format!("class=\"px render\" alt=\"ground truth {i}\" width=\"200\""),
         )?;
         let (Some(map), Some(truth)) = (map, truth) else {
             break;
         };
-        let caption = per_view
-            .get(i)
-            .map(|v| format!("view {i}: {v}"))
-            .unwrap_or_else(|| format!("view {i}"));
+        let caption = match per_view.iter().find(|v| v.view == i) {
+            Some(v) => {
+                let mut c = format!("view {i}: PSNR {:.2} dB, SSIM {:.3}", v.psnr_db, v.ssim);
+                if let Some(l) = v.lpips {
+                    let _ = write!(c, ", LPIPS {l:.3}");
+                }
+                if let Some(d) = v.depth_mae_m {
+                    let _ = write!(c, ", depth MAE {d:.3} m");
+                }
+                c
+            }
+            None => format!("view {i}"),
+        };
         let _ = write!(
             s,
             "<figure>{map}{truth}<figcaption>{}</figcaption></figure>",
@@ -322,84 +305,31 @@ fn renders_section(dir: &Path) -> Result<String, RunError> {
     Ok(s + "</div>")
 }
 
-/// Captions from `eval/views.csv` (`view,psnr_db,ssim,lpips,depth_mae_m`); empty when absent.
-fn read_views_csv(path: &Path) -> Result<Vec<String>, RunError> {
-    if !path.exists() {
-        return Ok(Vec::new());
-    }
-    let text = crate::run_folder::read_text(path, "per-view metrics")?;
-    Ok(text
-        .lines()
-        .skip(1)
-        .map(|line| {
-            let f: Vec<&str> = line.split(',').collect();
-            let num = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
-            let mut c = String::new();
-            if let Some(p) = num(1) {
-                let _ = write!(c, "PSNR {p:.2} dB");
-            }
-            if let Some(v) = num(2) {
-                let _ = write!(c, ", SSIM {v:.3}");
-            }
-            if let Some(v) = num(3) {
-                let _ = write!(c, ", LPIPS {v:.3}");
-            }
-            if let Some(v) = num(4) {
-                let _ = write!(c, ", depth MAE {v:.3} m");
-            }
-            c
-        })
-        .collect())
-}
-
-fn timings_section(dir: &Path) -> Result<String, RunError> {
-    let path = dir.join(files::TIMINGS);
+fn timings_section(run: &RunFolder) -> Result<String, RunError> {
     let mut s = String::from("<h2>Time per stage</h2>");
-    if !path.exists() {
+    let Some(rows) = run.read_timings()? else {
         s += "<p class=\"missing\" id=\"fig-timings\">Not recorded: the run folder holds no timings.csv.</p>";
         return Ok(s);
-    }
-    let text = crate::run_folder::read_text(&path, "per-stage times")?;
-    let mut rows: Vec<(String, f64, u64)> = Vec::new();
-    for (n, line) in text.lines().enumerate().skip(1) {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let parsed = match f.as_slice() {
-            [stage, secs, calls] => secs
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite() && *v >= 0.0)
-                .zip(calls.parse::<u64>().ok())
-                .map(|(t, c)| (stage.to_string(), t, c)),
-            _ => None,
-        };
-        let (stage, secs, calls) = parsed.ok_or_else(|| RunError::Malformed {
-            path: path.clone(),
-            detail: format!(
-                "line {}: expected `stage,seconds,calls`, found `{line}`",
-                n + 1
-            ),
-        })?;
-        // A node restarted by its restart policy appends a second row: one stage, summed.
-        match rows.iter_mut().find(|r| r.0 == stage) {
-            Some(row) => {
-                row.1 += secs;
-                row.2 += calls;
-            }
-            None => rows.push((stage, secs, calls)),
-        }
-    }
-    let total: f64 = rows.iter().map(|r| r.1).sum();
+    };
+    // A node restarted by its restart policy appends a second row: one stage, summed.
+    let rows = StageTime::summed(&rows);
+    let total: f64 = rows.iter().map(|r| r.seconds).sum();
     s += &svg::bars(
         "fig-timings",
         "Wall time per stage",
-        &rows.iter().map(|r| (r.0.clone(), r.1)).collect::<Vec<_>>(),
+        &rows
+            .iter()
+            .map(|r| (r.stage.clone(), r.seconds))
+            .collect::<Vec<_>>(),
         "s",
     );
     s += "<table><tr><th>stage</th><th>seconds</th><th>share</th><th>calls</th><th>ms / call</th></tr>";
-    for (stage, secs, calls) in &rows {
+    for StageTime {
+        stage,
+        seconds: secs,
+        calls,
+    } in &rows
+    {
         let _ = write!(
             s,
             "<tr><td class=\"k\">{}</td><td>{secs:.3}</td><td>{:.1} %</td><td>{calls}</td><td>{}</td></tr>",
@@ -419,39 +349,24 @@ fn timings_section(dir: &Path) -> Result<String, RunError> {
     Ok(s + "</table>")
 }
 
-fn llm_section(dir: &Path) -> Result<String, RunError> {
-    let path = dir.join(files::LLM);
+fn llm_section(run: &RunFolder) -> Result<String, RunError> {
     let mut s = String::from("<h2>LLM exchanges</h2><div id=\"llm-exchanges\">");
-    if !path.exists() {
+    let Some(records) = run.read_llm()? else {
         s += "<p class=\"missing\">None: this run made no LLM exchange (no llm.jsonl).</p>";
         return Ok(s + "</div>");
-    }
-    let text = crate::run_folder::read_text(&path, "LLM exchanges")?;
-    let mut count = 0;
-    for (n, line) in text.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let v: serde_json::Value = serde_json::from_str(line).map_err(|e| RunError::Malformed {
-            path: path.clone(),
-            detail: format!("line {}: {e}", n + 1),
-        })?;
-        let field = |k: &str| match v.get(k) {
-            Some(serde_json::Value::String(t)) => t.clone(),
-            Some(serde_json::Value::Null) | None => "—".into(),
-            Some(other) => other.to_string(),
-        };
+    };
+    let dash = || "—".to_string();
+    for r in &records {
         let _ = write!(
             s,
             "<details class=\"llm\"><summary>step {} — target {}</summary><b>prompt</b><pre>{}</pre><b>reply</b><pre>{}</pre></details>",
-            escape(&field("step")),
-            escape(&field("target")),
-            escape(&field("prompt")),
-            escape(&field("reply"))
+            escape(&r.step.map_or_else(dash, |v| v.to_string())),
+            escape(&r.target.map_or_else(dash, |v| v.to_string())),
+            escape(r.prompt.as_deref().unwrap_or("—")),
+            escape(r.reply.as_deref().unwrap_or("—"))
         );
-        count += 1;
     }
-    if count == 0 {
+    if records.is_empty() {
         s += "<p class=\"missing\">None: llm.jsonl is empty.</p>";
     }
     Ok(s + "</div>")
@@ -479,15 +394,15 @@ mod tests {
         evaluate_run(dir, &options).unwrap();
         // A BEV stand-in and the optional inputs, as the pipeline writes them.
         image::RgbImage::from_pixel(8, 6, image::Rgb([200, 200, 200]))
-            .save(dir.join(files::BEV))
+            .save(dir.join(RunFolder::BEV))
             .unwrap();
         std::fs::write(
-            dir.join(files::TIMINGS),
+            dir.join(RunFolder::TIMINGS),
             "stage,seconds,calls\ntracker,2.0,8\nmapper,1.0,4\ntracker,1.0,4\n",
         )
         .unwrap();
         std::fs::write(
-            dir.join(files::LLM),
+            dir.join(RunFolder::LLM),
             "{\"step\": 5, \"prompt\": \"pick <a frontier>\", \"reply\": \"{\\\"target\\\": 1}\", \"target\": 1}\n",
         )
         .unwrap();
@@ -538,17 +453,17 @@ mod tests {
         assert!(html.contains("bev.png not in the run folder"));
         assert!(html.contains("Not computed yet"));
         std::fs::write(
-            dir.path().join(files::TIMINGS),
+            dir.path().join(RunFolder::TIMINGS),
             "stage,seconds,calls\nx,abc,1\n",
         )
         .unwrap();
         let e = render_report(dir.path()).unwrap_err().to_string();
         assert!(e.contains("timings.csv") && e.contains("line 2"), "{e}");
-        std::fs::remove_file(dir.path().join(files::TIMINGS)).unwrap();
-        std::fs::write(dir.path().join(files::LLM), "{not json\n").unwrap();
+        std::fs::remove_file(dir.path().join(RunFolder::TIMINGS)).unwrap();
+        std::fs::write(dir.path().join(RunFolder::LLM), "{not json\n").unwrap();
         let e = render_report(dir.path()).unwrap_err().to_string();
         assert!(e.contains("llm.jsonl") && e.contains("line 1"), "{e}");
-        std::fs::remove_file(dir.path().join(files::TRAJECTORY_EST)).unwrap();
+        std::fs::remove_file(dir.path().join(RunFolder::TRAJECTORY_EST)).unwrap();
         let e = render_report(dir.path()).unwrap_err().to_string();
         assert!(e.contains("trajectory_est.tum: missing"), "{e}");
     }

@@ -5,7 +5,7 @@
 //! `metrics.json` that parses; anything else in an existing folder is a half-finished run.
 
 use crate::MetricsReport;
-use crate::run_folder::{RunError, files, read_text, write_file};
+use crate::run_folder::{RunError, RunFolder, read_text, write_file};
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
@@ -186,13 +186,10 @@ pub fn cell_state(cell: &Cell, out: &Path) -> Result<CellState, RunError> {
             ),
         });
     }
-    let metrics_path = dir.join(files::METRICS_JSON);
-    match std::fs::read_to_string(&metrics_path) {
-        Ok(text) => match MetricsReport::from_json(&text) {
-            Ok(m) => Ok(CellState::Complete(Box::new(m))),
-            Err(_) => Ok(CellState::HalfFinished),
-        },
-        Err(_) => Ok(CellState::HalfFinished),
+    // Absent, unreadable or cut short by a kill: not complete.
+    match RunFolder::new(&dir).read_metrics() {
+        Ok(Some(m)) => Ok(CellState::Complete(Box::new(m))),
+        Ok(None) | Err(_) => Ok(CellState::HalfFinished),
     }
 }
 
@@ -308,7 +305,7 @@ mod tests {
             CellState::HalfFinished
         );
         // A metrics.json cut short by a kill is not complete.
-        std::fs::write(dir.join(files::METRICS_JSON), "{\"psnr_db\": 1").unwrap();
+        std::fs::write(dir.join(RunFolder::METRICS_JSON), "{\"psnr_db\": 1").unwrap();
         assert_eq!(
             cell_state(&cell, out.path()).unwrap(),
             CellState::HalfFinished
@@ -318,7 +315,7 @@ mod tests {
             test_views: 10,
             ..Default::default()
         };
-        std::fs::write(dir.join(files::METRICS_JSON), report.to_json()).unwrap();
+        std::fs::write(dir.join(RunFolder::METRICS_JSON), report.to_json()).unwrap();
         assert_eq!(
             cell_state(&cell, out.path()).unwrap(),
             CellState::Complete(Box::new(report))

@@ -159,7 +159,8 @@ where
             Err(why) => why,
             Ok(()) => format!(
                 "the run ended without a usable {}",
-                dir.join(crate::run_folder::files::METRICS_JSON).display()
+                dir.join(crate::run_folder::RunFolder::METRICS_JSON)
+                    .display()
             ),
         }),
     })
@@ -169,7 +170,7 @@ where
 mod tests {
     use super::super::grid::{GridSettings, Method, cells};
     use super::*;
-    use crate::run_folder::files;
+    use crate::run_folder::RunFolder;
     use std::sync::atomic::AtomicU64;
 
     fn grid() -> Vec<Cell> {
@@ -197,7 +198,8 @@ mod tests {
             psnr_db: Some(10.0 * house + cell.seed as f64),
             ..Default::default()
         };
-        std::fs::write(dir.join(files::METRICS_JSON), report.to_json()).map_err(|e| e.to_string())
+        std::fs::write(dir.join(RunFolder::METRICS_JSON), report.to_json())
+            .map_err(|e| e.to_string())
     }
 
     #[test]
@@ -224,9 +226,9 @@ mod tests {
         }
         // Half-finish two cells: one lost its metrics, one holds a truncated file and a
         // stale log that the re-run must not see.
-        std::fs::remove_file(cells[1].dir(out.path()).join(files::METRICS_JSON)).unwrap();
+        std::fs::remove_file(cells[1].dir(out.path()).join(RunFolder::METRICS_JSON)).unwrap();
         let d4 = cells[4].dir(out.path());
-        std::fs::write(d4.join(files::METRICS_JSON), "{").unwrap();
+        std::fs::write(d4.join(RunFolder::METRICS_JSON), "{").unwrap();
         std::fs::write(d4.join("stale.log"), "x").unwrap();
         let seen = Mutex::new(Vec::new());
         let second = run_cells(&cells, out.path(), 2, &stop, run, |r| {
