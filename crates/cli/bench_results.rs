@@ -1,6 +1,6 @@
 //! `activemap bench results` (issue 7): methods × scenes × seeds of exploration episodes, each
 //! run as `activemap run` does (the launcher, the step budget, then `eval`), summarised as
-//! `results.md` and `results.csv` in the layout of the paper's Table 1 (`activemap_eval::results`).
+//! `results.md` and `results.csv` in the layout of the paper's Table 1 (`activemap_bench::results`).
 //!
 //! Each cell gets its own dataflow, derived from the method's file: the `sim` node gets the
 //! house, resolution and step budget, the `evaluator` node the same house, and every node whose
@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use activemap_eval::results::{self, Cell, CellOutcome, GridSettings, Method};
+use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method};
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
 use anyhow::{Context as _, bail};
 use serde_json::Value;

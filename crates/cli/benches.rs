@@ -127,12 +127,12 @@ pub struct PlanningArgs {
 
 /// Runs the planning micro-benchmarks.
 pub fn planning(args: &PlanningArgs) -> anyhow::Result<()> {
-    let cfg = activemap_planning::bench::BenchConfig {
+    let cfg = activemap_bench::planning_bench::BenchConfig {
         repetitions: args.repetitions,
         explore_seeds: args.seeds.clone(),
         ..Default::default()
     };
-    for row in activemap_planning::bench::run(&cfg).context("planning benchmark")? {
+    for row in activemap_bench::planning_bench::run(&cfg).context("planning benchmark")? {
         println!("planning {} {:.3} {}", row.name, row.value, row.unit);
     }
     Ok(())

@@ -2,7 +2,7 @@
 //! pipeline operators wrap (poses, Gaussian maps, occupancy grids, RGB-D frames), and the scene
 //! settings shared by the `sim` and `evaluator` operators.
 
-use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, RobotModel};
 use activemap_planning::clearance::ClearanceConfig;
 use activemap_planning::grid::{CellState as PlanCell, GridGeometry, OccupancyGrid as PlanGrid};
 use activemap_schemas::{
@@ -12,28 +12,20 @@ use activemap_schemas::{
 use activemap_splat::Gaussians;
 use nalgebra::{Quaternion, Translation3, UnitQuaternion};
 
-/// Camera height above the floor, metres (SPEC §1, the simulator's robot): the robot knows its
-/// own mount, so the SLAM world is anchored at the start pose with the floor at z = 0.
-pub const CAMERA_HEIGHT_M: f64 = 0.88;
-
-/// The robot's radius, metres: the simulator's cylinder agent (`activemap_sim` houses are built
-/// so every room is reachable for it). Planning keeps this disc off every blocked cell
-/// ([`robot_clearance`]), and the occupancy marks it free around the robot.
-pub const ROBOT_RADIUS_M: f64 = 0.1;
-
 /// The collision check every planning operator shares (frontier reachability, A*, replan
-/// triggers): the robot width for which a [`ROBOT_RADIUS_M`] disc centred on a clear cell never
-/// overlaps a blocked cell of a grid with `resolution_m` cells (≈ 4.47 cells at 5 cm; SPEC §6's
-/// 3 cells would let the agent touch mapped walls). One width everywhere, so a frontier's
-/// closest reachable cell is a goal A* accepts.
-pub fn robot_clearance(resolution_m: f64) -> anyhow::Result<ClearanceConfig> {
-    Ok(ClearanceConfig::for_disc(ROBOT_RADIUS_M, resolution_m)?)
+/// triggers): the robot width for which a disc of the robot's radius
+/// ([`RobotModel::radius_m`]) centred on a clear cell never overlaps a blocked cell of a grid
+/// with `resolution_m` cells (≈ 4.47 cells at 5 cm for 0.1 m; SPEC §6's 3 cells would let the
+/// agent touch mapped walls). One width everywhere, so a frontier's closest reachable cell is a
+/// goal A* accepts.
+pub fn robot_clearance(robot: &RobotModel, resolution_m: f64) -> anyhow::Result<ClearanceConfig> {
+    Ok(ClearanceConfig::for_disc(robot.radius_m, resolution_m)?)
 }
 
-/// The SLAM world anchor: the camera pose of a robot at the planar origin (the start pose
-/// defines the world frame; the robot is never told where it is in the scene).
-pub fn start_anchor(camera_height: f64) -> Isometry3<f64> {
-    camera_pose_from_planar(&PlanarPose::new(0.0, 0.0, 0.0), 0.0, camera_height)
+/// The SLAM world anchor: the camera pose of the robot at the planar origin (the start pose
+/// defines the world frame, floor at z = 0; the robot is never told where it is in the scene).
+pub fn start_anchor(robot: &RobotModel) -> Isometry3<f64> {
+    robot.camera_pose(&PlanarPose::new(0.0, 0.0, 0.0), 0.0)
 }
 
 /// An isometry as a wire pose.
@@ -230,13 +222,18 @@ mod tests {
         }
     }
 
-    /// The planning footprint is the simulator's agent: same radius, and at 5 cm cells the
-    /// shared clearance is wider than SPEC §6's 3 cells (which let the agent touch walls).
+    /// The planning footprint is the simulator's agent: the same robot model, and at 5 cm
+    /// cells the shared clearance is wider than SPEC §6's 3 cells (which let the agent touch
+    /// walls).
     #[test]
     fn robot_footprint_matches_the_simulator_agent() {
-        let agent = activemap_sim::house::HouseConfig::default().agent_radius;
-        assert_eq!(ROBOT_RADIUS_M, agent);
-        let c = robot_clearance(0.05).unwrap();
+        let robot = RobotModel::default();
+        assert_eq!(activemap_sim::SimConfig::default().robot, robot);
+        assert_eq!(
+            activemap_sim::house::HouseConfig::default().agent_radius,
+            robot.radius_m
+        );
+        let c = robot_clearance(&robot, 0.05).unwrap();
         assert!(
             c.robot_width_cells > 4.4 && c.robot_width_cells < 4.5,
             "{c:?}"

@@ -18,11 +18,12 @@ use std::path::PathBuf;
 
 use activemap_eval::run_folder::{Bev, BevCell, CoverageRow, RunFolder};
 use activemap_eval::{AteOptions, ate, coverage_2d};
+use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::dynamics::{ActionModel, forward_was_blocked};
+use activemap_planning::dynamics::forward_was_blocked;
 use activemap_planning::grid::CellState;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
@@ -61,14 +62,10 @@ pub struct Config {
     /// Pixels per grid cell in `bev.png`.
     #[serde(default = "default_scale")]
     pub bev_pixels_per_cell: u32,
-    /// Length of the simulator's forward step, metres (SPEC §1: 0.05); a forward action that
-    /// moves the robot less than half of it counts as blocked.
-    #[serde(default = "default_forward_step")]
-    pub forward_step_m: f64,
-}
-
-fn default_forward_step() -> f64 {
-    ActionModel::default().forward_m
+    /// The robot (as the `sim` node's): a forward action that moves the robot less than half
+    /// of its forward step counts as blocked; written to `summary.json` for `activemap eval`.
+    #[serde(default)]
+    pub robot: RobotModel,
 }
 
 fn default_scene() -> String {
@@ -139,7 +136,8 @@ pub struct Evaluator {
     true_positions: std::collections::BTreeMap<u64, Point2<f64>>,
     /// Forward actions received, by the frame id they were computed from.
     forward_steps: Vec<u64>,
-    forward_step_m: f64,
+    /// The robot (forward step of the blocked count; recorded in `summary.json`).
+    robot: RobotModel,
 }
 
 /// Counts the forward actions whose outcome is known, and the blocked ones among them: the
@@ -207,7 +205,7 @@ impl Evaluator {
         let (forward_actions, blocked) = blocked_forwards(
             &self.forward_steps,
             &self.true_positions,
-            self.forward_step_m,
+            self.robot.forward_step_m,
         );
         let summary = Summary {
             steps: self.estimated.len() as u64,
@@ -223,6 +221,7 @@ impl Evaluator {
             max_rooms: self.scene.max_rooms,
             max_area: self.scene.max_area,
             up_axis: self.scene.up_axis.map(|up| up.name().to_string()),
+            robot: Some(self.robot),
         };
         out.write_summary(&summary)?;
         eprintln!(
@@ -309,11 +308,10 @@ impl Operator for Evaluator {
     type Config = Config;
 
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.forward_step_m.is_finite() && config.forward_step_m > 0.0,
-            "evaluator: forward_step_m must be finite and positive, got {}",
-            config.forward_step_m
-        );
+        config
+            .robot
+            .validate()
+            .map_err(|e| anyhow::anyhow!("evaluator: {e}"))?;
         let out = config
             .out
             .clone()
@@ -345,7 +343,7 @@ impl Operator for Evaluator {
             written: false,
             true_positions: Default::default(),
             forward_steps: Vec::new(),
-            forward_step_m: config.forward_step_m,
+            robot: config.robot,
         })
     }
 
@@ -362,12 +360,13 @@ impl Operator for Evaluator {
                     let pose = pose_from_wire(&t.t_world_camera)?;
                     if self.truth.is_none() {
                         let start = planar_from_camera_pose(&pose);
-                        let sim = crate::sim::simulator(&self.scene, 16, 16, 90.0)?;
+                        let sim = crate::sim::simulator(&self.scene, 16, 16, 90.0, &self.robot)?;
                         let nav = activemap_sim::ground_truth::navigable_map(sim.navigation());
                         let truth = CoverageTruth::new(nav, Point2::new(start.x, start.y));
-                        let anchor = crate::convert::start_anchor(
-                            pose.translation.z - sim.navigation().floor_z(),
-                        );
+                        let anchor = crate::convert::start_anchor(&RobotModel {
+                            camera_height_m: pose.translation.z - sim.navigation().floor_z(),
+                            ..RobotModel::default()
+                        });
                         let start_from_world = anchor * pose.inverse();
                         self.truth = Some((truth, start, start_from_world));
                     }
@@ -542,7 +541,7 @@ mod tests {
             written: false,
             true_positions: Default::default(),
             forward_steps: Vec::new(),
-            forward_step_m: 0.05,
+            robot: RobotModel::default(),
         };
         let summary = ev.write_outputs().unwrap();
         assert_eq!(run.read_summary().unwrap(), summary);

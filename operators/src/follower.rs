@@ -9,6 +9,7 @@
 //! ends the episode (its goal stream, hence the path stream, closes).
 
 use activemap_geometry::PlanarPose;
+use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::dynamics::Action as PlanAction;
@@ -23,7 +24,7 @@ use activemap_schemas::{
 };
 
 use crate::Registered;
-use crate::convert::{ROBOT_RADIUS_M, pose_from_wire, read_grid};
+use crate::convert::{pose_from_wire, read_grid};
 use crate::join::FrameJoin;
 
 /// Config (defaults: [`ExecutorConfig::default`]).
@@ -46,13 +47,14 @@ pub struct Config {
     /// this many degrees of the heading. 0 always turns.
     #[serde(default = "default_look_skip")]
     pub look_skip_half_angle_deg: f64,
-    /// Forward moves in a row that leave the tracked position within half of
-    /// `forward_step_m` before the follower replans. 0 disables it.
+    /// Forward moves in a row that leave the tracked position within half of the robot's
+    /// forward step before the follower replans. 0 disables it.
     #[serde(default = "default_bumps")]
     pub bumps_to_replan: usize,
-    /// Length of a forward step, metres (SPEC §1: 0.05).
-    #[serde(default = "default_forward_step")]
-    pub forward_step_m: f64,
+    /// The robot (radius for the clearance, forward step for the bumper; any field left out
+    /// keeps its default).
+    #[serde(default)]
+    pub robot: RobotModel,
 }
 
 fn default_window() -> usize {
@@ -75,9 +77,6 @@ fn default_look_skip() -> f64 {
 fn default_bumps() -> usize {
     ExecutorConfig::default().bumps_to_replan
 }
-fn default_forward_step() -> f64 {
-    ExecutorConfig::default().forward_step_m
-}
 
 impl Default for Config {
     fn default() -> Self {
@@ -88,7 +87,7 @@ impl Default for Config {
             initial_spin_steps: default_spin(),
             look_skip_half_angle_deg: default_look_skip(),
             bumps_to_replan: default_bumps(),
-            forward_step_m: default_forward_step(),
+            robot: RobotModel::default(),
         }
     }
 }
@@ -102,7 +101,6 @@ impl Config {
             initial_spin_steps: self.initial_spin_steps,
             look_skip_half_angle_rad: self.look_skip_half_angle_deg.to_radians(),
             bumps_to_replan: self.bumps_to_replan,
-            forward_step_m: self.forward_step_m,
             ..ExecutorConfig::default()
         }
     }
@@ -165,7 +163,7 @@ impl FollowerCore {
     /// A follower that starts with the look-around (or by asking for a plan).
     pub fn new(config: &Config) -> anyhow::Result<Self> {
         Ok(Self {
-            executor: PathExecutor::new(config.executor(), ROBOT_RADIUS_M)
+            executor: PathExecutor::new(config.executor(), config.robot)
                 .map_err(|e| anyhow::anyhow!("follower: {e}"))?,
         })
     }
@@ -456,8 +454,8 @@ mod tests {
             activemap_planning::explorer::ExplorerConfig::default().max_replans_per_step
         );
         assert_eq!(
-            ROBOT_RADIUS_M,
-            activemap_planning::clearance::ROBOT_RADIUS_M
+            config.robot,
+            activemap_planning::explorer::ExplorerConfig::default().robot
         );
     }
 
@@ -568,7 +566,9 @@ mod tests {
         // A path to the farthest reachable cell of the mapped area (re-made whenever the
         // follower asks before the box appears: the map grows as the robot drives).
         let replan_far = |core: &mut FollowerCore, pose: &PlanarPose, grid: &PlanGrid| -> f64 {
-            let clearance = crate::convert::robot_clearance(grid.geometry.resolution).unwrap();
+            let clearance =
+                crate::convert::robot_clearance(&RobotModel::default(), grid.geometry.resolution)
+                    .unwrap();
             let map = ClearanceMap::new(grid, &clearance).unwrap();
             let here = Point2::new(pose.x, pose.y);
             let distances = path_distances(&map, grid.geometry.cell_of(here));

@@ -4,6 +4,7 @@
 //! centroid and the closest cell the robot can reach. Only reachable regions are published,
 //! largest first, with ids 0..N−1. One message per grid.
 
+use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::clearance::ClearanceConfig;
@@ -29,6 +30,9 @@ pub struct Config {
     /// off blocked cells ([`crate::convert::robot_clearance`], the one A* and the follower use).
     #[serde(default)]
     pub robot_width_cells: Option<f64>,
+    /// The robot (its radius gives the default width; any field left out keeps its default).
+    #[serde(default)]
+    pub robot: RobotModel,
 }
 
 fn default_min() -> usize {
@@ -42,7 +46,7 @@ pub fn frontier_regions(
     robot: Point2<f64>,
     config: &Config,
 ) -> anyhow::Result<Vec<FrontierRegion>> {
-    let shared = crate::convert::robot_clearance(grid.geometry.resolution)?;
+    let shared = crate::convert::robot_clearance(&config.robot, grid.geometry.resolution)?;
     let clearance = ClearanceConfig {
         robot_width_cells: config.robot_width_cells.unwrap_or(shared.robot_width_cells),
         ..shared
@@ -182,6 +186,7 @@ mod tests {
         let config = Config {
             min_region_cells: 5,
             robot_width_cells: Some(3.0),
+            robot: RobotModel::default(),
         };
         let regions = frontier_regions(&grid, robot, &config).unwrap();
         assert_eq!(regions.len(), 1, "{regions:?}");

@@ -7,7 +7,7 @@
 //! tracker reports lost cast no depth rays.
 
 use activemap_geometry::frames::planar_from_camera_pose;
-use activemap_geometry::{Intrinsics, Isometry3};
+use activemap_geometry::{Intrinsics, Isometry3, RobotModel};
 use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
@@ -33,9 +33,13 @@ pub struct Config {
     /// Map Gaussians per cell (in the height band) for "occupied" (release: ~25).
     #[serde(default = "default_threshold")]
     pub point_threshold: u32,
-    /// Radius around the robot always free (its own footprint), metres.
-    #[serde(default = "default_footprint")]
-    pub footprint_radius: f64,
+    /// Radius around the robot always free (its own footprint), metres; default the robot's
+    /// radius.
+    #[serde(default)]
+    pub footprint_radius: Option<f64>,
+    /// The robot (its radius is the default footprint; any field left out keeps its default).
+    #[serde(default)]
+    pub robot: RobotModel,
     /// Use every n-th depth pixel per row and column.
     #[serde(default = "default_stride")]
     pub pixel_stride: usize,
@@ -50,9 +54,6 @@ fn default_cell() -> f64 {
 }
 fn default_threshold() -> u32 {
     25
-}
-fn default_footprint() -> f64 {
-    crate::convert::ROBOT_RADIUS_M
 }
 fn default_stride() -> usize {
     1
@@ -98,13 +99,18 @@ impl Occupancy {
             ..OccupancyConfig::default()
         };
         occ.validate()?;
+        config
+            .robot
+            .validate()
+            .map_err(|e| anyhow::anyhow!("occupancy: {e}"))?;
+        let footprint = config.footprint_radius.unwrap_or(config.robot.radius_m);
         anyhow::ensure!(
-            config.footprint_radius.is_finite() && config.footprint_radius >= 0.0,
+            footprint.is_finite() && footprint >= 0.0,
             "occupancy: footprint_radius must be ≥ 0"
         );
         Ok(Self {
             mapper: OccupancyMapper::new(occ, Point2::new(-2.0, -2.0), Point2::new(2.0, 2.0))?,
-            footprint: config.footprint_radius,
+            footprint,
             join: FrameJoin::new(),
             lag: config.map_lag,
             maps: std::collections::BTreeMap::new(),
@@ -290,13 +296,14 @@ mod tests {
         let mut occ = Occupancy::from_config(Config {
             cell_size: 0.05,
             point_threshold: 25,
-            footprint_radius: 0.15,
+            footprint_radius: Some(0.15),
+            robot: RobotModel::default(),
             pixel_stride: 1,
             map_lag: 1,
         })
         .unwrap();
         let intrinsics = Intrinsics::from_hfov(8, 8, std::f64::consts::FRAC_PI_2);
-        let pose = start_anchor(0.88);
+        let pose = start_anchor(&RobotModel::default());
         // 30 points in each cell of a 3×3 block (the opening of SPEC §6 removes lone cells).
         let wall: Vec<[f32; 3]> = (0..9 * 30)
             .map(|i| {

@@ -5,6 +5,7 @@
 //! Fisher mode (SPEC §5) is a later issue: `mode: fisher` is a config error ([`ScorerMode`]).
 //! No path → an empty path (the follower reports it).
 
+use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::astar::AstarConfig;
@@ -57,6 +58,9 @@ pub struct Config {
     /// `shortest` (the only mode built so far).
     #[serde(default)]
     pub mode: ScorerMode,
+    /// The robot (its radius gives the path's clearance; any field left out keeps its default).
+    #[serde(default)]
+    pub robot: RobotModel,
 }
 
 /// A planned path as the wire path of frame `frame_id`.
@@ -85,6 +89,7 @@ pub fn path_for_goal(
     robot: Point2<f64>,
     frontiers: &Frontiers,
     goal: &Goal,
+    robot_model: &RobotModel,
 ) -> anyhow::Result<Path> {
     let k = goal.frame_id;
     let region = frontiers
@@ -102,7 +107,7 @@ pub fn path_for_goal(
         region.closest_reachable_cell[1],
     );
     let look_at = Point2::new(goal.focus[0], goal.focus[1]);
-    let clearance = robot_clearance(grid.geometry.resolution)?;
+    let clearance = robot_clearance(robot_model, grid.geometry.resolution)?;
     Ok(
         match shortest_path(
             grid,
@@ -132,6 +137,7 @@ struct Slot {
 
 /// The operator.
 pub struct Scorer {
+    robot: RobotModel,
     join: FrameJoin<Slot>,
     goals: Vec<Goal>,
 }
@@ -142,7 +148,12 @@ impl Operator for Scorer {
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
         // `mode` is `shortest`, the only one that deserialises.
         let ScorerMode::Shortest = config.mode;
+        config
+            .robot
+            .validate()
+            .map_err(|e| anyhow::anyhow!("scorer: {e}"))?;
         Ok(Self {
+            robot: config.robot,
             join: FrameJoin::new(),
             goals: Vec::new(),
         })
@@ -187,7 +198,10 @@ impl Operator for Scorer {
             };
             let (_, grid) = read_grid(grid)?;
             self.goals.remove(0);
-            ctx.send("path", &path_for_goal(&grid, *robot, frontiers, &goal)?)?;
+            ctx.send(
+                "path",
+                &path_for_goal(&grid, *robot, frontiers, &goal, &self.robot)?,
+            )?;
             self.join.discard_before(k);
         }
         Ok(Flow::Continue)
@@ -282,20 +296,21 @@ mod tests {
             focus: [2.5, 2.5],
         };
         let robot = Point2::new(0.5, 0.5);
-        let p = path_for_goal(&grid, robot, &frontiers, &goal(0)).unwrap();
+        let p = path_for_goal(&grid, robot, &frontiers, &goal(0), &RobotModel::default()).unwrap();
         let last = p.waypoints.last().unwrap();
         let end = geometry.center(Cell::new(40, 30));
         assert_eq!(p.frame_id, 3);
         assert!((last.x - end.x).abs() < 1e-12 && (last.y - end.y).abs() < 1e-12);
         assert!((last.yaw - (2.5 - last.y).atan2(2.5 - last.x)).abs() < 1e-12);
-        assert!(path_for_goal(&grid, robot, &frontiers, &goal(7)).is_err());
+        assert!(path_for_goal(&grid, robot, &frontiers, &goal(7), &RobotModel::default()).is_err());
         for x in 50..60 {
             grid.set(Cell::new(x, 50), CellState::Occupied);
         }
         for y in 50..60 {
             grid.set(Cell::new(50, y), CellState::Occupied);
         }
-        let none = path_for_goal(&grid, robot, &frontiers, &goal(1)).unwrap();
+        let none =
+            path_for_goal(&grid, robot, &frontiers, &goal(1), &RobotModel::default()).unwrap();
         assert!(none.waypoints.is_empty() && none.objective.is_infinite());
     }
 }

@@ -9,6 +9,7 @@
 //! `Stop` action.
 
 use activemap_geometry::Isometry3;
+use activemap_geometry::RobotModel;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
@@ -16,18 +17,19 @@ use activemap_schemas::{
     Action, ActionKind, EpisodeState, EpisodeStatus, MessageKind as K, RgbdFrameHeader,
     RgbdFrameMut, TruePose,
 };
-use activemap_sim::{Action as SimAction, SceneSpec, SimConfig, Simulator, UpAxis};
+use activemap_sim::{SceneSpec, SimConfig, Simulator, UpAxis};
 
 use crate::Registered;
 use crate::convert::pose_to_wire;
 
-/// The simulator of `scene` at `width`×`height` pixels and `hfov_deg` (the `sim` node's
-/// camera; the evaluator builds the same scene for its ground truth).
+/// The simulator of `scene` at `width`×`height` pixels and `hfov_deg` with `robot` (the `sim`
+/// node's camera and robot; the evaluator builds the same scene for its ground truth).
 pub fn simulator(
     scene: &SceneSpec,
     width: u32,
     height: u32,
     hfov_deg: f64,
+    robot: &RobotModel,
 ) -> anyhow::Result<Simulator> {
     anyhow::ensure!(
         width > 0 && height > 0 && width <= 4096 && height <= 4096,
@@ -37,7 +39,9 @@ pub fn simulator(
         hfov_deg.is_finite() && hfov_deg > 1.0 && hfov_deg < 179.0,
         "sim: hfov_deg must be in (1, 179), got {hfov_deg}"
     );
+    robot.validate().map_err(|e| anyhow::anyhow!("sim: {e}"))?;
     let mut config = SimConfig::with_resolution(width, height);
+    config.robot = *robot;
     config.intrinsics =
         activemap_geometry::Intrinsics::from_hfov(width, height, hfov_deg.to_radians());
     scene
@@ -85,6 +89,11 @@ pub struct Config {
     /// per cell, so that seeds are different episodes).
     #[serde(default)]
     pub seed: u64,
+    /// The robot (camera height, radius, step and turn sizes; any field left out keeps its
+    /// default): the nodes that need it (tracker, occupancy, frontier, scorer, follower,
+    /// evaluator) must say the same, which `activemap validate` checks.
+    #[serde(default)]
+    pub robot: RobotModel,
 }
 
 impl Config {
@@ -189,9 +198,6 @@ impl Sim {
         ctx: &mut Context<'_>,
     ) -> anyhow::Result<Flow> {
         let sim_action = match action {
-            Some(ActionKind::Forward) => Some(SimAction::Forward),
-            Some(ActionKind::TurnLeft) => Some(SimAction::TurnLeft),
-            Some(ActionKind::TurnRight) => Some(SimAction::TurnRight),
             Some(ActionKind::Stop) => {
                 self.finished = true;
                 ctx.send(
@@ -205,6 +211,7 @@ impl Sim {
                 )?;
                 return Ok(Flow::Stop);
             }
+            Some(kind) => kind.robot_action(),
             None => None,
         };
         if let Some(a) = sim_action {
@@ -230,6 +237,7 @@ impl Operator for Sim {
             config.width,
             config.height,
             config.hfov_deg,
+            &config.robot,
         )?;
         if config.seed != 0 {
             let start = sim
@@ -360,7 +368,9 @@ mod tests {
             up_axis: Some(UpAxis::Z),
             ..SceneSpec::new("house:1")
         };
-        let err = simulator(&scene, 8, 8, 90.0).unwrap_err().to_string();
+        let err = simulator(&scene, 8, 8, 90.0, &RobotModel::default())
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("up_axis") && err.contains("applies to scene files"),
             "{err}"

@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use activemap_geometry::{Action as RobotAction, Isometry3, RobotModel};
+use activemap_geometry::{Isometry3, RobotModel};
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
@@ -21,7 +21,7 @@ use activemap_slam::{
 use activemap_splat::Gaussians;
 
 use crate::Registered;
-use crate::convert::{CAMERA_HEIGHT_M, pose_to_wire, read_map, slam_frame, start_anchor};
+use crate::convert::{pose_to_wire, read_map, slam_frame, start_anchor};
 
 /// How the tracker predicts the next pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -39,9 +39,10 @@ pub enum Prior {
 #[derive(Debug, Clone, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
-    /// Camera height above the floor, metres (the robot's own mount).
-    #[serde(default = "default_height")]
-    pub camera_height: f64,
+    /// The robot (camera height for the anchor, step and turn sizes for the motion prior;
+    /// any field left out keeps its default).
+    #[serde(default)]
+    pub robot: RobotModel,
     /// Motion prior.
     #[serde(default = "default_prior")]
     pub motion_prior: Prior,
@@ -65,39 +66,28 @@ fn default_rereference() -> f64 {
     TrackingConfig::default().rereference_below
 }
 
-fn default_height() -> f64 {
-    CAMERA_HEIGHT_M
-}
 fn default_prior() -> Prior {
     Prior::Action
 }
 
-/// `T_prev_current` of the camera for one commanded action ([`RobotModel::camera_motion`] of
-/// a robot whose camera is `camera_height` above the floor; `Stop` does not move).
-pub fn action_motion(action: ActionKind, camera_height: f64) -> Isometry3<f64> {
-    let robot = RobotModel {
-        camera_height_m: camera_height,
-        ..RobotModel::default()
-    };
-    match action {
-        ActionKind::Forward => robot.camera_motion(RobotAction::Forward),
-        ActionKind::TurnLeft => robot.camera_motion(RobotAction::TurnLeft),
-        ActionKind::TurnRight => robot.camera_motion(RobotAction::TurnRight),
-        ActionKind::Stop => Isometry3::identity(),
-    }
+/// `T_prev_current` of the camera for one commanded action of `robot`
+/// ([`RobotModel::camera_motion`]; `Stop` does not move).
+pub fn action_motion(action: ActionKind, robot: &RobotModel) -> Isometry3<f64> {
+    action
+        .robot_action()
+        .map_or(Isometry3::identity(), |a| robot.camera_motion(a))
 }
 
 impl Config {
     /// The tracking session's settings for this node (library defaults where unset).
     pub fn tracking_config(&self) -> anyhow::Result<TrackingConfig> {
-        anyhow::ensure!(
-            self.camera_height.is_finite() && self.camera_height > 0.0,
-            "tracker: camera_height must be > 0"
-        );
+        self.robot
+            .validate()
+            .map_err(|e| anyhow::anyhow!("tracker: {e}"))?;
         let mut config = TrackingConfig {
             rereference_below: self.rereference_below,
             map_lag: self.map_lag,
-            initial_pose: start_anchor(self.camera_height),
+            initial_pose: start_anchor(&self.robot),
             ..TrackingConfig::default()
         };
         if let Some(d) = self.downscale {
@@ -115,7 +105,7 @@ impl Config {
     /// The motion prior from one frame to the next after `action`.
     fn motion(&self, action: ActionKind) -> MotionPrior {
         match self.motion_prior {
-            Prior::Action => MotionPrior::Relative(action_motion(action, self.camera_height)),
+            Prior::Action => MotionPrior::Relative(action_motion(action, &self.robot)),
             Prior::ConstantVelocity => MotionPrior::ConstantVelocity,
             Prior::None => MotionPrior::None,
         }
@@ -251,10 +241,10 @@ mod tests {
     /// axis) by 5 cm; a left turn rotates the optical axis toward camera −x (left) by 5°.
     #[test]
     fn action_motion_matches_the_camera_frame() {
-        let f = action_motion(ActionKind::Forward, 0.88);
+        let f = action_motion(ActionKind::Forward, &RobotModel::default());
         assert!((f.translation.vector - nalgebra::Vector3::new(0.0, 0.0, 0.05)).norm() < 1e-12);
         assert!(f.rotation.angle() < 1e-12);
-        let l = action_motion(ActionKind::TurnLeft, 0.88);
+        let l = action_motion(ActionKind::TurnLeft, &RobotModel::default());
         assert!(l.translation.vector.norm() < 1e-12);
         assert!((l.rotation.angle() - 5f64.to_radians()).abs() < 1e-12);
         let fwd = l.rotation * nalgebra::Vector3::z();
@@ -262,7 +252,7 @@ mod tests {
             fwd.x < -0.08,
             "left turn must swing the optical axis to camera −x: {fwd:?}"
         );
-        let r = action_motion(ActionKind::TurnRight, 0.88);
+        let r = action_motion(ActionKind::TurnRight, &RobotModel::default());
         assert!((r * l).rotation.angle() < 1e-12);
     }
 }

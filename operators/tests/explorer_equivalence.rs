@@ -132,7 +132,16 @@ impl Pipeline {
                         target: target as i32,
                         focus: [focus.x, focus.y],
                     });
-                    let path: Path = wire(&path_for_goal(&grid, robot, &frontiers, &goal).unwrap());
+                    let path: Path = wire(
+                        &path_for_goal(
+                            &grid,
+                            robot,
+                            &frontiers,
+                            &goal,
+                            &activemap_geometry::RobotModel::default(),
+                        )
+                        .unwrap(),
+                    );
                     self.follower.add_path(path);
                     pending.extend(self.follower.poll().unwrap());
                 }

@@ -1,5 +1,6 @@
 //! The small (serde + postcard) messages of the pipeline, SPEC §1.
 
+use activemap_geometry::robot::Action as RobotAction;
 use serde::{Deserialize, Serialize};
 
 use crate::small::SmallMessage;
@@ -41,7 +42,10 @@ pub struct PlanarPose2 {
     pub yaw: f64,
 }
 
-/// A discrete robot action (SPEC §1): forward 5 cm, turn 5° left or right, or stop.
+/// What the follower tells the robot for one step on the wire (SPEC §1): one of the robot's
+/// actions ([`activemap_geometry::robot::Action`]: forward 5 cm, turn 5° left or right), or
+/// stop (the episode is over). The variants mirror the robot action's in order, so the two
+/// convert through [`ActionKind::robot_action`] and `From` alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ActionKind {
     /// Move forward one step.
@@ -52,6 +56,28 @@ pub enum ActionKind {
     TurnRight,
     /// End the episode.
     Stop,
+}
+
+impl ActionKind {
+    /// The robot action to execute; `None` for [`ActionKind::Stop`].
+    pub fn robot_action(self) -> Option<RobotAction> {
+        match self {
+            ActionKind::Forward => Some(RobotAction::Forward),
+            ActionKind::TurnLeft => Some(RobotAction::TurnLeft),
+            ActionKind::TurnRight => Some(RobotAction::TurnRight),
+            ActionKind::Stop => None,
+        }
+    }
+}
+
+impl From<RobotAction> for ActionKind {
+    fn from(a: RobotAction) -> Self {
+        match a {
+            RobotAction::Forward => ActionKind::Forward,
+            RobotAction::TurnLeft => ActionKind::TurnLeft,
+            RobotAction::TurnRight => ActionKind::TurnRight,
+        }
+    }
 }
 
 /// The follower's action for one simulator step.

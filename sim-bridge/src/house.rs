@@ -67,7 +67,7 @@ impl Default for HouseConfig {
             furniture: true,
             texture_size: 256,
             texture_metres: 2.0,
-            agent_radius: 0.1,
+            agent_radius: activemap_geometry::RobotModel::default().radius_m,
         }
     }
 }

@@ -28,7 +28,7 @@ impl Default for AgentShape {
     /// Radius 0.1 m, height 1.5 m, climb 0.15 m.
     fn default() -> Self {
         Self {
-            radius: 0.1,
+            radius: activemap_geometry::RobotModel::default().radius_m,
             height: 1.5,
             max_climb: 0.15,
         }

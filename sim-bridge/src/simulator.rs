@@ -5,40 +5,13 @@ use crate::navigation::{AgentShape, Navigation, estimate_floor_z};
 use crate::noise::SensorNoise;
 use crate::render::{DepthRange, Renderer, RgbdFrame};
 use crate::scene::Scene;
-use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, RobotModel, camera_pose_from_planar};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-/// A discrete action, as in Habitat.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Action {
-    /// Move forward by [`SimConfig::forward_step`].
-    Forward,
-    /// Turn counter-clockwise (seen from above) by [`SimConfig::turn_angle`].
-    TurnLeft,
-    /// Turn clockwise by [`SimConfig::turn_angle`].
-    TurnRight,
-}
-
-impl Action {
-    /// Parses Habitat's action names (`move_forward`, `turn_left`, `turn_right`; `forward` too).
-    pub fn from_name(name: &str) -> Option<Action> {
-        match name {
-            "move_forward" | "forward" => Some(Action::Forward),
-            "turn_left" => Some(Action::TurnLeft),
-            "turn_right" => Some(Action::TurnRight),
-            _ => None,
-        }
-    }
-    /// Habitat's name of the action.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Action::Forward => "move_forward",
-            Action::TurnLeft => "turn_left",
-            Action::TurnRight => "turn_right",
-        }
-    }
-}
+/// A discrete action, as in Habitat: the project's one robot action
+/// ([`activemap_geometry::robot::Action`]); sizes from [`SimConfig::robot`].
+pub use activemap_geometry::robot::Action;
 
 /// What happened on a step (no pose: the true pose is ground truth, see [`Simulator::true_pose`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -54,14 +27,12 @@ pub struct SimConfig {
     pub intrinsics: Intrinsics,
     /// Near plane and maximum depth reading.
     pub depth_range: DepthRange,
-    /// Camera height above the floor, metres (0.88).
-    pub camera_height: f64,
-    /// Collision cylinder.
+    /// The robot (camera height 0.88 m, radius 0.1 m, forward step 0.05 m, turn 5°): the one
+    /// model the tracker, the planners and the evaluator read too.
+    pub robot: RobotModel,
+    /// Height and climb of the collision cylinder; its radius is the robot's
+    /// ([`RobotModel::radius_m`]), whatever `agent.radius` says.
     pub agent: AgentShape,
-    /// Forward step, metres (0.05).
-    pub forward_step: f64,
-    /// Turn angle, radians (5°).
-    pub turn_angle: f64,
     /// Slide along walls on an obstructed forward step (Habitat's default) instead of stopping.
     pub allow_sliding: bool,
     /// Navigable-map cell size, metres (0.05).
@@ -81,10 +52,8 @@ impl Default for SimConfig {
         Self {
             intrinsics: Intrinsics::from_hfov(800, 800, std::f64::consts::FRAC_PI_2),
             depth_range: DepthRange::default(),
-            camera_height: 0.88,
+            robot: RobotModel::default(),
             agent: AgentShape::default(),
-            forward_step: 0.05,
-            turn_angle: 5f64.to_radians(),
             allow_sliding: true,
             nav_cell_size: 0.05,
             noise: SensorNoise::default(),
@@ -135,14 +104,12 @@ impl SimConfig {
                 "must exceed near",
             );
         }
-        if !(self.camera_height.is_finite() && self.camera_height > 0.0) {
-            return bad("camera_height", self.camera_height, "must be > 0");
-        }
-        if !(self.forward_step.is_finite() && self.forward_step >= 0.0) {
-            return bad("forward_step", self.forward_step, "must be >= 0");
-        }
-        if !self.turn_angle.is_finite() {
-            return bad("turn_angle", self.turn_angle, "must be finite");
+        if let Err(reason) = self.robot.validate() {
+            return Err(SimError::InvalidConfig {
+                field: "robot",
+                value: reason,
+                reason: "every robot field must be in range",
+            });
         }
         self.noise.validate()
     }
@@ -170,7 +137,11 @@ impl Simulator {
             .or(scene.floor_z)
             .or_else(|| estimate_floor_z(&scene))
             .ok_or_else(|| SimError::NoNavigableArea(scene.name.clone()))?;
-        let navigation = Navigation::build(&scene, floor_z, config.agent, config.nav_cell_size)?;
+        let agent = AgentShape {
+            radius: config.robot.radius_m,
+            ..config.agent
+        };
+        let navigation = Navigation::build(&scene, floor_z, agent, config.nav_cell_size)?;
         if navigation.map().count() == 0 {
             return Err(SimError::NoNavigableArea(scene.name.clone()));
         }
@@ -202,7 +173,7 @@ impl Simulator {
             Action::Forward => {
                 let (pose, collided) = self.navigation.try_forward(
                     &self.pose,
-                    self.config.forward_step,
+                    self.config.robot.forward_step_m,
                     self.config.allow_sliding,
                 );
                 self.pose = pose;
@@ -214,7 +185,7 @@ impl Simulator {
                 } else {
                     -1.0
                 };
-                let yaw = self.pose.yaw + sign * self.config.turn_angle;
+                let yaw = self.pose.yaw + sign * self.config.robot.turn_angle_rad;
                 // Keep yaw in (−π, π].
                 self.pose.yaw = (yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
                     - std::f64::consts::PI;
@@ -263,7 +234,7 @@ impl Simulator {
         camera_pose_from_planar(
             &self.pose,
             self.navigation.floor_z(),
-            self.config.camera_height,
+            self.config.robot.camera_height_m,
         )
     }
 

@@ -5,7 +5,16 @@
 //!
 //! - [`slam_loop`]: the scripted SLAM loop in a procedural house (ground truth only for the
 //!   metrics), through [`activemap_slam::LockstepSlam`];
-//! - [`slam_bench`]: `activemap bench slam`, the scripted loop per case.
+//! - [`slam_bench`]: `activemap bench slam`, the scripted loop per case;
+//! - [`house_episode`]: FBE episodes on the simulator's `house:<seed>` scenes with true poses,
+//!   through the in-process explorer (the operators' pieces);
+//! - [`planning_bench`]: `activemap bench planning`, timings of the pieces the exploration loop
+//!   runs every step;
+//! - [`results`]: `activemap bench results` (methods × scenes × seeds, the paper's Table 1
+//!   layout), resumable.
 
+pub mod house_episode;
+pub mod planning_bench;
+pub mod results;
 pub mod slam_bench;
 pub mod slam_loop;

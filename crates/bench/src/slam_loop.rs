@@ -19,7 +19,7 @@
 
 use activemap_eval::{AteOptions, ImageView};
 use activemap_geometry::tum::Trajectory;
-use activemap_geometry::{Isometry3, PlanarPose, RobotModel, camera_pose_from_planar};
+use activemap_geometry::{Isometry3, PlanarPose, camera_pose_from_planar};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, SimConfig, Simulator};
 use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig, TrackingStatus};
@@ -115,25 +115,6 @@ pub struct LoopTrace {
     pub map: Gaussians<f32>,
 }
 
-/// The robot model of a simulator config (its camera height, step and turn sizes).
-pub fn robot_of(config: &SimConfig) -> RobotModel {
-    RobotModel {
-        camera_height_m: config.camera_height,
-        forward_step_m: config.forward_step,
-        turn_angle_rad: config.turn_angle,
-        ..RobotModel::default()
-    }
-}
-
-/// The robot action of a simulator action.
-pub fn robot_action(action: Action) -> activemap_geometry::Action {
-    match action {
-        Action::Forward => activemap_geometry::Action::Forward,
-        Action::TurnLeft => activemap_geometry::Action::TurnLeft,
-        Action::TurnRight => activemap_geometry::Action::TurnRight,
-    }
-}
-
 /// The start pose and the action list of a rectangular loop in the rectangle `[min, max]`.
 pub fn rectangle_loop(
     min: [f64; 2],
@@ -195,7 +176,7 @@ pub fn held_out_pose(sim: &Simulator) -> Isometry3<f64> {
     camera_pose_from_planar(
         &shifted,
         sim.navigation().floor_z(),
-        sim.config().camera_height,
+        sim.config().robot.camera_height_m,
     )
 }
 
@@ -213,7 +194,7 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
         start: Some(start),
         ..SimConfig::with_resolution(config.resolution, config.resolution)
     };
-    let robot = robot_of(&sim_config);
+    let robot = sim_config.robot;
     let mut sim = Simulator::new(house.scene, sim_config)?;
     // True poses into the SLAM frame: the true start maps onto the anchor.
     let slam_from_true = config.slam.tracking.initial_pose * sim.true_pose().inverse();
@@ -231,7 +212,7 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
                 trace.actions.push(action);
             }
             sim.step(action);
-            MotionPrior::Relative(robot.camera_motion(robot_action(action)))
+            MotionPrior::Relative(robot.camera_motion(action))
         };
         let rgbd = sim.render();
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, i as f64 * 0.1)?;

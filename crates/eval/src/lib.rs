@@ -10,7 +10,6 @@
 //! - [`test_poses`]: the seeded test poses on the navigable plane;
 //! - [`views`]: all image metrics of one test view and their means over the views;
 //! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
-//! - [`results`]: `activemap bench results` (methods × scenes × seeds, Table 1 layout);
 //! - [`bench`](mod@bench): timings of every metric (`bench::run`);
 //! - [`run_folder`]: the run folder as one typed contract ([`RunFolder`]: every file's name
 //!   and format, [`Summary`], the CSV rows, the bird's-eye PNG);
@@ -31,7 +30,6 @@ pub mod image;
 pub mod lpips;
 pub mod psnr;
 pub mod report;
-pub mod results;
 pub mod run_eval;
 pub mod run_folder;
 pub mod ssim;

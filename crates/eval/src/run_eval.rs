@@ -27,6 +27,7 @@ use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
 use crate::{AteOptions, EvalError, ImageView, MetricsReport, ate, completeness};
+use activemap_geometry::RobotModel;
 use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
 };
@@ -43,11 +44,16 @@ pub const COMPLETENESS_SAMPLES: usize = 200_000;
 
 pub use activemap_sim::SceneSpec;
 
-/// The simulator of `spec` with camera `intrinsics` (the scene and floor the run's `sim` node
-/// built).
-pub fn scene_simulator(spec: &SceneSpec, intrinsics: Intrinsics) -> Result<Simulator, RunError> {
+/// The simulator of `spec` with camera `intrinsics` and `robot` (the scene, floor and robot the
+/// run's `sim` node built).
+pub fn scene_simulator(
+    spec: &SceneSpec,
+    intrinsics: Intrinsics,
+    robot: RobotModel,
+) -> Result<Simulator, RunError> {
     let config = SimConfig {
         intrinsics,
+        robot,
         ..SimConfig::default()
     };
     spec.simulator(config)
@@ -219,9 +225,10 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         }));
     }
     let k = Intrinsics::from_hfov(options.width, options.height, options.hfov_deg.to_radians());
-    let sim = scene_simulator(&spec, k)?;
+    // The robot the run used (its camera height places the test views), as the run folder says.
+    let sim = scene_simulator(&spec, k, summary.robot.unwrap_or_default())?;
     let floor_z = sim.navigation().floor_z();
-    let camera_height = sim.config().camera_height;
+    let camera_height = sim.config().robot.camera_height_m;
     let true_start = truth.poses[0];
     let to_map = start_from_world(&true_start, floor_z);
     let mut report = MetricsReport::default();

@@ -21,6 +21,7 @@
 //! for a CSV row, its line.
 
 use crate::MetricsReport;
+use activemap_geometry::RobotModel;
 use activemap_geometry::tum::Trajectory;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize, Serializer};
@@ -376,6 +377,9 @@ pub struct Summary {
     pub max_area: Option<f64>,
     /// As in the `sim` config: `y` or `z` (absent = the scene format's default).
     pub up_axis: Option<String>,
+    /// The robot the run used (camera height, radius, step and turn sizes), as the `sim` and
+    /// `evaluator` nodes' `robot` config; `None` (older runs): the default robot.
+    pub robot: Option<RobotModel>,
 }
 
 impl Summary {
@@ -399,6 +403,18 @@ impl Summary {
             ("max_rooms", opt(self.max_rooms.map(|v| v.to_string()))),
             ("max_area", opt_real(self.max_area)),
             ("up_axis", opt(self.up_axis.clone())),
+            (
+                "robot",
+                opt(self.robot.map(|r| {
+                    format!(
+                        "camera {:.3} m, radius {:.3} m, step {:.3} m, turn {:.2}°",
+                        r.camera_height_m,
+                        r.radius_m,
+                        r.forward_step_m,
+                        r.turn_angle_rad.to_degrees()
+                    )
+                })),
+            ),
         ]
     }
 }
@@ -840,6 +856,10 @@ mod tests {
             max_rooms: Some(3),
             max_area: None,
             up_axis: Some("z".into()),
+            robot: Some(RobotModel {
+                camera_height_m: 1.25,
+                ..RobotModel::default()
+            }),
         }
     }
 

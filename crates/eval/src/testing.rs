@@ -23,6 +23,7 @@ pub fn simulator(size: u32) -> Simulator {
     scene_simulator(
         &small_house(),
         Intrinsics::from_hfov(size, size, std::f64::consts::FRAC_PI_2),
+        activemap_geometry::RobotModel::default(),
     )
     .unwrap()
 }

@@ -18,6 +18,6 @@ pub mod se3;
 pub mod tum;
 
 pub use camera::Intrinsics;
-pub use robot::{Action, RobotModel};
 pub use frames::{PlanarPose, camera_pose_from_planar, planar_from_camera_pose};
 pub use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, UnitQuaternion, Vector3, Vector6};
+pub use robot::{Action, RobotModel};

@@ -3,7 +3,8 @@
 //! [`Action`] for the whole project: the simulator executes them, the tracker predicts with
 //! them, the planner and the follower roll them out, and the evaluator reads the same values
 //! back from the run folder. The sim node's config may override the defaults; the run folder
-//! records what was used.
+//! records what was used. In a dataflow every node that needs it takes an optional `robot:`
+//! config (any field left out keeps its default) and `activemap validate` checks that they agree.
 
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
@@ -12,7 +13,6 @@ use crate::frames::{PlanarPose, camera_pose_from_planar};
 
 /// One discrete action of the robot (Habitat's action space, SPEC §1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
 pub enum Action {
     /// Move forward along the heading by [`RobotModel::forward_step_m`].
     Forward,
@@ -48,7 +48,7 @@ impl Action {
 
 /// The robot's physical facts (SPEC §1 defaults): every place that needs one reads it here.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct RobotModel {
     /// Height of the camera's optical centre above the floor, metres (0.88).
     pub camera_height_m: f64,
@@ -132,6 +132,18 @@ impl RobotModel {
                 PlanarPose::new(pose.x, pose.y, wrap_angle(pose.yaw - self.turn_angle_rad))
             }
         }
+    }
+
+    /// The poses after each of `actions` from `start` in free space (start not included).
+    pub fn rollout_actions(&self, start: &PlanarPose, actions: &[Action]) -> Vec<PlanarPose> {
+        let mut pose = *start;
+        actions
+            .iter()
+            .map(|a| {
+                pose = self.apply(&pose, *a);
+                pose
+            })
+            .collect()
     }
 
     /// The commanded motion of the camera for `action`, `T_prev_current` in the optical frame

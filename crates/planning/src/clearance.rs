@@ -11,11 +11,6 @@ use crate::error::{PlanningError, require};
 use crate::grid::{Cell, CellState, GridGeometry, OccupancyGrid};
 use crate::segment::for_each_supercover_cell;
 
-/// The robot's radius, metres: the simulator's cylinder agent (its houses are built so every
-/// room is reachable for it). [`ClearanceConfig::for_disc`] of it is the one clearance of the
-/// frontiers, A* and the path executor, in the operators and in the in-process explorer.
-pub const ROBOT_RADIUS_M: f64 = 0.1;
-
 /// Which cells block the robot, and how wide it is.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ClearanceConfig {

@@ -6,97 +6,18 @@ use activemap_geometry::PlanarPose;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{PlanningError, require};
+use crate::error::PlanningError;
 use crate::follower::{FollowerConfig, GreedyFollower};
 
-/// One discrete robot action.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub enum Action {
-    /// Move forward along the heading by [`ActionModel::forward_m`].
-    Forward,
-    /// Turn counter-clockwise (toward +yaw) by [`ActionModel::turn_rad`].
-    TurnLeft,
-    /// Turn clockwise by [`ActionModel::turn_rad`].
-    TurnRight,
-}
-
-/// Sizes of the discrete actions.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ActionModel {
-    /// Forward step, metres (SPEC: 0.05).
-    pub forward_m: f64,
-    /// Turn step, radians (SPEC: 5°).
-    pub turn_rad: f64,
-}
-
-impl Default for ActionModel {
-    fn default() -> Self {
-        Self {
-            forward_m: 0.05,
-            turn_rad: 5f64.to_radians(),
-        }
-    }
-}
+/// The robot's one action type and its model (step and turn sizes, camera height, radius):
+/// `activemap_geometry::robot`, re-exported for the planners.
+pub use activemap_geometry::robot::{Action, RobotModel, wrap_angle};
 
 /// Whether a forward move of `forward_m` metres was blocked: the robot went from `from` to
 /// `to` (planar positions, metres) less than half a step. The follower judges its tracked
 /// poses with it (a bumper), the evaluator the true ones (the blocked-move count).
 pub fn forward_was_blocked(from: Point2<f64>, to: Point2<f64>, forward_m: f64) -> bool {
     (to - from).norm() < 0.5 * forward_m
-}
-
-/// Wraps an angle to (−π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let t = std::f64::consts::TAU;
-    let w = a - t * (a / t).round();
-    if w <= -std::f64::consts::PI { w + t } else { w }
-}
-
-impl ActionModel {
-    /// Checks the ranges of every field.
-    pub fn validate(&self) -> Result<(), PlanningError> {
-        require(
-            self.forward_m.is_finite() && self.forward_m > 0.0,
-            "ActionModel::forward_m",
-            "must be finite and positive",
-        )?;
-        require(
-            self.turn_rad.is_finite()
-                && self.turn_rad > 0.0
-                && self.turn_rad < std::f64::consts::PI,
-            "ActionModel::turn_rad",
-            "must be in (0, π)",
-        )
-    }
-
-    /// The pose after applying `action` at `pose` in free space (no collisions or slides).
-    pub fn apply(&self, pose: &PlanarPose, action: Action) -> PlanarPose {
-        match action {
-            Action::Forward => PlanarPose::new(
-                pose.x + self.forward_m * pose.yaw.cos(),
-                pose.y + self.forward_m * pose.yaw.sin(),
-                pose.yaw,
-            ),
-            Action::TurnLeft => {
-                PlanarPose::new(pose.x, pose.y, wrap_angle(pose.yaw + self.turn_rad))
-            }
-            Action::TurnRight => {
-                PlanarPose::new(pose.x, pose.y, wrap_angle(pose.yaw - self.turn_rad))
-            }
-        }
-    }
-
-    /// The poses after each action of `actions`, starting from `start` (start not included).
-    pub fn rollout_actions(&self, start: &PlanarPose, actions: &[Action]) -> Vec<PlanarPose> {
-        let mut pose = *start;
-        actions
-            .iter()
-            .map(|a| {
-                pose = self.apply(&pose, *a);
-                pose
-            })
-            .collect()
-    }
 }
 
 /// The result of simulating the follower along a path.
@@ -116,10 +37,15 @@ pub fn rollout(
     start: &PlanarPose,
     waypoints: &[Point2<f64>],
     follower: &FollowerConfig,
-    model: &ActionModel,
+    model: &RobotModel,
     max_steps: usize,
 ) -> Result<Rollout, PlanningError> {
-    model.validate()?;
+    model
+        .validate()
+        .map_err(|reason| PlanningError::InvalidConfig {
+            field: "RobotModel",
+            reason,
+        })?;
     let mut f = GreedyFollower::new(*follower, waypoints.to_vec())?;
     let mut pose = *start;
     let mut out = Rollout {
@@ -147,7 +73,7 @@ mod tests {
 
     #[test]
     fn actions_move_and_turn_by_the_configured_amounts() {
-        let m = ActionModel::default();
+        let m = RobotModel::default();
         let p = PlanarPose::new(1.0, 2.0, std::f64::consts::FRAC_PI_2);
         let f = m.apply(&p, Action::Forward);
         assert!((f.x - 1.0).abs() < 1e-12 && (f.y - 2.05).abs() < 1e-12);

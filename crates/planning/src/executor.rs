@@ -28,7 +28,7 @@ use nalgebra::{Point2, Vector2};
 use serde::{Deserialize, Serialize};
 
 use crate::clearance::{ClearanceConfig, ClearanceMap};
-use crate::dynamics::{Action, ActionModel, forward_was_blocked};
+use crate::dynamics::{Action, RobotModel, forward_was_blocked};
 use crate::error::{PlanningError, require};
 use crate::follower::{FollowerConfig, GreedyFollower, greedy_action, look_turn_needed};
 use crate::grid::OccupancyGrid;
@@ -59,11 +59,9 @@ pub struct ExecutorConfig {
     /// within this angle of the heading, radians (the camera's half hfov is 45°; 25° keeps
     /// the frontier well inside the view, 40° measured worse on `house:4`). 0 always turns.
     pub look_skip_half_angle_rad: f64,
-    /// Forward moves in a row that leave the position within half of `forward_step_m`
-    /// before the executor asks for a new path ([`ReplanReason::Blocked`]); 0 disables it.
+    /// Forward moves in a row that leave the position within half of the robot's forward
+    /// step before the executor asks for a new path ([`ReplanReason::Blocked`]); 0 disables it.
     pub bumps_to_replan: usize,
-    /// Length of a forward step, metres (SPEC §1: 0.05).
-    pub forward_step_m: f64,
 }
 
 impl Default for ExecutorConfig {
@@ -80,7 +78,6 @@ impl Default for ExecutorConfig {
             initial_spin_steps: 72,
             look_skip_half_angle_rad: 25f64.to_radians(),
             bumps_to_replan: 2,
-            forward_step_m: ActionModel::default().forward_m,
         }
     }
 }
@@ -100,11 +97,6 @@ impl ExecutorConfig {
                 && (0.0..=std::f64::consts::PI).contains(&self.look_skip_half_angle_rad),
             "ExecutorConfig::look_skip_half_angle_rad",
             "must be in [0, π]",
-        )?;
-        require(
-            self.forward_step_m.is_finite() && self.forward_step_m > 0.0,
-            "ExecutorConfig::forward_step_m",
-            "must be finite and positive",
         )?;
         ProgressMonitor::new(self.stuck_window, self.stuck_min_improvement_m).map(|_| ())
     }
@@ -161,8 +153,8 @@ enum Phase {
 #[derive(Debug, Clone)]
 pub struct PathExecutor {
     config: ExecutorConfig,
-    /// Clearance radius of the robot, metres (the triggers' swept check).
-    robot_radius_m: f64,
+    /// The robot: its radius (the triggers' swept check) and forward step (the bumper).
+    robot: RobotModel,
     monitor: ProgressMonitor,
     phase: Phase,
     /// The grid the current path was planned on (the first grid seen after it arrived): only
@@ -177,15 +169,16 @@ pub struct PathExecutor {
 }
 
 impl PathExecutor {
-    /// An executor for a robot disc of `robot_radius_m` that starts with the look-around (or
-    /// by asking for a path when `initial_spin_steps` is 0).
-    pub fn new(config: ExecutorConfig, robot_radius_m: f64) -> Result<Self, PlanningError> {
+    /// An executor for `robot` that starts with the look-around (or by asking for a path when
+    /// `initial_spin_steps` is 0).
+    pub fn new(config: ExecutorConfig, robot: RobotModel) -> Result<Self, PlanningError> {
         config.validate()?;
-        require(
-            robot_radius_m.is_finite() && robot_radius_m >= 0.0,
-            "PathExecutor robot_radius_m",
-            "must be finite and non-negative",
-        )?;
+        robot
+            .validate()
+            .map_err(|reason| PlanningError::InvalidConfig {
+                field: "PathExecutor robot",
+                reason,
+            })?;
         Ok(Self {
             monitor: ProgressMonitor::new(config.stuck_window, config.stuck_min_improvement_m)?,
             phase: if config.initial_spin_steps > 0 {
@@ -194,7 +187,7 @@ impl PathExecutor {
                 Phase::Idle(ReplanReason::Startup)
             },
             config,
-            robot_radius_m,
+            robot,
             plan_grid: None,
             forward_from: None,
             bumps_in_row: 0,
@@ -266,7 +259,7 @@ impl PathExecutor {
             self.bumps_in_row = 0;
             return false;
         };
-        if !forward_was_blocked(from, here, self.config.forward_step_m) {
+        if !forward_was_blocked(from, here, self.robot.forward_step_m) {
             self.bumps_in_row = 0;
             return false;
         }
@@ -329,7 +322,7 @@ impl PathExecutor {
                         &ClearanceConfig {
                             unknown_is_blocked: false,
                             ..ClearanceConfig::for_disc(
-                                self.robot_radius_m,
+                                self.robot.radius_m,
                                 grid.geometry.resolution,
                             )?
                         },
@@ -402,9 +395,6 @@ mod tests {
     use super::*;
     use crate::grid::{CellState, GridGeometry};
 
-    /// The robot's radius in these tests (the simulator's agent).
-    const RADIUS: f64 = 0.1;
-
     /// Drives a 0.5 m straight path along +x on an all-free grid and returns the actions sent
     /// until the replan request, whose reason must be "path done".
     fn actions_to_the_end(look_yaw: f64, look_skip_deg: f64) -> Vec<Action> {
@@ -416,7 +406,7 @@ mod tests {
                 look_skip_half_angle_rad: look_skip_deg.to_radians(),
                 ..ExecutorConfig::default()
             },
-            RADIUS,
+            RobotModel::default(),
         )
         .unwrap();
         core.set_path(&[
@@ -424,7 +414,7 @@ mod tests {
             PlanarPose::new(0.5, 0.0, look_yaw),
         ])
         .unwrap();
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
         let mut actions = Vec::new();
         for _ in 0..200 {
@@ -449,7 +439,7 @@ mod tests {
     fn forward_moves_that_do_not_move_the_robot_ask_for_a_new_path() {
         let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
         let grid = OccupancyGrid::filled(geometry, CellState::Free);
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let run = |wall_x: f64, bumps_to_replan: usize| {
             let mut core = PathExecutor::new(
                 ExecutorConfig {
@@ -457,7 +447,7 @@ mod tests {
                     bumps_to_replan,
                     ..ExecutorConfig::default()
                 },
-                RADIUS,
+                RobotModel::default(),
             )
             .unwrap();
             core.set_path(&[
@@ -533,7 +523,7 @@ mod tests {
                 initial_spin_steps: 3,
                 ..ExecutorConfig::default()
             },
-            RADIUS,
+            RobotModel::default(),
         )
         .unwrap();
         let pose = PlanarPose::new(0.0, 0.0, 0.0);
@@ -590,7 +580,7 @@ mod tests {
                 initial_spin_steps: 0,
                 ..ExecutorConfig::default()
             },
-            RADIUS,
+            RobotModel::default(),
         )
         .unwrap();
         core.set_path(&[PlanarPose::new(1.5, 0.0, 0.0)]).unwrap();

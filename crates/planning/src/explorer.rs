@@ -25,8 +25,9 @@ use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::astar::AstarConfig;
-use crate::clearance::{ClearanceConfig, ROBOT_RADIUS_M};
+use crate::clearance::ClearanceConfig;
 use crate::dynamics::Action;
+use crate::dynamics::RobotModel;
 use crate::error::{PlanningError, require};
 use crate::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
 use crate::fbe::{FbeConfig, FbePlanner, FbeState};
@@ -44,9 +45,10 @@ pub struct ExplorerConfig {
     /// Radius (metres) around the robot always marked free: its own footprint (the
     /// `occupancy` operator's `footprint_radius`, default the robot's radius).
     pub footprint_radius_m: f64,
-    /// The robot's radius, metres: one clearance ([`ClearanceConfig::for_disc`]) for the
-    /// frontiers' reachability, A* and the executor's triggers, as in the operators.
-    pub robot_radius_m: f64,
+    /// The robot: its radius gives the one clearance ([`ClearanceConfig::for_disc`]) of the
+    /// frontiers' reachability, A* and the executor's triggers, as in the operators; its
+    /// forward step the executor's bumper.
+    pub robot: RobotModel,
     /// Frontier extraction.
     pub frontier: FrontierConfig,
     /// A*.
@@ -64,8 +66,8 @@ impl Default for ExplorerConfig {
     fn default() -> Self {
         Self {
             occupancy: OccupancyConfig::default(),
-            footprint_radius_m: ROBOT_RADIUS_M,
-            robot_radius_m: ROBOT_RADIUS_M,
+            footprint_radius_m: RobotModel::default().radius_m,
+            robot: RobotModel::default(),
             frontier: FrontierConfig::default(),
             astar: AstarConfig::default(),
             fbe: FbeConfig::default(),
@@ -148,10 +150,10 @@ impl Explorer {
             "ExplorerConfig::max_replans_per_step",
             "must be at least 1",
         )?;
-        ClearanceConfig::for_disc(config.robot_radius_m, config.occupancy.resolution)?;
+        ClearanceConfig::for_disc(config.robot.radius_m, config.occupancy.resolution)?;
         Ok(Self {
             mapper: OccupancyMapper::new(config.occupancy, min, max)?,
-            executor: PathExecutor::new(config.executor, config.robot_radius_m)?,
+            executor: PathExecutor::new(config.executor, config.robot)?,
             planner: FbePlanner::new(config.fbe)?,
             config,
             grid: None,
@@ -238,7 +240,7 @@ impl Explorer {
     ) -> Result<Decision, PlanningError> {
         let here = Point2::new(pose.x, pose.y);
         let clearance =
-            ClearanceConfig::for_disc(self.config.robot_radius_m, grid.geometry.resolution)?;
+            ClearanceConfig::for_disc(self.config.robot.radius_m, grid.geometry.resolution)?;
         let mut replans = 0;
         loop {
             let t = Instant::now();
@@ -298,7 +300,7 @@ impl Explorer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::ActionModel;
+    use crate::dynamics::RobotModel;
     use crate::grid::Cell;
     use crate::synthetic::SyntheticWorld;
     use activemap_geometry::camera_pose_from_planar;
@@ -334,7 +336,7 @@ mod tests {
     fn a_new_obstacle_on_the_path_triggers_a_replan() {
         let mut world = SyntheticWorld::procedural_house(3, 2, 1, 3.0).unwrap();
         let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let mut ex = Explorer::new(
             ExplorerConfig::default(),
             Point2::new(0.0, 0.0),
@@ -391,7 +393,7 @@ mod tests {
     fn fbe_explores_a_small_house() {
         let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
         let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let mut ex = Explorer::new(
             ExplorerConfig::default(),
             Point2::new(world.start.x - 1.0, world.start.y - 1.0),

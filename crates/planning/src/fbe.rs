@@ -19,7 +19,7 @@ use activemap_geometry::PlanarPose;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
-use crate::dynamics::{ActionModel, wrap_angle};
+use crate::dynamics::{RobotModel, wrap_angle};
 use crate::error::{PlanningError, require};
 use crate::frontier::FrontierRegion;
 use crate::grid::{Cell, CellState, GridGeometry, OccupancyGrid};
@@ -66,12 +66,12 @@ pub struct FbeConfig {
 
 impl Default for FbeConfig {
     fn default() -> Self {
-        let m = ActionModel::default();
+        let m = RobotModel::default();
         Self {
             policy: FbePolicy::Utility,
             exclusion_radius_cells: 3.0,
             strikes_to_ban: 2,
-            turn_cost_m_per_rad: m.forward_m / m.turn_rad,
+            turn_cost_m_per_rad: m.forward_step_m / m.turn_angle_rad,
             cost_offset_m: 3.0,
             ban_unshrunk_at_once: true,
             no_shrink_fraction: 0.9,

@@ -156,7 +156,7 @@ impl GreedyFollower {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::{ActionModel, rollout};
+    use crate::dynamics::{RobotModel, rollout};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -167,7 +167,7 @@ mod tests {
         let waypoints = vec![Point2::new(0.5, 0.0), Point2::new(0.5, 1.0)];
         let drive = |line_is_clear: &dyn Fn(Point2<f64>, Point2<f64>) -> bool| {
             let mut f = GreedyFollower::new(FollowerConfig::default(), waypoints.clone()).unwrap();
-            let model = ActionModel::default();
+            let model = RobotModel::default();
             let mut pose = PlanarPose::new(0.0, 0.075, 0.0);
             for _ in 0..200 {
                 if f.remaining().len() == 1 {
@@ -223,7 +223,7 @@ mod tests {
     fn follower_and_dynamics_reach_random_goals_in_free_space() {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let cfg = FollowerConfig::default();
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         for _ in 0..200 {
             let start = PlanarPose::new(
                 rng.random_range(-2.0..2.0),

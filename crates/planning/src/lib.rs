@@ -14,14 +14,11 @@
 //! - [`executor`]: the one path executor (the `follower` operator and the explorer run it);
 //! - [`fbe`]: the frontier-based-exploration goal choice (the `planner` operator's decision);
 //! - [`explorer`]: the whole FBE loop in process, driving the operators' pieces in their order;
-//! - [`house_episode`]: FBE episodes on the simulator's `house:<seed>` scenes with true poses;
 //! - [`synthetic`]: a 2.5D test world with an exact depth renderer and procedural houses;
-//! - [`bench`](mod@bench): timings of the pieces the exploration loop runs every step.
 
 #![warn(missing_docs)]
 
 pub mod astar;
-pub mod bench;
 pub mod clearance;
 pub mod distance;
 pub mod dynamics;
@@ -32,7 +29,6 @@ pub mod fbe;
 pub mod follower;
 pub mod frontier;
 pub mod grid;
-pub mod house_episode;
 pub mod morphology;
 pub mod occupancy;
 pub mod path;

@@ -61,12 +61,12 @@ impl ProgressMonitor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::{Action, ActionModel};
+    use crate::dynamics::{Action, RobotModel};
     use activemap_geometry::PlanarPose;
 
     #[test]
     fn a_blocked_robot_is_stuck_and_a_turning_then_driving_robot_is_not() {
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let goal = (2.0, 0.0);
         let dist = |p: &PlanarPose| ((p.x - goal.0).powi(2) + (p.y - goal.1).powi(2)).sqrt();
         // Turn 180° (36 turns), then drive: never stuck with a 40-step window.

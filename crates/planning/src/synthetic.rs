@@ -7,7 +7,7 @@ use nalgebra::{Point2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::dynamics::{Action, ActionModel};
+use crate::dynamics::{Action, RobotModel};
 use crate::error::PlanningError;
 use crate::grid::{Cell, CellState, Grid, GridGeometry, OccupancyGrid};
 
@@ -96,7 +96,7 @@ impl SyntheticWorld {
         &self,
         pose: &PlanarPose,
         action: Action,
-        model: &ActionModel,
+        model: &RobotModel,
         radius: f64,
     ) -> PlanarPose {
         let next = model.apply(pose, action);
@@ -353,7 +353,7 @@ mod tests {
             }
         }
         // Walking into a wall does not move the robot.
-        let model = ActionModel::default();
+        let model = RobotModel::default();
         let p = PlanarPose::new(0.2, 1.5, std::f64::consts::PI);
         assert_eq!(a.step(&p, Action::Forward, &model, 0.1), p);
     }

@@ -192,12 +192,15 @@ fn bad_configuration_is_rejected() {
     let err = Simulator::new(
         scene,
         SimConfig {
-            camera_height: -1.0,
+            robot: activemap_geometry::RobotModel {
+                camera_height_m: -1.0,
+                ..Default::default()
+            },
             ..SimConfig::default()
         },
     )
     .unwrap_err();
-    assert!(err.to_string().contains("camera_height"), "{err}");
+    assert!(err.to_string().contains("camera_height_m"), "{err}");
 }
 
 #[test]

@@ -13,13 +13,12 @@ use activemap_geometry::PlanarPose;
 use activemap_sim::{Action as SimAction, NavigableMap, SceneSpec, SimConfig};
 use nalgebra::Point2;
 
-use crate::dynamics::Action;
-use crate::error::PlanningError;
-use crate::explorer::{Decision, Explorer, ExplorerConfig, ExplorerCounters, StageTimes};
-use crate::grid::{CellState, OccupancyGrid};
-
-/// The robot's radius in the simulator (its cylinder agent), metres.
-pub const ROBOT_RADIUS_M: f64 = crate::clearance::ROBOT_RADIUS_M;
+use activemap_planning::PlanningError;
+use activemap_planning::dynamics::Action;
+use activemap_planning::explorer::{
+    Decision, Explorer, ExplorerConfig, ExplorerCounters, StageTimes,
+};
+use activemap_planning::grid::{CellState, OccupancyGrid};
 
 /// What episode to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -279,9 +278,9 @@ mod tests {
             // COST_OFFSET.
             if let Ok(p) = std::env::var("POLICY") {
                 cfg.explorer.fbe.policy = match p.as_str() {
-                    "nearest" => crate::fbe::FbePolicy::Nearest,
-                    "largest" => crate::fbe::FbePolicy::Largest,
-                    _ => crate::fbe::FbePolicy::Utility,
+                    "nearest" => activemap_planning::fbe::FbePolicy::Nearest,
+                    "largest" => activemap_planning::fbe::FbePolicy::Largest,
+                    _ => activemap_planning::fbe::FbePolicy::Utility,
                 };
             }
             if let Ok(b) = std::env::var("BAN_UNSHRUNK") {

@@ -4,8 +4,8 @@
 //! A cell is complete when its folder holds a `cell.json` equal to the cell's settings and a
 //! `metrics.json` that parses; anything else in an existing folder is a half-finished run.
 
-use crate::MetricsReport;
-use crate::run_folder::{RunError, RunFolder, read_text, write_file};
+use activemap_eval::MetricsReport;
+use activemap_eval::run_folder::{RunError, RunFolder, read_text, write_file};
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher

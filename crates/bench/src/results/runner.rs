@@ -6,8 +6,8 @@
 //! library holds no process or transport code.
 
 use super::grid::{Cell, CellState, cell_state};
-use crate::MetricsReport;
-use crate::run_folder::RunError;
+use activemap_eval::MetricsReport;
+use activemap_eval::run_folder::RunError;
 use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -159,7 +159,7 @@ where
             Err(why) => why,
             Ok(()) => format!(
                 "the run ended without a usable {}",
-                dir.join(crate::run_folder::RunFolder::METRICS_JSON)
+                dir.join(activemap_eval::run_folder::RunFolder::METRICS_JSON)
                     .display()
             ),
         }),
@@ -170,7 +170,7 @@ where
 mod tests {
     use super::super::grid::{GridSettings, Method, cells};
     use super::*;
-    use crate::run_folder::RunFolder;
+    use activemap_eval::run_folder::RunFolder;
     use std::sync::atomic::AtomicU64;
 
     fn grid() -> Vec<Cell> {

@@ -9,7 +9,7 @@
 //! column shows how many cells are complete). A per-scene table gives mean ± spread over seeds.
 
 use super::runner::{CellOutcome, CellResult};
-use crate::MetricsReport;
+use activemap_eval::MetricsReport;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 

@@ -10,14 +10,14 @@ use activemap_geometry::{Intrinsics, camera_pose_from_planar};
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
-use crate::astar::{AstarConfig, plan};
-use crate::clearance::{ClearanceConfig, ClearanceMap};
-use crate::error::PlanningError;
-use crate::frontier::{FrontierConfig, extract_frontiers};
-use crate::grid::{CellState, Grid, OccupancyGrid};
 use crate::house_episode::{self, HouseEpisodeConfig};
-use crate::occupancy::{OccupancyConfig, OccupancyMapper};
-use crate::synthetic::SyntheticWorld;
+use activemap_planning::PlanningError;
+use activemap_planning::astar::{AstarConfig, plan};
+use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
+use activemap_planning::frontier::{FrontierConfig, extract_frontiers};
+use activemap_planning::grid::{CellState, Grid, OccupancyGrid};
+use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
+use activemap_planning::synthetic::SyntheticWorld;
 
 /// What to measure.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -16,7 +16,7 @@ pub mod table;
 pub use grid::{Cell, CellState, GridSettings, Method, cell_state, cells};
 pub use runner::{CellOutcome, CellResult, run_cells};
 
-use crate::run_folder::{RunError, write_file};
+use activemap_eval::run_folder::{RunError, write_file};
 use std::path::{Path, PathBuf};
 
 /// File names the benchmark writes in its output folder.
