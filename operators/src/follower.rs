@@ -12,7 +12,6 @@ use activemap_geometry::PlanarPose;
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::dynamics::Action as PlanAction;
 use activemap_planning::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
 use activemap_planning::replan::ReplanReason as PlanReason;
 use activemap_runtime::{
@@ -136,15 +135,6 @@ pub fn reason_from_wire(reason: ReplanReason) -> PlanReason {
     }
 }
 
-/// The wire action of a planning action.
-pub fn action_to_wire(a: PlanAction) -> ActionKind {
-    match a {
-        PlanAction::Forward => ActionKind::Forward,
-        PlanAction::TurnLeft => ActionKind::TurnLeft,
-        PlanAction::TurnRight => ActionKind::TurnRight,
-    }
-}
-
 /// What the follower wants this step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Decision {
@@ -197,7 +187,7 @@ impl FollowerCore {
         tracking_lost: bool,
     ) -> anyhow::Result<Decision> {
         Ok(match self.executor.decide(pose, grid, tracking_lost)? {
-            executor::Decision::Act(a) => Decision::Act(action_to_wire(a)),
+            executor::Decision::Act(a) => Decision::Act(ActionKind::from(a)),
             executor::Decision::Replan(r) => Decision::Replan(reason_to_wire(r)),
         })
     }

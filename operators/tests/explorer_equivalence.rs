@@ -14,7 +14,7 @@
 
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_operators::convert::{pose_from_wire, pose_to_wire, read_grid};
-use activemap_operators::follower::{self, Follower, Output, action_to_wire};
+use activemap_operators::follower::{self, Follower, Output};
 use activemap_operators::frontier::{self, frontier_regions};
 use activemap_operators::occupancy::{self, Occupancy};
 use activemap_operators::planner::{self, FbePlanner};
@@ -189,7 +189,7 @@ fn compare(steps: usize, blocked: &[usize], mutate: impl Fn(&mut ExplorerConfig)
             .step(&frame.depth, &frame.intrinsics, &camera)
             .unwrap()
         {
-            Decision::Act(a) => Some(action_to_wire(a)),
+            Decision::Act(a) => Some(ActionKind::from(a)),
             Decision::Finished => None,
         };
         let theirs = pipeline.step(k as u64, &frame.depth, &sim);

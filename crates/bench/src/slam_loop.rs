@@ -19,7 +19,7 @@
 
 use activemap_eval::{AteOptions, ImageView};
 use activemap_geometry::tum::Trajectory;
-use activemap_geometry::{Isometry3, PlanarPose, camera_pose_from_planar};
+use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, SimConfig, Simulator};
 use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig, TrackingStatus};
@@ -173,11 +173,9 @@ pub fn held_out_pose(sim: &Simulator) -> Isometry3<f64> {
         p.y + 0.025 * p.yaw.sin(),
         p.yaw + 2.5f64.to_radians(),
     );
-    camera_pose_from_planar(
-        &shifted,
-        sim.navigation().floor_z(),
-        sim.config().robot.camera_height_m,
-    )
+    sim.config()
+        .robot
+        .camera_pose(&shifted, sim.navigation().floor_z())
 }
 
 /// Runs the scripted loop and measures it (see the module doc).

@@ -12,7 +12,6 @@ use activemap_operators::convert::{map_header, read_map, write_map};
 use activemap_operators::mapper::Mapper;
 use activemap_operators::tracker::Tracker;
 use activemap_schemas::{ActionKind, PoseEstimate};
-use activemap_sim::Action;
 use activemap_splat::Gaussians;
 
 /// The map as the tracker receives it from the mapper: through the wire layout.
@@ -21,14 +20,6 @@ fn through_the_wire(map: &Gaussians<f32>, frame_id: u64) -> Gaussians<f32> {
     let mut buf = vec![0u8; header.payload_len().unwrap()];
     write_map(&mut buf, header, map).unwrap();
     read_map(&buf).unwrap().1
-}
-
-fn kind(a: Action) -> ActionKind {
-    match a {
-        Action::Forward => ActionKind::Forward,
-        Action::TurnLeft => ActionKind::TurnLeft,
-        Action::TurnRight => ActionKind::TurnRight,
-    }
 }
 
 #[test]
@@ -50,7 +41,7 @@ fn the_scripted_loop_and_the_operators_give_bit_identical_poses_and_maps() {
     for (k, frame) in trace.frames.iter().enumerate() {
         let k = k as u64;
         if k > 0 {
-            tracker.add_action(k - 1, kind(trace.actions[k as usize - 1]));
+            tracker.add_action(k - 1, ActionKind::from(trace.actions[k as usize - 1]));
         }
         tracker.add_frame(k, frame.clone());
         mapper.add_frame(k, frame.clone());
