@@ -14,7 +14,7 @@ use crate::grid::{Cell, OccupancyGrid};
 use crate::shortcut::shortcut;
 
 /// A path ready to follow.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PlannedPath {
     /// Waypoints (world), the robot's own cell excluded. Each yaw is the heading of the move
     /// that ends there, except the last, which faces the look-at point.

@@ -7,8 +7,9 @@
 //! - [`loss`]: tracking and mapping losses of SPEC §4 and the residuals behind "lost";
 //! - [`tracker`]: Adam on the pose τ = [ρ, θ] and the exposure;
 //! - [`keyframe`]: co-visibility / translation keyframe rule;
-//! - [`insert`], [`unknown`], [`mapper`]: insertion in unobserved areas, unknown-space
-//!   Gaussians (SPEC §5), window optimisation, pruning and densification;
+//! - [`insert`], [`mapper`]: insertion in unobserved areas, window optimisation, pruning and
+//!   densification (the map holds observed Gaussians only: the unknown-space Gaussians of
+//!   SPEC §5 belong to the Fisher scorer, `activemap_active::unknown`);
 //! - [`dense`], [`references`]: dense RGB-D alignment to keyframes, and which keyframes a
 //!   frame is aligned to (the newest, plus older ones of the same place);
 //! - [`session`]: the tracking session (prediction, lagged map snapshots, reference
@@ -45,7 +46,6 @@ pub mod mapping;
 pub mod references;
 pub mod session;
 pub mod tracker;
-pub mod unknown;
 
 pub use error::SlamError;
 pub use frame::{Frame, SkipReason};
@@ -58,4 +58,3 @@ pub use mapping::{
 pub use references::{ReferenceConfig, References};
 pub use session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, required_snapshot};
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};
-pub use unknown::{FrontierCell, UnknownSpaceConfig};

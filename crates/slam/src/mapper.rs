@@ -1,8 +1,11 @@
 //! Keyframe mapping (SPEC §4): on each keyframe insert Gaussians in unobserved areas
-//! ([`crate::insert`]), drop the unknown-space Gaussians the keyframe observes
-//! ([`crate::unknown`]), optimise the map over a window of the most recent keyframes plus a
+//! ([`crate::insert`]), optimise the map over a window of the most recent keyframes plus a
 //! few random older ones (mapping loss + isotropic regulariser `w·mean|s − mean(s)|`), then
 //! prune and densify.
+//!
+//! The map holds observed Gaussians only. The unknown-space Gaussians of SPEC §5 serve the
+//! Fisher computation alone and are renewed at each replan, so the active-mapping scorer
+//! (`activemap_active::unknown`) seeds its own set and the mapper never holds them.
 //!
 //! Pruning: after every keyframe's optimisation, Gaussians with opacity below
 //! `prune_opacity_early` (0.005) go; Gaussians visible in the window that have had at least
@@ -19,14 +22,13 @@
 //! Densification (3DGS): Gaussians whose mean screen-space gradient (in NDC units, i.e. the
 //! pixel gradient × width/2) exceeds `densify_grad` (6e-4) are cloned when small
 //! (max scale ≤ `densify_split_scale`) and split in two (scales / 1.6, means sampled from the
-//! Gaussian) when large. Unknown-space Gaussians are never optimised, pruned or densified.
+//! Gaussian) when large.
 //! Keyframe poses are the tracker's (they are not refined here).
 
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::insert::{InsertConfig, sample_new_gaussians, unobserved_mask};
 use crate::loss::{mapping_loss, rgb_mask};
-use crate::unknown::{FrontierCell, UnknownSpaceConfig, observed_unknown};
 use activemap_geometry::Isometry3;
 use activemap_splat::{
     AdamConfig, Camera, FLAG_UNKNOWN_SPACE, GaussianAdam, Gaussians, Gradients, RenderOptions,
@@ -42,8 +44,6 @@ use rand_distr::{Distribution, StandardNormal};
 pub struct MapperConfig {
     /// Insertion settings.
     pub insert: InsertConfig,
-    /// Unknown-space settings.
-    pub unknown: UnknownSpaceConfig,
     /// Number of most recent keyframes optimised together (10).
     pub window: usize,
     /// Random older keyframes added to the window (2).
@@ -90,7 +90,6 @@ impl Default for MapperConfig {
     fn default() -> Self {
         Self {
             insert: InsertConfig::default(),
-            unknown: UnknownSpaceConfig::default(),
             window: 10,
             random_older: 2,
             iterations: 10,
@@ -198,8 +197,6 @@ pub fn far_plane(frame: &Frame) -> f64 {
 pub struct MappingReport {
     /// Gaussians inserted from depth.
     pub inserted: usize,
-    /// Unknown-space Gaussians removed because the keyframe observes their space.
-    pub unknown_removed: usize,
     /// Gaussians pruned.
     pub pruned: usize,
     /// Gaussians added by densification.
@@ -246,7 +243,7 @@ impl Mapper {
         &self.config
     }
 
-    /// The current map (including unknown-space Gaussians, flagged).
+    /// The current map.
     pub fn map(&self) -> &Gaussians<f32> {
         &self.map
     }
@@ -259,15 +256,6 @@ impl Mapper {
     /// The keyframes so far.
     pub fn keyframes(&self) -> &[Keyframe] {
         &self.keyframes
-    }
-
-    /// Number of unknown-space Gaussians in the map.
-    pub fn unknown_count(&self) -> usize {
-        self.map
-            .flags
-            .iter()
-            .filter(|&&f| f & FLAG_UNKNOWN_SPACE != 0)
-            .count()
     }
 
     /// Appends Gaussians keeping ids and optimiser state in step.
@@ -287,30 +275,6 @@ impl Mapper {
         let mut k = keep.iter();
         self.ids.retain(|_| *k.next().unwrap_or(&false));
         Ok(before - self.map.len())
-    }
-
-    /// Adds unknown-space Gaussians above `cells` (SPEC §5); returns how many were added.
-    pub fn seed_unknown_space(
-        &mut self,
-        cells: &[FrontierCell],
-        seed: u64,
-    ) -> Result<usize, SlamError> {
-        crate::unknown::validate_cells(cells)?;
-        let mut added = Gaussians::new();
-        let n = crate::unknown::seed(&mut added, cells, &self.config.unknown, seed);
-        self.append(&added);
-        Ok(n)
-    }
-
-    /// Removes the unknown-space Gaussians that `frame` at `pose` observes; returns how many.
-    pub fn remove_observed_unknown(
-        &mut self,
-        frame: &Frame,
-        pose: &Isometry3<f64>,
-    ) -> Result<usize, SlamError> {
-        let seen = observed_unknown(&self.map, frame, pose, self.config.unknown.margin);
-        let keep: Vec<bool> = seen.iter().map(|s| !s).collect();
-        self.retain(&keep)
     }
 
     /// Inserts Gaussians from `frame` at `pose` where the map does not explain the depth.
@@ -341,8 +305,7 @@ impl Mapper {
         Ok(new.len())
     }
 
-    /// Processes a keyframe: unknown-space removal, insertion, window optimisation, pruning,
-    /// densification.
+    /// Processes a keyframe: insertion, window optimisation, pruning, densification.
     pub fn add_keyframe(
         &mut self,
         frame: Frame,
@@ -350,10 +313,9 @@ impl Mapper {
         exposure: [f64; 2],
     ) -> Result<MappingReport, SlamError> {
         let mut report = MappingReport {
-            unknown_removed: self.remove_observed_unknown(&frame, &pose)?,
+            inserted: self.insert_from(&frame, &pose)?,
             ..Default::default()
         };
-        report.inserted = self.insert_from(&frame, &pose)?;
         let mask = rgb_mask(&frame, self.config.rgb_boundary, 0.0);
         let coarse = (self.config.coarse_iterations > 0).then(|| {
             let small = frame.downscale(2);
@@ -535,9 +497,6 @@ impl Mapper {
         let cfg = &self.config;
         let mut keep: Vec<bool> = (0..n)
             .map(|i| {
-                if self.map.flags[i] & FLAG_UNKNOWN_SPACE != 0 {
-                    return true;
-                }
                 let o = self.map.opacity(i);
                 let old = self.adam.steps(i) >= cfg.prune_min_age;
                 let weak_in_window = in_window.get(i).copied().unwrap_or(false)
@@ -555,7 +514,7 @@ impl Mapper {
                 break;
             }
             let count = grad_count.get(i).copied().unwrap_or(0);
-            if !keep[i] || count == 0 || self.map.flags[i] & FLAG_UNKNOWN_SPACE != 0 {
+            if !keep[i] || count == 0 {
                 continue;
             }
             if grad_sum[i] / (count as f64) <= cfg.densify_grad {
@@ -629,7 +588,6 @@ fn add_gradients(a: &mut Gradients<f32>, b: &Gradients<f32>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::unknown::FrontierCell;
     use activemap_geometry::Intrinsics;
 
     /// A 32×32, 90° camera facing a textured plane; `depth_at(x, y)` gives the depth per pixel.
@@ -701,21 +659,17 @@ mod tests {
         // Ids stay parallel and unique.
         assert_eq!(mapper.ids().len(), mapper.map().len());
         assert_eq!(*mapper.ids().last().unwrap(), mapper.map().len() as u64 - 1);
+        // The map holds observed Gaussians only (unknown space lives in the active scorer).
+        assert!(mapper.map().flags.iter().all(|&f| f == 0));
     }
 
     #[test]
-    fn pruning_removes_transparent_and_weak_old_gaussians_but_not_unknown_space() {
+    fn pruning_removes_transparent_and_weak_old_gaussians() {
         let mut mapper = Mapper::new(dense_config()).unwrap();
         let wall = plane_frame(|_, _| 2.0);
         mapper
             .add_keyframe(wall, Isometry3::identity(), [0.0, 0.0])
             .unwrap();
-        let cells = [FrontierCell {
-            centre: [5.0, 5.0],
-            size: 0.05,
-            z_range: [0.0, 1.0],
-        }];
-        assert_eq!(mapper.seed_unknown_space(&cells, 1).unwrap(), 200);
         let n = mapper.map().len();
         // Gaussian 0 nearly transparent, Gaussian 1 at 0.5 opacity (weak, but young).
         mapper.map.opacity_logits[0] = activemap_splat::gaussians::logit(0.001) as f32;
@@ -725,7 +679,6 @@ mod tests {
             !mapper.ids().contains(&id0),
             "the transparent Gaussian survived"
         );
-        assert_eq!(mapper.unknown_count(), 200);
         assert!(report.pruned >= 1 && mapper.map().len() < n + report.densified);
         // A weak (0.05) but young Gaussian survives the window rule: with 1 Adam step it is
         // far below `prune_min_age` (the old rule deleted Gaussians before they could fit).
@@ -753,60 +706,6 @@ mod tests {
         let above_threshold = (0..mapper2.map().len())
             .filter(|&i| mapper2.map().opacity(i) >= 0.1)
             .count();
-        assert_eq!(
-            above_threshold,
-            mapper2.map().len() - mapper2.unknown_count()
-        );
-    }
-
-    #[test]
-    fn unknown_space_is_replaced_where_a_keyframe_observes_it() {
-        let mut mapper = Mapper::new(dense_config()).unwrap();
-        // Two cells straight ahead of the camera (optical z): one at 1 m (in front of the
-        // 2 m wall: observed free space), one at 3 m (behind the wall: still unknown). The
-        // camera looks along +z, so "height" here is the optical z of the box.
-        let cells = [
-            FrontierCell {
-                centre: [0.0, 0.0],
-                size: 0.1,
-                z_range: [0.95, 1.05],
-            },
-            FrontierCell {
-                centre: [0.0, 0.0],
-                size: 0.1,
-                z_range: [2.95, 3.05],
-            },
-        ];
-        mapper.seed_unknown_space(&cells, 7).unwrap();
-        assert_eq!(mapper.unknown_count(), 400);
-        assert!(
-            mapper
-                .map()
-                .flags
-                .iter()
-                .all(|f| f & FLAG_UNKNOWN_SPACE != 0)
-        );
-        let report = mapper
-            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
-            .unwrap();
-        assert_eq!(report.unknown_removed, 200);
-        assert_eq!(mapper.unknown_count(), 200);
-        let remaining_z: Vec<f32> = (0..mapper.map().len())
-            .filter(|&i| mapper.map().flags[i] & FLAG_UNKNOWN_SPACE != 0)
-            .map(|i| mapper.map().means[i][2])
-            .collect();
-        assert!(remaining_z.iter().all(|&z| z > 2.9));
-        assert!(
-            mapper
-                .seed_unknown_space(
-                    &[FrontierCell {
-                        centre: [f64::NAN, 0.0],
-                        size: 0.1,
-                        z_range: [0.0, 1.0]
-                    }],
-                    0
-                )
-                .is_err()
-        );
+        assert_eq!(above_threshold, mapper2.map().len());
     }
 }

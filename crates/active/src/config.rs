@@ -1,0 +1,268 @@
+//! Settings of the Fisher scorer (SPEC §5–§6). Every field has the paper's value as its
+//! default; the authors' release variant, where it differs, is a named option. The `scorer`
+//! operator reads this struct from its `fisher:` config block (unknown fields are refused).
+//!
+//! # Normalisation of H and what λ means
+//! A view's Fisher diagonal is the MEAN over the scoring image's pixels of the squared
+//! per-pixel gradients, `H(x) = (1/P)·Σ_px (∂f/∂w)²` (colour per channel plus
+//! `depth_weight` × depth), and the 6×6 pose information likewise `(1/P)·J_τᵀJ_τ`. So λ and
+//! every EIG and C_local keep their meaning at every image size: halving the scoring
+//! resolution leaves them unchanged up to sampling. The release instead scales per-pixel
+//! gradients by 1e-3 before squaring (`H_release = 1e-6·Σ_px g²`): at 800×800 (P = 640 000)
+//! that is 0.64 × our per-pixel mean, so the release's λ = 1e-6 there is about our
+//! λ = 1.6e-6; on unscaled sums (no normalisation) the release's λ = 1e-6 acts like λ = 1.
+
+use serde::{Deserialize, Serialize};
+
+/// Where the model Fisher `I(w)` comes from (SPEC §5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelFisherSource {
+    /// The paper: a Monte-Carlo sum of `H` over `mc_poses` poses drawn uniformly in the
+    /// current estimated free space (eroded by the robot radius), random yaw.
+    #[default]
+    McFreeSpace,
+    /// The release: the sum of `H` over the keyframes (FisherRF's empirical Fisher).
+    Keyframes,
+}
+
+/// How a path's poses are turned into one number (SPEC §5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PathObjective {
+    /// The paper: minimise `Σ_i [C_local(x_i) − η·log EIG_i(x_i)]`.
+    #[default]
+    Paper,
+    /// The paper's "w/o localisation" ablation: minimise `−η·Σ_i log EIG_i(x_i)`.
+    EigOnly,
+    /// The release: maximise `mean_i(−0.2·C_local(x_i) + 1.0·log EIG_i(x_i)) + 60·EIG(x_T)`
+    /// (reported as its negative, so lower is better for every objective).
+    Release,
+}
+
+/// Which DBSCAN cluster a refine replan aims at (SPEC §6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RefineCluster {
+    /// The paper: the largest cluster.
+    #[default]
+    Largest,
+    /// The release: the cluster holding the best-scoring Gaussian.
+    Best,
+}
+
+/// The whole Fisher scorer configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FisherConfig {
+    /// Source of the model Fisher `I(w)`.
+    pub model_fisher: ModelFisherSource,
+    /// `mc_free_space`: poses in the Monte-Carlo sum (N).
+    pub mc_poses: usize,
+    /// `mc_free_space`: fresh poses drawn per update when the map changed (the oldest of the
+    /// N are replaced; every Gaussian's estimate is rescaled to N poses, so a Gaussian added
+    /// since the oldest pose is estimated from the poses drawn after it appeared).
+    pub mc_refresh: usize,
+    /// Laplace prior λ added to `I(w)` (SPEC §5: 1e-6; per-pixel normalised H, see the module
+    /// doc).
+    pub lambda: f64,
+    /// Weight of the depth output against the colour channels in `H` and `J_τᵀJ_τ`.
+    pub depth_weight: f64,
+    /// Width of the scoring image, pixels (the camera's field of view kept; the height
+    /// follows the camera's aspect). A pyramid level of the frame: Fisher scoring may work at
+    /// its own resolution while frames, map and evaluation keep theirs.
+    pub scoring_width: u32,
+    /// Far plane of the scoring renders, metres (Gaussians farther away are left out).
+    pub far_m: f64,
+    /// Candidate poses around the goal (K).
+    pub candidates: usize,
+    /// Candidate distance range from the goal point, metres (paper [0.3, 1.0]; release
+    /// [0.5, 1.0]).
+    pub candidate_radius_m: [f64; 2],
+    /// Radius growth factor when no candidate survives (release: ×1.5).
+    pub candidate_radius_growth: f64,
+    /// How many times the radius may grow before the replan gives up on candidates.
+    pub candidate_retries: usize,
+    /// Candidates kept by EIG for path planning (top 20).
+    pub top_candidates: usize,
+    /// The release's option: re-add the previous goal and the previous top candidates.
+    pub readd_previous: bool,
+    /// Objective of the path selection.
+    pub objective: PathObjective,
+    /// η: weight of the information term (5).
+    pub eta: f64,
+    /// Every `stride`-th future pose of a path is scored (plus the last); 1 = every pose.
+    pub stride: usize,
+    /// Paths are cut after this many actions for scoring (`None`: whole paths; release: 30).
+    /// Default 30, by measurement (`activemap bench scorer`, 150k-Gaussian house, paths of
+    /// about 145 actions): whole paths score about 570 poses per replan (29 s), cut at 30
+    /// they score 120 (13 s); the follower still drives the whole path.
+    pub max_actions: Option<usize>,
+    /// A 6×6 pose information whose smallest eigenvalue is at most this fraction of its
+    /// largest counts as degenerate (C_local = +∞).
+    pub degenerate_ratio: f64,
+    /// Unknown-space Gaussians per frontier cell (200).
+    pub unknown_per_cell: usize,
+    /// Height band of the unknown-space Gaussians above the floor, as offsets from the camera
+    /// height, metres (release: [cam_h − 1, cam_h)).
+    pub unknown_band_below_camera_m: f64,
+    /// Largest unknown-space scale as a fraction of the cell side (release: 0.05).
+    pub unknown_max_scale_fraction: f64,
+    /// Refine mode: the share of Gaussians (by `Σ 1/(I + λ)`) clustered (20 %).
+    pub refine_top_fraction: f64,
+    /// Refine mode: DBSCAN neighbourhood radius, metres (0.5).
+    pub dbscan_eps_m: f64,
+    /// Refine mode: DBSCAN minimum points (20).
+    pub dbscan_min_points: usize,
+    /// Refine mode: which cluster to aim at.
+    pub refine_cluster: RefineCluster,
+    /// Refine mode (release): only Gaussians within this height of the camera, metres
+    /// (`None`: all).
+    pub refine_height_band_m: Option<f64>,
+    /// Seed of every random draw (Monte-Carlo poses, candidates, unknown space), mixed with
+    /// the frame id, so a run is reproducible.
+    pub seed: u64,
+}
+
+impl Default for FisherConfig {
+    fn default() -> Self {
+        Self {
+            model_fisher: ModelFisherSource::McFreeSpace,
+            mc_poses: 32,
+            mc_refresh: 8,
+            lambda: 1e-6,
+            depth_weight: 1.0,
+            scoring_width: 40,
+            far_m: 6.0,
+            candidates: 256,
+            candidate_radius_m: [0.3, 1.0],
+            candidate_radius_growth: 1.5,
+            candidate_retries: 3,
+            top_candidates: 20,
+            readd_previous: false,
+            objective: PathObjective::Paper,
+            eta: 5.0,
+            stride: 5,
+            max_actions: Some(30),
+            degenerate_ratio: 1e-9,
+            unknown_per_cell: 200,
+            unknown_band_below_camera_m: 1.0,
+            unknown_max_scale_fraction: 0.05,
+            refine_top_fraction: 0.2,
+            dbscan_eps_m: 0.5,
+            dbscan_min_points: 20,
+            refine_cluster: RefineCluster::Largest,
+            refine_height_band_m: None,
+            seed: 0,
+        }
+    }
+}
+
+impl FisherConfig {
+    /// The release's variant (SPEC §5 "Release facts"): keyframe Fisher, candidates at
+    /// [0.5, 1.0] m with the previous ones re-added, the release objective every 5th pose of
+    /// paths cut at 30 actions, refine on the best cluster within ±0.8 m of the camera.
+    pub fn release() -> Self {
+        Self {
+            model_fisher: ModelFisherSource::Keyframes,
+            candidate_radius_m: [0.5, 1.0],
+            readd_previous: true,
+            objective: PathObjective::Release,
+            stride: 5,
+            max_actions: Some(30),
+            refine_cluster: RefineCluster::Best,
+            refine_height_band_m: Some(0.8),
+            ..Self::default()
+        }
+    }
+
+    /// Checks every field; the message names the field and what is wrong.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!(
+                    "fisher.{name} must be finite and positive, got {v}"
+                ))
+            }
+        };
+        let at_least_one = |name: &str, v: usize| {
+            if v >= 1 {
+                Ok(())
+            } else {
+                Err(format!("fisher.{name} must be at least 1"))
+            }
+        };
+        positive("lambda", self.lambda)?;
+        if !(self.depth_weight.is_finite() && self.depth_weight >= 0.0) {
+            return Err(format!(
+                "fisher.depth_weight must be finite and non-negative, got {}",
+                self.depth_weight
+            ));
+        }
+        if self.scoring_width < 8 {
+            return Err(format!(
+                "fisher.scoring_width must be at least 8 pixels, got {}",
+                self.scoring_width
+            ));
+        }
+        positive("far_m", self.far_m)?;
+        at_least_one("mc_poses", self.mc_poses)?;
+        at_least_one("mc_refresh", self.mc_refresh)?;
+        if self.mc_refresh > self.mc_poses {
+            return Err(format!(
+                "fisher.mc_refresh ({}) must not exceed fisher.mc_poses ({})",
+                self.mc_refresh, self.mc_poses
+            ));
+        }
+        at_least_one("candidates", self.candidates)?;
+        at_least_one("top_candidates", self.top_candidates)?;
+        let [r0, r1] = self.candidate_radius_m;
+        if !(r0.is_finite() && r1.is_finite() && r0 >= 0.0 && r1 > r0) {
+            return Err(format!(
+                "fisher.candidate_radius_m must be [min, max] with 0 <= min < max, got [{r0}, {r1}]"
+            ));
+        }
+        if !(self.candidate_radius_growth.is_finite() && self.candidate_radius_growth > 1.0) {
+            return Err(format!(
+                "fisher.candidate_radius_growth must be above 1, got {}",
+                self.candidate_radius_growth
+            ));
+        }
+        positive("eta", self.eta)?;
+        at_least_one("stride", self.stride)?;
+        if self.max_actions == Some(0) {
+            return Err("fisher.max_actions must be at least 1 (or left out)".into());
+        }
+        if !(self.degenerate_ratio.is_finite()
+            && self.degenerate_ratio >= 0.0
+            && self.degenerate_ratio < 1.0)
+        {
+            return Err(format!(
+                "fisher.degenerate_ratio must be in [0, 1), got {}",
+                self.degenerate_ratio
+            ));
+        }
+        positive(
+            "unknown_band_below_camera_m",
+            self.unknown_band_below_camera_m,
+        )?;
+        positive(
+            "unknown_max_scale_fraction",
+            self.unknown_max_scale_fraction,
+        )?;
+        if !(self.refine_top_fraction > 0.0 && self.refine_top_fraction <= 1.0) {
+            return Err(format!(
+                "fisher.refine_top_fraction must be in (0, 1], got {}",
+                self.refine_top_fraction
+            ));
+        }
+        positive("dbscan_eps_m", self.dbscan_eps_m)?;
+        at_least_one("dbscan_min_points", self.dbscan_min_points)?;
+        if let Some(band) = self.refine_height_band_m {
+            positive("refine_height_band_m", band)?;
+        }
+        Ok(())
+    }
+}

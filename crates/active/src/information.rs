@@ -1,0 +1,516 @@
+//! The Fisher information of one view (SPEC §5), as the scorer uses it: a scoring render at
+//! its own resolution, the per-Gaussian diagonal `H(x)` and the 6×6 pose information, both
+//! normalised per pixel (see [`crate::config`] for why), the view EIG against a prior and the
+//! localisation cost.
+//!
+//! A view renders only the Gaussians that can reach its image: those in front of the camera,
+//! nearer than the far plane and inside the field of view widened by their own extent (a
+//! cheap pre-cull, so a 150k-Gaussian house costs per view what the part it sees costs). The
+//! cull changes no pixel: a culled Gaussian's 3σ footprint misses the image, or it lies behind
+//! the far plane, which the render would cull too.
+
+use activemap_geometry::{Intrinsics, Isometry3, Point3};
+use activemap_splat::{Camera, FisherMode, Gaussians, Real, RenderOptions, fisher, render};
+use nalgebra::{Matrix6, SymmetricEigen};
+
+use crate::ActiveError;
+
+/// Parameters per Gaussian in a diagonal (SPEC §3: 14).
+pub const PARAMS: usize = 14;
+
+/// A per-Gaussian diagonal (or prior) over the 14 parameters, in `activemap_splat::layout`
+/// order.
+pub type Diagonal = [f64; PARAMS];
+
+/// How a view is rendered and weighed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewSettings {
+    /// The scoring camera (the frame's intrinsics scaled to the scoring width).
+    pub intrinsics: Intrinsics,
+    /// Far plane, metres.
+    pub far_m: f64,
+    /// Weight of depth against the colour channels.
+    pub depth_weight: f64,
+}
+
+impl ViewSettings {
+    /// The frame camera `camera` scaled to `width` pixels (height by its aspect, at least 1).
+    pub fn scaled(camera: &Intrinsics, width: u32, far_m: f64, depth_weight: f64) -> Self {
+        let height =
+            ((camera.height as f64 * width as f64 / camera.width as f64).round() as u32).max(1);
+        Self {
+            intrinsics: camera.scaled(width, height),
+            far_m,
+            depth_weight,
+        }
+    }
+}
+
+/// The information one view carries about the map.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ViewInformation {
+    /// `(index into the map, H diagonal)` for every Gaussian with a non-zero diagonal,
+    /// ascending by index: `(1/P)·Σ_px [Σ_ch (∂c_ch/∂w)² + depth_weight·(∂D/∂w)²]`.
+    pub diagonal: Vec<(u32, Diagonal)>,
+    /// `(1/P)·(J_rgbᵀJ_rgb + depth_weight·J_Dᵀ J_D)` for the left pose update τ = [ρ, θ].
+    pub pose: Matrix6<f64>,
+}
+
+impl ViewInformation {
+    /// Whether the view sees no Gaussian at all.
+    pub fn is_empty(&self) -> bool {
+        self.diagonal.is_empty()
+    }
+}
+
+/// The scoring map with what every view's cull needs, computed once per replan: each
+/// Gaussian's 3σ extent, and buckets of Gaussians on a horizontal grid so a view visits only
+/// the buckets its frustum can reach (a 150k-Gaussian house costs a view what the part it
+/// sees costs, not a pass over the whole map).
+#[derive(Debug, Clone)]
+pub struct ScoringScene<T: Real = f32> {
+    /// The Gaussians.
+    pub map: Gaussians<T>,
+    /// Per Gaussian: three times its largest scale, metres.
+    extent: Vec<f64>,
+    /// Bucket side, metres.
+    bucket_m: f64,
+    /// Per bucket: its xy cell, z range of its means, largest extent, and members
+    /// (ascending).
+    buckets: Vec<Bucket>,
+}
+
+#[derive(Debug, Clone)]
+struct Bucket {
+    cell: [i64; 2],
+    z: [f64; 2],
+    extent: f64,
+    members: Vec<u32>,
+}
+
+/// Side of the cull buckets, metres.
+const BUCKET_M: f64 = 0.5;
+
+impl<T: Real> ScoringScene<T> {
+    /// Indexes `map`.
+    pub fn new(map: Gaussians<T>) -> Self {
+        let extent: Vec<f64> = map
+            .log_scales
+            .iter()
+            .map(|s| {
+                3.0 * s
+                    .iter()
+                    .map(|v| v.to_f64())
+                    .fold(f64::NEG_INFINITY, f64::max)
+                    .exp()
+            })
+            .collect();
+        let mut by_cell: std::collections::BTreeMap<[i64; 2], Bucket> = Default::default();
+        for (i, m) in map.means.iter().enumerate() {
+            let (x, y, z) = (m[0].to_f64(), m[1].to_f64(), m[2].to_f64());
+            // Non-finite means go to one bucket that every view visits (the precise test
+            // then rejects them), so nothing is silently dropped or misplaced.
+            let cell = if x.is_finite() && y.is_finite() {
+                [(x / BUCKET_M).floor() as i64, (y / BUCKET_M).floor() as i64]
+            } else {
+                [i64::MIN, i64::MIN]
+            };
+            let b = by_cell.entry(cell).or_insert(Bucket {
+                cell,
+                z: [f64::INFINITY, f64::NEG_INFINITY],
+                extent: 0.0,
+                members: Vec::new(),
+            });
+            b.z = [b.z[0].min(z), b.z[1].max(z)];
+            b.extent = b.extent.max(extent[i]);
+            b.members.push(i as u32);
+        }
+        Self {
+            map,
+            extent,
+            bucket_m: BUCKET_M,
+            buckets: by_cell.into_values().collect(),
+        }
+    }
+
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.map.len()
+    }
+
+    /// Whether the scene holds no Gaussian.
+    pub fn is_empty(&self) -> bool {
+        self.map.is_empty()
+    }
+
+    /// Indices (ascending) of the Gaussians that may touch the image of the camera at
+    /// `world_from_camera`: in front of it (beyond the near plane, nearer than `far_m`) and
+    /// inside the field of view widened by their 3σ extent and the renderer's low-pass.
+    pub fn visible(
+        &self,
+        intrinsics: &Intrinsics,
+        world_from_camera: &Isometry3<f64>,
+        far_m: f64,
+    ) -> Vec<u32> {
+        let frustum = Frustum::new(intrinsics, world_from_camera, far_m);
+        let mut out = Vec::new();
+        for b in &self.buckets {
+            if b.cell[0] != i64::MIN {
+                let lo = [
+                    b.cell[0] as f64 * self.bucket_m - b.extent,
+                    b.cell[1] as f64 * self.bucket_m - b.extent,
+                    b.z[0] - b.extent,
+                ];
+                let hi = [
+                    (b.cell[0] + 1) as f64 * self.bucket_m + b.extent,
+                    (b.cell[1] + 1) as f64 * self.bucket_m + b.extent,
+                    b.z[1] + b.extent,
+                ];
+                if !frustum.box_may_intersect(lo, hi) {
+                    continue;
+                }
+            }
+            for &i in &b.members {
+                let m = self.map.means[i as usize];
+                let p = Point3::new(m[0].to_f64(), m[1].to_f64(), m[2].to_f64());
+                if frustum.point_may_touch(&p, self.extent[i as usize]) {
+                    out.push(i);
+                }
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+}
+
+/// The scoring camera's frustum in its own frame, widened for the renderer's footprints.
+struct Frustum {
+    camera_from_world: Isometry3<f64>,
+    /// Half-extents of the image plane at unit depth: left, right, top, bottom.
+    slopes: [f64; 4],
+    near: f64,
+    far: f64,
+}
+
+impl Frustum {
+    fn new(k: &Intrinsics, world_from_camera: &Isometry3<f64>, far: f64) -> Self {
+        // Two and a half pixels of margin: the image edge is half a pixel beyond the outer
+        // pixel centres, and the renderer's 0.3 px² low-pass widens every footprint by up to
+        // 3·√0.3 ≈ 1.7 px.
+        let margin = 2.5;
+        Self {
+            camera_from_world: world_from_camera.inverse(),
+            slopes: [
+                (k.cx + margin) / k.fx,
+                (k.width as f64 - 1.0 + margin - k.cx) / k.fx,
+                (k.cy + margin) / k.fy,
+                (k.height as f64 - 1.0 + margin - k.cy) / k.fy,
+            ],
+            near: activemap_splat::DEFAULT_NEAR,
+            far,
+        }
+    }
+
+    /// Whether a sphere of radius `extent` at world point `p` may reach the image.
+    fn point_may_touch(&self, p: &Point3<f64>, extent: f64) -> bool {
+        let p = self.camera_from_world * p;
+        if !(p.z + extent > self.near && p.z - extent <= self.far) {
+            return false;
+        }
+        let [left, right, top, bottom] = self.slopes;
+        let z = p.z;
+        // Inside the widened pyramid: x ∈ [−left·z − e·√(1+left²), right·z + e·√(1+right²)].
+        let within = |v: f64, lo: f64, hi: f64| {
+            v >= -lo * z - extent * (1.0 + lo * lo).sqrt()
+                && v <= hi * z + extent * (1.0 + hi * hi).sqrt()
+        };
+        within(p.x, left, right) && within(p.y, top, bottom)
+    }
+
+    /// Whether the world box `[lo, hi]` may intersect the frustum: false only when all eight
+    /// corners lie outside one of its planes (conservative).
+    fn box_may_intersect(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
+        let corners: Vec<Point3<f64>> = (0..8)
+            .map(|c| {
+                let pick = |axis: usize| {
+                    if c >> axis & 1 == 0 {
+                        lo[axis]
+                    } else {
+                        hi[axis]
+                    }
+                };
+                self.camera_from_world * Point3::new(pick(0), pick(1), pick(2))
+            })
+            .collect();
+        // Per plane: the signed excess of a point beyond it (positive = outside).
+        let planes: [fn(&Point3<f64>, &Self) -> f64; 6] = [
+            |p, f| f.near - p.z,
+            |p, f| p.z - f.far,
+            |p, f| -f.slopes[0] * p.z - p.x,
+            |p, f| p.x - f.slopes[1] * p.z,
+            |p, f| -f.slopes[2] * p.z - p.y,
+            |p, f| p.y - f.slopes[3] * p.z,
+        ];
+        !planes
+            .iter()
+            .any(|excess| corners.iter().all(|p| excess(p, self) >= 0.0))
+    }
+}
+
+/// The Gaussians of `map` at `indices`, in that order.
+pub fn subset<T: Real>(map: &Gaussians<T>, indices: &[u32]) -> Gaussians<T> {
+    let mut out = Gaussians::<T>::new();
+    for &i in indices {
+        let i = i as usize;
+        out.means.push(map.means[i]);
+        out.sh_dc.push(map.sh_dc[i]);
+        out.rotations.push(map.rotations[i]);
+        out.opacity_logits.push(map.opacity_logits[i]);
+        out.log_scales.push(map.log_scales[i]);
+        out.flags.push(map.flags[i]);
+    }
+    out
+}
+
+/// The Fisher information of the view from `world_from_camera` (`T_world_camera`) on `map`
+/// (SPEC §5): colour per channel plus `depth_weight` × depth, normalised per pixel. Every
+/// Gaussian counts, the unknown-space ones included (nothing is excluded by flag).
+pub fn view_information<T: Real>(
+    scene: &ScoringScene<T>,
+    world_from_camera: &Isometry3<f64>,
+    settings: &ViewSettings,
+) -> Result<ViewInformation, ActiveError> {
+    let map = &scene.map;
+    let mut indices = scene.visible(&settings.intrinsics, world_from_camera, settings.far_m);
+    if indices.is_empty() {
+        return Ok(ViewInformation::default());
+    }
+    let mut part = subset(map, &indices);
+    let camera =
+        Camera::from_world_pose(settings.intrinsics, world_from_camera).with_far(settings.far_m);
+    let options = RenderOptions::default();
+    let mut image = render(&part, &camera, &options)?;
+    // Only composited Gaussians carry information. When many are hidden (behind a wall, in
+    // the depth of an unknown-space cloud), render the composited ones alone: every pixel
+    // composites the same Gaussians in the same order (the hidden ones all lay beyond the
+    // point where each pixel of their tiles stopped), so the images and the Fisher of the
+    // kept ones are unchanged, and the Fisher pass skips the hidden ones' Jacobians.
+    let composited = composited(&image);
+    let kept = composited.iter().filter(|c| **c).count();
+    if kept * 10 < part.len() * 9 {
+        indices = indices
+            .iter()
+            .zip(&composited)
+            .filter(|(_, c)| **c)
+            .map(|(i, _)| *i)
+            .collect();
+        if indices.is_empty() {
+            return Ok(ViewInformation::default());
+        }
+        part = subset(map, &indices);
+        image = render(&part, &camera, &options)?;
+    }
+    let info = fisher(&part, &image, FisherMode::PerChannel)?;
+    let scale = 1.0 / settings.intrinsics.pixel_count() as f64;
+    let mut diagonal = Vec::new();
+    for (j, &i) in indices.iter().enumerate() {
+        let d = info.combined(j, settings.depth_weight);
+        if d.iter().any(|v| *v != 0.0) {
+            diagonal.push((i, d.map(|v| v * scale)));
+        }
+    }
+    Ok(ViewInformation {
+        diagonal,
+        pose: info.pose(settings.depth_weight) * scale,
+    })
+}
+
+/// Per Gaussian of the render: whether some pixel composited it (it lies within the part of a
+/// tile's front-to-back list that the tile's pixels walked before stopping).
+pub fn composited<T: Real>(image: &activemap_splat::Render<T>) -> Vec<bool> {
+    let ctx = &image.context;
+    let bins = &ctx.bins;
+    let mut out = vec![false; ctx.splats.len()];
+    for t in 0..bins.tile_count() {
+        let [x0, x1, y0, y1] = bins.tile_rect(t, image.width, image.height);
+        let mut walked = 0usize;
+        for y in y0..y1 {
+            for x in x0..x1 {
+                walked = walked.max(ctx.contributors[y * image.width + x] as usize);
+            }
+        }
+        for &i in &bins.tile(t)[..walked] {
+            out[i as usize] = true;
+        }
+    }
+    out
+}
+
+/// Something that gives the prior information `I_k + λ` (positive) of a Gaussian's parameters
+/// by its index in the scoring map.
+pub trait Prior {
+    /// The prior diagonal of Gaussian `index`.
+    fn prior(&self, index: u32) -> Diagonal;
+}
+
+/// A dense prior: one diagonal per Gaussian of the scoring map.
+impl Prior for [Diagonal] {
+    fn prior(&self, index: u32) -> Diagonal {
+        self[index as usize]
+    }
+}
+
+/// The view EIG `tr(H(x)·I⁻¹) = Σ_k H_k(x)/I_k` (SPEC §5) of `view` against `prior`.
+pub fn eig<P: Prior + ?Sized>(view: &ViewInformation, prior: &P) -> f64 {
+    view.diagonal
+        .iter()
+        .map(|(i, h)| {
+            let p = prior.prior(*i);
+            h.iter().zip(p.iter()).map(|(h, p)| h / p).sum::<f64>()
+        })
+        .sum()
+}
+
+/// The localisation cost `C_local = −log det(J_τᵀJ_τ)` (SPEC §5) of a 6×6 pose information:
+/// +∞ for a view that sees nothing, a matrix with a non-finite entry, or one that is not
+/// positive definite (its smallest eigenvalue at most `degenerate_ratio` × its largest, so a
+/// direction the view leaves unconstrained never looks merely expensive). Never NaN.
+pub fn localisation_cost(pose: &Matrix6<f64>, degenerate_ratio: f64) -> f64 {
+    if pose.iter().any(|v| !v.is_finite()) {
+        return f64::INFINITY;
+    }
+    let symmetric = (pose + pose.transpose()) * 0.5;
+    let eigen = SymmetricEigen::new(symmetric);
+    let values = eigen.eigenvalues;
+    let max = values.max();
+    let min = values.min();
+    // Positive definite and well conditioned (NaN eigenvalues fail every comparison).
+    let usable = max > 0.0 && min > degenerate_ratio * max && min.is_finite();
+    if !usable {
+        return f64::INFINITY;
+    }
+    let cost = -values.iter().map(|v| v.ln()).sum::<f64>();
+    if cost.is_nan() { f64::INFINITY } else { cost }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    /// The pre-cull keeps what the render sees: over a house-sized spread of Gaussians and
+    /// several poses, every Gaussian the full render shows passes the cull, and the Fisher
+    /// diagonal with the cull equals the one of the whole map, index for index.
+    #[test]
+    fn the_cull_changes_nothing() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let mut map = Gaussians::<f64>::new();
+        for _ in 0..1500 {
+            map.push(
+                [
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-0.5..3.0),
+                ],
+                [rng.random(), rng.random(), rng.random()],
+                [1.0, 0.1, 0.0, 0.0],
+                rng.random_range(0.2..0.9),
+                [
+                    rng.random_range(0.01..0.3),
+                    rng.random_range(0.01..0.2),
+                    rng.random_range(0.01..0.2),
+                ],
+            );
+        }
+        // An opaque wall 1 m ahead of the first pose hides most of what lies behind it, so
+        // that view takes the composited-only second render.
+        for j in 0..40 {
+            for h in 0..20 {
+                map.push(
+                    [1.0, -1.0 + 0.05 * j as f64, 0.05 + 0.1 * h as f64],
+                    [0.5, 0.5, 0.5],
+                    [1.0, 0.0, 0.0, 0.0],
+                    0.98,
+                    [0.01, 0.12, 0.12],
+                );
+            }
+        }
+        let scene = ScoringScene::new(map.clone());
+        let k = Intrinsics::from_hfov(24, 20, 80f64.to_radians());
+        let mut hidden_views = 0;
+        let settings = ViewSettings {
+            intrinsics: k,
+            far_m: 4.0,
+            depth_weight: 0.5,
+        };
+        let p = k.pixel_count() as f64;
+        for (x, y, yaw) in [(0.1, -0.2, 0.0), (2.0, 1.0, 2.0), (-3.0, 4.0, -1.0)] {
+            let robot = activemap_geometry::RobotModel::default();
+            let pose = robot.camera_pose(&activemap_geometry::PlanarPose::new(x, y, yaw), 0.0);
+            let culled = view_information(&scene, &pose, &settings).unwrap();
+            let camera = Camera::from_world_pose(k, &pose).with_far(4.0);
+            let image = render(&map, &camera, &RenderOptions::default()).unwrap();
+            let passed = scene.visible(&k, &pose, 4.0);
+            for (i, v) in image.context.visible.iter().enumerate() {
+                if *v {
+                    assert!(
+                        passed.binary_search(&(i as u32)).is_ok(),
+                        "Gaussian {i} culled"
+                    );
+                }
+            }
+            assert!(
+                passed.len() < 1500 / 3 + 800,
+                "the cull keeps {}",
+                passed.len()
+            );
+            let shown = composited(&image);
+            let visible = image.context.visible.iter().filter(|v| **v).count();
+            hidden_views += usize::from(shown.iter().filter(|c| **c).count() * 10 < visible * 9);
+            let full = fisher(&map, &image, FisherMode::PerChannel).unwrap();
+            let mut expected = Vec::new();
+            for i in 0..map.len() {
+                let d = full.combined(i, 0.5);
+                if d.iter().any(|v| *v != 0.0) {
+                    expected.push((i as u32, d.map(|v| v / p)));
+                }
+            }
+            assert!(expected.len() > 5);
+            assert_eq!(culled.diagonal.len(), expected.len());
+            for ((i, a), (j, b)) in culled.diagonal.iter().zip(&expected) {
+                assert_eq!(i, j);
+                for (x, y) in a.iter().zip(b) {
+                    assert!((x - y).abs() <= 1e-9 * y.abs().max(1e-300), "{x} vs {y}");
+                }
+            }
+            let pose_full = full.pose(0.5) / p;
+            assert!((culled.pose - pose_full).norm() <= 1e-9 * pose_full.norm());
+        }
+        assert!(hidden_views >= 1, "no view took the composited-only render");
+    }
+
+    /// C_local is +∞ (never NaN) for an empty, a non-finite and a rank-deficient matrix, and
+    /// −Σ log λ for a positive definite one.
+    #[test]
+    fn localisation_cost_guards() {
+        assert_eq!(localisation_cost(&Matrix6::zeros(), 1e-9), f64::INFINITY);
+        let mut nan = Matrix6::identity();
+        nan[(2, 3)] = f64::NAN;
+        assert_eq!(localisation_cost(&nan, 1e-9), f64::INFINITY);
+        let mut rank5 = Matrix6::identity() * 3.0;
+        rank5[(5, 5)] = 0.0;
+        assert_eq!(localisation_cost(&rank5, 1e-9), f64::INFINITY);
+        let mut negative = Matrix6::identity();
+        negative[(0, 0)] = -1.0;
+        assert_eq!(localisation_cost(&negative, 1e-9), f64::INFINITY);
+        let d = Matrix6::from_diagonal(&nalgebra::Vector6::new(1.0, 2.0, 3.0, 4.0, 5.0, 6.0));
+        let r = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.3).to_rotation_matrix();
+        let mut q = Matrix6::zeros();
+        q.fixed_view_mut::<3, 3>(0, 0).copy_from(r.matrix());
+        q.fixed_view_mut::<3, 3>(3, 3).copy_from(r.matrix());
+        let m = q * d * q.transpose();
+        let expected = -(720f64).ln();
+        assert!((localisation_cost(&m, 1e-9) - expected).abs() < 1e-12);
+    }
+}
