@@ -5,6 +5,7 @@ mod integration {
     mod bench;
     mod distributed;
     mod explore;
+    mod fisher;
     pub mod harness;
     mod processes;
     mod python_bridge;

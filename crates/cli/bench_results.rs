@@ -3,11 +3,11 @@
 //! `results.md` and `results.csv` in the layout of the paper's Table 1 (`activemap_bench::results`).
 //!
 //! Each cell gets its own dataflow, derived from the method's file: the `sim` node gets the
-//! house, resolution and step budget, the `evaluator` node the same house, and every node whose
-//! config declares `seed` gets the cell's seed. Cells run as child processes, `--jobs` at a time;
-//! a cell whose folder already holds a complete `metrics.json` is not re-run, a half-finished one
-//! is cleared and re-run. Ctrl-C (or SIGTERM) stops the running episodes cleanly and writes the
-//! table of what is complete.
+//! house, resolution and step budget, the `evaluator` node the same house, a `fisher` scorer the
+//! same camera size, and every node whose config declares `seed` gets the cell's seed. Cells run
+//! as child processes, `--jobs` at a time; a cell whose folder already holds a complete
+//! `metrics.json` is not re-run, a half-finished one is cleared and re-run. Ctrl-C (or SIGTERM)
+//! stops the running episodes cleanly and writes the table of what is complete.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
@@ -23,9 +23,15 @@ use serde_json::Value;
 /// Options of `activemap bench results`.
 #[derive(clap::Args)]
 pub struct ResultsArgs {
-    /// A method as NAME=DATAFLOW (repeatable): the table's rows. FBE is the reference flow; the
-    /// Fisher and LLM planners join as their own dataflow files.
-    #[arg(long = "method", default_values_t = ["fbe=dataflow.yaml".to_string()])]
+    /// Methods, the table's rows: a known name (`fbe` = dataflow.yaml, `fisher_eig_only` and
+    /// `fisher` = flows/<name>.yaml, relative to the working directory) or NAME=DATAFLOW;
+    /// repeatable and comma-separated (`--methods fbe,fisher_eig_only,fisher`).
+    #[arg(
+        long = "method",
+        visible_alias = "methods",
+        value_delimiter = ',',
+        default_values_t = ["fbe".to_string()]
+    )]
     methods: Vec<String>,
     /// Procedural houses (the seeds of `house:<n>` scenes).
     #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
@@ -232,6 +238,23 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
             "evaluator" => {
                 evaluators += 1;
                 set_scene(&mut *config);
+            }
+            // A Fisher scorer renders at the simulator's camera (checked across nodes).
+            "scorer" if config.get("mode").and_then(YamlNode::as_str) == Some("fisher") => {
+                if !matches!(config.get("camera"), Some(YamlNode::Map { .. })) {
+                    set(
+                        config,
+                        "camera",
+                        Some(YamlNode::Map {
+                            entries: Vec::new(),
+                            loc: Loc::default(),
+                        }),
+                    );
+                }
+                if let Some(camera) = entry(config, "camera") {
+                    set(camera, "width", Some(scalar(s.resolution)));
+                    set(camera, "height", Some(scalar(s.resolution)));
+                }
             }
             _ => {}
         }
@@ -528,6 +551,21 @@ mod tests {
         c.method.dataflow = no_eval;
         let e = cell_flow(&c).unwrap_err().to_string();
         assert!(e.contains("exactly one `sim` and one `evaluator`"), "{e}");
+    }
+
+    /// A Fisher method's scorer gets the cell's camera size with the simulator (the flow
+    /// would not validate otherwise), keeping its field of view and its Fisher settings.
+    #[test]
+    fn cell_flow_gives_the_fisher_scorer_the_simulator_camera() {
+        let mut c = cell(small());
+        c.method.dataflow = root().join("flows/fisher_eig_only.yaml");
+        let text = cell_flow(&c).unwrap();
+        let flow = Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+        let scorer = &flow.node("scorer").unwrap().config;
+        assert_eq!(scorer["camera"]["width"].as_u64(), Some(64));
+        assert_eq!(scorer["camera"]["height"].as_u64(), Some(64));
+        assert_eq!(scorer["camera"]["hfov_deg"].as_f64(), Some(90.0));
+        assert_eq!(scorer["fisher"]["objective"], "eig_only");
     }
 
     fn bench(out: &Path, steps: u64) -> Command {

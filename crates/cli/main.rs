@@ -17,6 +17,7 @@ use anyhow::{Context as _, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 
 mod bench_explore;
+mod bench_fisher;
 mod bench_results;
 mod benches;
 mod daemons;
@@ -221,6 +222,12 @@ enum BenchCommand {
     Results(bench_results::ResultsArgs),
     /// The whole exploration loop on procedural houses: coverage, ATE, steps/s, time per node.
     Explore(bench_explore::ExploreArgs),
+    /// The Fisher scorer: one replan (unknown space, I(w), candidates, 20 paths) on a large
+    /// house map, median ms per stage (cold, map changed, reused).
+    Scorer(bench_fisher::ScorerArgs),
+    /// The paper's Figure 2: view EIG against the map's PSNR at poses in the free space of a
+    /// partly mapped house (Spearman ρ, scatter PNG).
+    EigPsnr(bench_fisher::EigPsnrArgs),
 }
 
 #[derive(clap::Args)]
@@ -428,6 +435,8 @@ fn real_main() -> anyhow::Result<ExitCode> {
             BenchCommand::Metrics(args) => benches::metrics(&args)?,
             BenchCommand::Results(args) => return bench_results::run(&args),
             BenchCommand::Explore(args) => bench_explore::run(&args)?,
+            BenchCommand::Scorer(args) => bench_fisher::scorer(&args)?,
+            BenchCommand::EigPsnr(args) => bench_fisher::eig_psnr(&args)?,
         },
     }
     Ok(ExitCode::SUCCESS)

@@ -12,12 +12,18 @@
 //!   tracker, occupancy, frontier, scorer, follower, evaluator) must end up with the same one
 //!   (a node that leaves it out has the default), else e.g. the tracker predicts 5 cm steps
 //!   for a robot the simulator moves by 10 cm.
+//! - **Camera.** A scorer in `fisher` mode renders the map at the frames' camera but never
+//!   sees a frame, so its `camera` (width, height, hfov_deg) must equal the `sim` node's; it
+//!   reads the mapper's `map` (its `map_lag` is checked like the tracker's), and a `fisher`
+//!   scorer without a `map` input would wait for snapshots forever, so that is refused too.
 
 use std::path::Path;
 
 use activemap_geometry::RobotModel;
 use activemap_runtime::dataflow::NodeImpl;
-use activemap_runtime::{Dataflow, Diagnostic, Diagnostics, NodeSpec, catalog::config_from_value};
+use activemap_runtime::{
+    Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, catalog::config_from_value,
+};
 
 /// The `map_lag` of a node of the tracker, mapper or occupancy operator (`None` for any other
 /// node, or a config its own check refuses).
@@ -35,8 +41,38 @@ fn map_lag(node: &NodeSpec) -> Option<(&'static str, u64)> {
         "occupancy" => config_from_value::<crate::occupancy::Config>(&node.config)
             .ok()
             .map(|c| ("occupancy", c.map_lag)),
+        // Only the Fisher scorer reads the map (the shortest-path one ignores it).
+        "scorer" => fisher_scorer(node).map(|c| ("scorer", c.map_lag)),
         _ => None,
     }
+}
+
+/// The config of a node of the scorer operator in `fisher` mode (`None` otherwise, or for a
+/// config its own check refuses).
+fn fisher_scorer(node: &NodeSpec) -> Option<crate::scorer::Config> {
+    let NodeImpl::Operator(op) = &node.implementation else {
+        return None;
+    };
+    if op != "scorer" {
+        return None;
+    }
+    config_from_value::<crate::scorer::Config>(&node.config)
+        .ok()
+        .filter(|c| c.mode == crate::scorer::ScorerMode::Fisher)
+}
+
+/// The camera (width, height, hfov_deg) of a `sim` node (`None` for any other node, or a
+/// config its own check refuses).
+fn sim_camera(node: &NodeSpec) -> Option<(u32, u32, f64)> {
+    let NodeImpl::Operator(op) = &node.implementation else {
+        return None;
+    };
+    if op != "sim" {
+        return None;
+    }
+    config_from_value::<crate::sim::Config>(&node.config)
+        .ok()
+        .map(|c| (c.width, c.height, c.hfov_deg))
 }
 
 /// The robot model of a node whose operator takes one (`None` for any other node, or a config
@@ -83,6 +119,48 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
                     ),
                 });
             }
+        }
+    }
+    let sims: Vec<(&NodeSpec, (u32, u32, f64))> = flow
+        .nodes
+        .iter()
+        .filter_map(|n| sim_camera(n).map(|c| (n, c)))
+        .collect();
+    for node in &flow.nodes {
+        let Some(scorer) = fisher_scorer(node) else {
+            continue;
+        };
+        let c = scorer.camera;
+        for (sim, (w, h, fov)) in &sims {
+            if (c.width, c.height, c.hfov_deg) != (*w, *h, *fov) {
+                diags.push(Diagnostic {
+                    file: flow.file.clone(),
+                    loc: node.loc,
+                    message: format!(
+                        "camera mismatch: node `{}` (scorer, fisher mode) has camera {}×{} at {}° but node `{}` (sim) renders {w}×{h} at {fov}°; set the scorer's `camera: {{ width, height, hfov_deg }}` to the simulator's (the scorer never sees a frame)",
+                        node.id, c.width, c.height, c.hfov_deg, sim.id
+                    ),
+                });
+            }
+        }
+        match node.inputs.iter().find(|i| i.name == "map") {
+            None => diags.push(Diagnostic {
+                file: flow.file.clone(),
+                loc: node.loc,
+                message: format!(
+                    "node `{}` (scorer) is in fisher mode but has no `map` input; wire it to the mapper's map (e.g. `map: {{ source: mapper/map, queue_size: 4, drop: block }}`)",
+                    node.id
+                ),
+            }),
+            Some(map) if map.drop != DropPolicy::Block => diags.push(Diagnostic {
+                file: flow.file.clone(),
+                loc: map.loc,
+                message: format!(
+                    "node `{}` (scorer, fisher mode): its `map` input must be `drop: block`; a dropped snapshot is one a goal waits for forever",
+                    node.id
+                ),
+            }),
+            Some(_) => {}
         }
     }
     for consumer in &flow.nodes {
@@ -171,6 +249,83 @@ mod tests {
             .replace("  - id: frontier\n    operator: frontier\n", "  - id: frontier\n    operator: frontier\n    config: { robot: { radius_m: 0.2 } }\n")
             .replace("  - id: follower\n    operator: follower\n", "  - id: follower\n    operator: follower\n    config: { robot: { radius_m: 0.2 } }\n");
         parse("robots.yaml", &all, Path::new(".")).unwrap();
+    }
+
+    fn fisher_flow() -> String {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        std::fs::read_to_string(root.join("flows/fisher.yaml")).unwrap()
+    }
+
+    /// The named Fisher flows pass; a Fisher scorer whose camera is not the simulator's, whose
+    /// map lag is not the mapper's, whose map input may drop snapshots or that reads no map
+    /// is refused, naming the scorer (and the other node).
+    #[test]
+    fn the_fisher_scorer_must_match_the_sim_camera_and_read_the_lagged_map() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        for name in ["flows/fisher.yaml", "flows/fisher_eig_only.yaml"] {
+            let text = std::fs::read_to_string(root.join(name)).unwrap();
+            parse(name, &text, Path::new(".")).unwrap();
+        }
+        let camera = fisher_flow().replace(
+            "camera: { width: 160, height: 160, hfov_deg: 90 }",
+            "camera: { width: 64, height: 64, hfov_deg: 90 }",
+        );
+        assert_ne!(camera, fisher_flow());
+        let msg = parse("camera.yaml", &camera, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("camera mismatch")
+                && msg.contains("`scorer`")
+                && msg.contains("64×64")
+                && msg.contains("`sim`")
+                && msg.contains("160×160"),
+            "{msg}"
+        );
+        // In shortest mode the camera is not used, so it is not checked.
+        let shortest = camera.replace("mode: fisher", "mode: shortest");
+        parse("shortest.yaml", &shortest, Path::new(".")).unwrap();
+
+        let lag = fisher_flow().replace(
+            "mode: fisher\n      map_lag: 10",
+            "mode: fisher\n      map_lag: 3",
+        );
+        assert_ne!(lag, fisher_flow());
+        let msg = parse("lag.yaml", &lag, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("map_lag mismatch")
+                && msg.contains("node `scorer` (scorer) has map_lag 3"),
+            "{msg}"
+        );
+
+        let map_input = "      map: { source: mapper/map, queue_size: 4, drop: block }\n      grid: { source: occupancy/grid, queue_size: 4, drop: block }\n      pose: { source: tracker/pose, drop: block }\n      regions";
+        assert!(fisher_flow().contains(map_input));
+        let dropping = fisher_flow().replace(
+            map_input,
+            &map_input.replace(
+                "queue_size: 4, drop: block }\n      grid",
+                "queue_size: 4 }\n      grid",
+            ),
+        );
+        let msg = parse("drop.yaml", &dropping, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("`map` input must be `drop: block`"), "{msg}");
+        let no_map = fisher_flow().replace(
+            map_input,
+            map_input.trim_start_matches(
+                "      map: { source: mapper/map, queue_size: 4, drop: block }\n",
+            ),
+        );
+        let msg = parse("nomap.yaml", &no_map, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("node `scorer` (scorer) is in fisher mode but has no `map` input"),
+            "{msg}"
+        );
     }
 
     #[test]

@@ -63,18 +63,33 @@ pub fn pose_from_wire(p: &Pose) -> anyhow::Result<Isometry3<f64>> {
     ))
 }
 
-/// Header of the wire map of `g`.
-pub fn map_header(g: &Gaussians<f32>, frame_id: u64, stamp: f64) -> GaussianMapHeader {
-    GaussianMapHeader::new(stamp, frame_id, g.len() as u64)
+/// Header of the wire map of `g`: the snapshot of frame `frame_id`, whose newest keyframe is
+/// `keyframe_id` (`None` before the first).
+pub fn map_header(
+    g: &Gaussians<f32>,
+    frame_id: u64,
+    stamp: f64,
+    keyframe_id: Option<u64>,
+) -> GaussianMapHeader {
+    GaussianMapHeader::new(stamp, frame_id, g.len() as u64, keyframe_id)
 }
 
-/// Writes `g` into a loaned wire-map buffer (colours are the SH DC coefficients; rotations go
-/// from the library's `[w, x, y, z]` to the wire's xyzw).
+/// Writes `g` and the stable id of each of its Gaussians (`ids`, parallel to `g`) into a
+/// loaned wire-map buffer (colours are the SH DC coefficients; rotations go from the
+/// library's `[w, x, y, z]` to the wire's xyzw).
 pub fn write_map(
     buf: &mut [u8],
     header: GaussianMapHeader,
     g: &Gaussians<f32>,
+    ids: &[u64],
 ) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        ids.len() == g.len(),
+        "map of frame {}: {} ids for {} Gaussians",
+        header.frame_id,
+        ids.len(),
+        g.len()
+    );
     let m = GaussianMapMut::init(buf, header)?;
     for i in 0..g.len() {
         m.means[3 * i..3 * i + 3].copy_from_slice(&g.means[i]);
@@ -84,12 +99,26 @@ pub fn write_map(
         m.opacities[i] = g.opacity_logits[i];
         m.log_scales[3 * i..3 * i + 3].copy_from_slice(&g.log_scales[i]);
     }
+    m.ids.copy_from_slice(ids);
     Ok(())
 }
 
-/// Reads a wire map into library Gaussians (inverse of [`write_map`]).
+/// Reads a wire map into library Gaussians (inverse of [`write_map`], ids left out).
 pub fn read_map(bytes: &[u8]) -> anyhow::Result<(GaussianMapHeader, Gaussians<f32>)> {
     let v = GaussianMapView::parse(bytes)?;
+    Ok((v.header, gaussians_of(&v)))
+}
+
+/// Reads a wire map into library Gaussians and the stable id of each (inverse of
+/// [`write_map`]).
+pub fn read_map_with_ids(
+    bytes: &[u8],
+) -> anyhow::Result<(GaussianMapHeader, Gaussians<f32>, Vec<u64>)> {
+    let v = GaussianMapView::parse(bytes)?;
+    Ok((v.header, gaussians_of(&v), v.ids().into_owned()))
+}
+
+fn gaussians_of(v: &GaussianMapView<'_>) -> Gaussians<f32> {
     let n = v.header.count as usize;
     let (means, colors, rotations, opacities, log_scales) = (
         v.means(),
@@ -114,7 +143,7 @@ pub fn read_map(bytes: &[u8]) -> anyhow::Result<(GaussianMapHeader, Gaussians<f3
         ]);
         g.flags.push(0);
     }
-    Ok((v.header, g))
+    g
 }
 
 /// The wire byte of a planning cell state.
@@ -220,6 +249,45 @@ mod tests {
             let (a, b) = (grid.geometry.center(c), back.geometry.center(c));
             assert!((a - b).norm() < 1e-12, "{c:?}: {a} vs {b}");
         }
+    }
+
+    /// A map goes through the shared-memory layout with every parameter and its ids bit for
+    /// bit (rotations reordered and back); ids that do not match the map are refused naming
+    /// the frame.
+    #[test]
+    fn a_map_and_its_ids_round_trip_through_the_wire_layout() {
+        let mut g = Gaussians::<f32>::new();
+        g.push(
+            [0.1, 0.2, 0.3],
+            [0.9, 0.5, 0.1],
+            [0.9, 0.1, 0.2, 0.3],
+            0.7,
+            [0.01, 0.02, 0.03],
+        );
+        g.push(
+            [-1.0, 2.0, 0.5],
+            [0.2, 0.4, 0.6],
+            [1.0, 0.0, 0.0, 0.0],
+            0.2,
+            [0.05, 0.05, 0.01],
+        );
+        let ids = [4u64, 17];
+        let header = map_header(&g, 30, 3.0, Some(25));
+        let mut storage = vec![0u64; header.payload_len().unwrap() / 8];
+        let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut storage);
+        write_map(buf, header, &g, &ids).unwrap();
+        let (h, back, back_ids) = read_map_with_ids(buf).unwrap();
+        assert_eq!((h.frame_id, h.keyframe(), h.count), (30, Some(25), 2));
+        assert_eq!(back, g);
+        assert_eq!(back_ids, ids);
+        assert_eq!(read_map(buf).unwrap().1, g);
+        let e = write_map(buf, header, &g, &ids[..1])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("frame 30") && e.contains("1 ids for 2 Gaussians"),
+            "{e}"
+        );
     }
 
     /// The planning footprint is the simulator's agent: the same robot model, and at 5 cm

@@ -4,8 +4,11 @@
 //! volume and would read as surfaces in any PLY viewer), `bev.png` (bird's-eye view of the
 //! last occupancy grid with the estimated path in green, the true path in blue and the
 //! frontier centroids in red), `coverage.csv` (2D coverage per step, SPEC §8: seen floor /
-//! reachable navigable floor) and `summary.json` (steps, coverage, ATE, path length, blocked
-//! forward moves, whether `recording.mcap` is present).
+//! reachable navigable floor), `summary.json` (steps, coverage, ATE, path length, blocked
+//! forward moves, whether `recording.mcap` is present) and, when the optional `fisher` input
+//! (the scorer's `report`) brought at least one `FisherReport`, `fisher.csv`: one row per
+//! Fisher replan ([`fisher_row`]). A run without Fisher replans (policy `fbe`, or a `fisher`
+//! run too short to replan) has no `fisher.csv`, so an absent file means "no replan".
 //!
 //! A forward action is *blocked* when the true position it led to lies less than half the
 //! forward step (SPEC §1: 5 cm) from the one it started at: the robot drove into something.
@@ -16,7 +19,7 @@
 
 use std::path::PathBuf;
 
-use activemap_eval::run_folder::{Bev, BevCell, CoverageRow, RunFolder};
+use activemap_eval::run_folder::{Bev, BevCell, CoverageRow, FisherRow, RunFolder};
 use activemap_eval::{AteOptions, ate, coverage_2d};
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -29,7 +32,8 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{
-    Action, ActionKind, EpisodeStatus, Frontiers, MessageKind as K, PoseEstimate, TruePose,
+    Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, MessageKind as K, PoseEstimate,
+    TruePose,
 };
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
@@ -138,6 +142,8 @@ pub struct Evaluator {
     forward_steps: Vec<u64>,
     /// The robot (forward step of the blocked count; recorded in `summary.json`).
     robot: RobotModel,
+    /// One row per `FisherReport` received, in arrival order (`fisher.csv`).
+    fisher: Vec<FisherRow>,
 }
 
 /// Counts the forward actions whose outcome is known, and the blocked ones among them: the
@@ -156,6 +162,42 @@ pub fn blocked_forwards(
         }
     }
     (known, blocked)
+}
+
+/// The `fisher.csv` row of one Fisher replan: counts, the chosen path's objective, EIG (summed
+/// over its scored poses, and of the first) and `C_local` sum, and the replan time. An error
+/// names the frame when the report does not hold together (a chosen index out of range, a NaN
+/// term: the row [`FisherRow::check`] refuses).
+pub fn fisher_row(report: &FisherReport) -> anyhow::Result<FisherRow> {
+    let chosen = match usize::try_from(report.chosen) {
+        Ok(i) => Some(report.paths.get(i).ok_or_else(|| {
+            anyhow::anyhow!(
+                "evaluator: FisherReport of frame {}: chosen path {i} of {} paths",
+                report.frame_id,
+                report.paths.len()
+            )
+        })?),
+        Err(_) => None,
+    };
+    let row = FisherRow {
+        step: report.frame_id,
+        refine: report.refine,
+        candidates: report.candidates.len() as u64,
+        paths: report.paths.len() as u64,
+        chosen: i64::from(report.chosen),
+        objective: chosen.map(|p| p.objective),
+        eig_sum: chosen.map(|p| p.eig.iter().sum()),
+        eig_first: chosen.and_then(|p| p.eig.first().copied()),
+        c_local_sum: chosen.map(|p| p.c_local.iter().sum()),
+        actions: chosen.map(|p| p.actions),
+        total_ms: report.timings.total_ms,
+        model_reused: report.model_reused,
+        fallback: report.fallback.is_some(),
+    };
+    row.check().map_err(|e| {
+        anyhow::anyhow!("evaluator: FisherReport of frame {}: {e}", report.frame_id)
+    })?;
+    Ok(row)
 }
 
 impl Evaluator {
@@ -180,6 +222,9 @@ impl Evaluator {
         out.write_trajectory(RunFolder::TRAJECTORY_EST, &self.estimated)?;
         out.write_trajectory(RunFolder::TRAJECTORY_TRUE, &self.true_traj)?;
         out.write_coverage(&self.coverage)?;
+        if !self.fisher.is_empty() {
+            out.write_fisher(&self.fisher)?;
+        }
         if let Some(map) = &self.map {
             out.write_map(&observed_only(map)?)?;
         }
@@ -344,6 +389,7 @@ impl Operator for Evaluator {
             true_positions: Default::default(),
             forward_steps: Vec::new(),
             robot: config.robot,
+            fisher: Vec::new(),
         })
     }
 
@@ -382,6 +428,7 @@ impl Operator for Evaluator {
                 "map" => self.map = Some(read_map(input.bytes)?.1),
                 "grid" => self.pending_grids.push(read_grid(input.bytes)?),
                 "regions" => self.regions = Some(input.decode()?),
+                "fisher" => self.fisher.push(fisher_row(&input.decode()?)?),
                 "action" => {
                     let a: Action = input.decode()?;
                     if a.action == ActionKind::Forward {
@@ -436,11 +483,16 @@ pub fn registered() -> Registered {
             name: "action",
             kind: K::Action,
         },
+        // Optional, as every input: the Fisher flows connect it to scorer/report.
+        PortSpec {
+            name: "fisher",
+            kind: K::FisherReport,
+        },
     ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "evaluator",
-            summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE (SPEC §8)",
+            summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE, Fisher replans (SPEC §8)",
             inputs: INPUTS,
             outputs: &[],
             evaluation: true,
@@ -542,12 +594,15 @@ mod tests {
             true_positions: Default::default(),
             forward_steps: Vec::new(),
             robot: RobotModel::default(),
+            fisher: Vec::new(),
         };
         let summary = ev.write_outputs().unwrap();
         assert_eq!(run.read_summary().unwrap(), summary);
         assert_eq!(summary.coverage, Some(0.5));
         assert_eq!(summary.scene.as_deref(), Some("house:7"));
         assert_eq!(run.read_coverage().unwrap().unwrap(), coverage);
+        // No Fisher report arrived: no fisher.csv; one did: its row reads back.
+        assert!(run.read_fisher().unwrap().is_none());
         let est = run.read_trajectory(RunFolder::TRAJECTORY_EST).unwrap();
         assert_eq!(est.len(), 4);
         assert!((est.poses[3].translation.x - 0.15).abs() < 1e-9);
@@ -567,6 +622,121 @@ mod tests {
         run.write_bev(&b).unwrap();
         let img = image::open(run.path(RunFolder::BEV)).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (60, 30));
+        let row = fisher_row(&report()).unwrap();
+        ev.fisher.push(row);
+        ev.write_outputs().unwrap();
+        assert_eq!(run.read_fisher().unwrap().unwrap(), [row]);
+    }
+
+    /// A replan that chose its second path (EIG 4, 2, 0.5; C_local −30, +∞, −1) after 812.5 ms.
+    fn report() -> FisherReport {
+        use activemap_schemas::{FisherCandidate, FisherPath, FisherTimings, PlanarPose2};
+        let path = |eig: Vec<f64>, c_local: Vec<f64>, objective, actions| FisherPath {
+            goal: PlanarPose2 {
+                x: 1.0,
+                y: 0.5,
+                yaw: -3.0,
+            },
+            waypoints: 3,
+            actions,
+            scored_steps: (1..=eig.len() as u32).map(|i| 5 * i).collect(),
+            eig,
+            c_local,
+            objective,
+        };
+        FisherReport {
+            frame_id: 120,
+            refine: false,
+            focus: Some([1.5, -0.25]),
+            candidates: vec![
+                FisherCandidate {
+                    x: 1.0,
+                    y: 0.5,
+                    yaw: -3.0,
+                    eig: 1e-3,
+                };
+                3
+            ],
+            paths: vec![
+                path(vec![1.0], vec![f64::INFINITY], f64::INFINITY, 9),
+                path(
+                    vec![4.0, 2.0, 0.5],
+                    vec![-30.0, f64::INFINITY, -1.0],
+                    -7.5,
+                    27,
+                ),
+            ],
+            chosen: 1,
+            gaussians: 150_000,
+            unknown_gaussians: 4_000,
+            model_reused: true,
+            note: None,
+            timings: FisherTimings {
+                total_ms: 812.5,
+                model_ms: 100.0,
+                ..FisherTimings::default()
+            },
+            fallback: None,
+        }
+    }
+
+    /// The row of a report: counts, the chosen path's terms summed (+∞ kept), its first EIG,
+    /// and empty chosen-path columns when nothing was chosen; a bad chosen index or a NaN term
+    /// is an error naming the frame.
+    #[test]
+    fn a_fisher_report_becomes_its_csv_row() {
+        let row = fisher_row(&report()).unwrap();
+        assert_eq!(
+            row,
+            FisherRow {
+                step: 120,
+                refine: false,
+                candidates: 3,
+                paths: 2,
+                chosen: 1,
+                objective: Some(-7.5),
+                eig_sum: Some(6.5),
+                eig_first: Some(4.0),
+                c_local_sum: Some(f64::INFINITY),
+                actions: Some(27),
+                total_ms: 812.5,
+                model_reused: true,
+                fallback: false,
+            }
+        );
+        let mut none = report();
+        none.chosen = -1;
+        none.refine = true;
+        none.fallback = Some("look-around: no Fisher path for the refine goal".into());
+        let row = fisher_row(&none).unwrap();
+        assert_eq!(
+            (row.chosen, row.refine, row.fallback, row.paths),
+            (-1, true, true, 2)
+        );
+        assert_eq!(
+            (
+                row.objective,
+                row.eig_sum,
+                row.eig_first,
+                row.c_local_sum,
+                row.actions
+            ),
+            (None, None, None, None, None)
+        );
+        let mut out_of_range = report();
+        out_of_range.chosen = 2;
+        let e = fisher_row(&out_of_range).unwrap_err().to_string();
+        assert!(
+            e.contains("frame 120") && e.contains("chosen path 2 of 2"),
+            "{e}"
+        );
+        let mut nan = report();
+        nan.paths[1].c_local[0] = f64::NEG_INFINITY;
+        let e = fisher_row(&nan).unwrap_err().to_string();
+        assert!(
+            e.contains("frame 120") && e.contains("c_local_sum NaN"),
+            "{e}"
+        );
     }
 
     /// `timings.csv` is written by the node hosts (activemap-runtime) and read through the

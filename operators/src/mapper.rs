@@ -2,8 +2,9 @@
 //! [`activemap_slam::BackgroundMapper`], which holds the whole mapping session (pairing frames
 //! with the tracker's estimates, the keyframe rule, the background worker and the fixed map
 //! lag; see its module doc); the in-process driver of `activemap bench slam` holds the same
-//! session. One map snapshot per frame goes out tagged with the last frame it includes, in
-//! shared memory. The node's `map_lag` must equal the consumers' (tracker, occupancy); a
+//! session. One map snapshot per frame goes out tagged with the last frame it includes and
+//! the newest keyframe it includes (`keyframe_id`: snapshots with the same one hold the same
+//! map), with the stable id of every Gaussian, in shared memory. The node's `map_lag` must equal the consumers' (tracker, occupancy); a
 //! `timers:` entry (any name) additionally publishes finished snapshots as soon as they exist.
 
 use activemap_runtime::dataflow::{Dataflow, NodeImpl};
@@ -114,6 +115,8 @@ pub fn slam_config(
 /// The operator's state: the mapping session.
 pub struct Mapper {
     session: BackgroundMapper,
+    /// The newest keyframe handed out so far (what the snapshots' `keyframe_id` says).
+    last_keyframe: Option<u64>,
 }
 
 impl Mapper {
@@ -121,6 +124,7 @@ impl Mapper {
     pub fn from_config(config: Config) -> anyhow::Result<Self> {
         Ok(Self {
             session: BackgroundMapper::new(config.mapping_config()?)?,
+            last_keyframe: None,
         })
     }
 
@@ -164,6 +168,15 @@ impl Mapper {
         }
         Ok(snapshots)
     }
+
+    /// The wire header of snapshot `s`, the snapshots being handed to it in order: its
+    /// `keyframe_id` is the newest keyframe among them so far.
+    pub fn wire_header(&mut self, s: &Snapshot) -> activemap_schemas::GaussianMapHeader {
+        if s.keyframe.is_some() {
+            self.last_keyframe = Some(s.frame_id);
+        }
+        map_header(&s.map, s.frame_id, s.stamp, self.last_keyframe)
+    }
 }
 
 impl Operator for Mapper {
@@ -188,9 +201,9 @@ impl Operator for Mapper {
             _ => return Ok(Flow::Continue),
         }
         for s in self.process_ready(stop)? {
-            let header = map_header(&s.map, s.frame_id, s.stamp);
+            let header = self.wire_header(&s);
             ctx.loan("map", header.payload_len()?, |buf| {
-                write_map(buf, header, &s.map)
+                write_map(buf, header, &s.map, &s.ids)
             })?;
         }
         Ok(if stop { Flow::Stop } else { Flow::Continue })
@@ -217,7 +230,8 @@ pub fn registered() -> Registered {
         descriptor: OperatorDescriptor {
             name: "mapper",
             summary: "3DGS mapping on keyframes in a background worker; one map snapshot per frame, \
-                      tagged with the last frame it includes, in shared memory (SPEC §4)",
+                      tagged with the last frame and the newest keyframe it includes, with stable \
+                      Gaussian ids, in shared memory (SPEC §4)",
             inputs: INPUTS,
             outputs: OUTPUTS,
             evaluation: false,
@@ -271,7 +285,9 @@ pub(crate) mod tests {
     /// The background worker hands out one snapshot per frame, in frame order; once frame k has
     /// arrived the snapshot of frame k − 1 − L is out (what the consumers wait for), and every
     /// snapshot equals the map a synchronous mapper has after the same frames (the lag changes
-    /// when a map is used, never what it holds).
+    /// when a map is used, never what it holds), with the same stable ids (increasing, parallel
+    /// to the map). On the wire each snapshot names the newest keyframe it includes: the frames
+    /// the synchronous mapper made keyframes.
     #[test]
     fn background_snapshots_are_in_order_on_time_and_equal_the_synchronous_map() {
         let frames = sequence(6);
@@ -286,10 +302,21 @@ pub(crate) mod tests {
         let mut core =
             activemap_slam::KeyframeMapper::new(config.mapping_config().unwrap()).unwrap();
         let mut expected = Vec::new();
-        for (f, e) in &frames {
+        let mut expected_ids = Vec::new();
+        let mut expected_keyframe = Vec::new();
+        let mut newest = None;
+        for (k, (f, e)) in frames.iter().enumerate() {
             let pose = pose_from_wire(&e.t_world_camera).unwrap();
-            core.process(f.clone(), &pose, PoseQuality::Ok).unwrap();
+            if core
+                .process(f.clone(), &pose, PoseQuality::Ok)
+                .unwrap()
+                .is_some()
+            {
+                newest = Some(k as u64);
+            }
             expected.push(core.map().clone());
+            expected_ids.push(core.mapper().ids().to_vec());
+            expected_keyframe.push(newest);
         }
         assert!(core.keyframes() >= 2, "the turn must make keyframes");
 
@@ -310,10 +337,15 @@ pub(crate) mod tests {
             got.extend(mapper.process_ready(false).unwrap());
         }
         got.extend(mapper.process_ready(true).unwrap());
-        let ids: Vec<u64> = got.iter().map(|s| s.frame_id).collect();
-        assert_eq!(ids, (0..6).collect::<Vec<u64>>());
-        for (s, want) in got.iter().zip(&expected) {
+        let frame_ids: Vec<u64> = got.iter().map(|s| s.frame_id).collect();
+        assert_eq!(frame_ids, (0..6).collect::<Vec<u64>>());
+        for (k, (s, want)) in got.iter().zip(&expected).enumerate() {
             assert_eq!(s.map.len(), want.len(), "snapshot {}", s.frame_id);
+            assert_eq!(*s.ids, expected_ids[k], "ids of snapshot {k}");
+            assert!(s.ids.windows(2).all(|w| w[0] < w[1]), "ids increase");
+            let header = mapper.wire_header(s);
+            assert_eq!(header.keyframe(), expected_keyframe[k], "snapshot {k}");
+            assert_eq!(header.count as usize, s.ids.len());
             // Same map up to float summation order (the optimiser's parallel reductions).
             let worst = s
                 .map

@@ -5,8 +5,11 @@
 //! strikes: a reached goal one, or two when its region did not shrink, a failed goal (no path,
 //! stuck) two; amnesty once per growth of the map). The path distances come with the regions
 //! (`FrontierRegion::path_distance_m`), so a replan costs no search here. The LLM policy
-//! (SPEC §7) is a later issue: `policy: llm` is a config error ([`Policy`]). With no reachable frontier
-//! left the planner ends the episode (end of its `goal` stream).
+//! (SPEC §7) is a later issue: `policy: llm` is a config error ([`Policy`]). With no reachable
+//! frontier left, `when_no_frontier` ([`NoFrontier`]) says what happens: `end` (the default,
+//! FBE) ends the episode (end of its `goal` stream); `refine` sends a goal with target −1, the
+//! scorer's refine mode (SPEC §6: refine what is mapped), and asks again at the next replan, so
+//! an episode with Fisher paths runs to its step budget (the simulator ends it at `max_steps`).
 
 use activemap_geometry::PlanarPose;
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -66,6 +69,21 @@ pub enum Choice {
     Utility,
 }
 
+/// What the planner does when no reachable frontier is left (even after forgiving strikes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NoFrontier {
+    /// End the episode (FBE: nothing left to explore).
+    #[default]
+    End,
+    /// Send a refine goal (target −1) and keep going: the scorer refines what is mapped.
+    Refine,
+}
+
+/// The goal target that asks the scorer to refine the map instead of exploring a frontier
+/// (SPEC §7: the LLM's −1).
+pub const REFINE_TARGET: i32 = -1;
+
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -79,6 +97,9 @@ pub struct Config {
     /// Struck goals ban approach cells within this many cells.
     #[serde(default = "default_exclusion")]
     pub exclusion_radius_cells: f64,
+    /// No reachable frontier left: `end` the episode (default) or send a `refine` goal.
+    #[serde(default)]
+    pub when_no_frontier: NoFrontier,
 }
 
 fn default_choice() -> Choice {
@@ -194,9 +215,48 @@ struct Slot {
     pose: Option<PlanarPose>,
 }
 
+/// The goal for one replan request (transport-free): the FBE choice, or with no reachable
+/// frontier left a refine goal (target [`REFINE_TARGET`], focused on the robot's position)
+/// when `when_no_frontier` is `refine`; `None` ends the episode.
+pub fn goal_for_request(
+    fbe: &mut FbePlanner,
+    when_no_frontier: NoFrontier,
+    request: &ReplanRequest,
+    grid: &PlanGrid,
+    frontiers: &Frontiers,
+    pose: &PlanarPose,
+) -> anyhow::Result<Option<Goal>> {
+    let k = request.frame_id;
+    Ok(
+        match (
+            fbe.choose(request.reason, grid, frontiers, pose)?,
+            when_no_frontier,
+        ) {
+            (Some((target, focus)), _) => Some(Goal {
+                frame_id: k,
+                target: target as i32,
+                focus: [focus.x, focus.y],
+            }),
+            (None, NoFrontier::End) => {
+                eprintln!("planner: no reachable frontier left at frame {k}: episode over");
+                None
+            }
+            (None, NoFrontier::Refine) => {
+                eprintln!("planner: no reachable frontier left at frame {k}: refine goal");
+                Some(Goal {
+                    frame_id: k,
+                    target: REFINE_TARGET,
+                    focus: [pose.x, pose.y],
+                })
+            }
+        },
+    )
+}
+
 /// The operator.
 pub struct Planner {
     fbe: FbePlanner,
+    when_no_frontier: NoFrontier,
     join: FrameJoin<Slot>,
     requests: Vec<ReplanRequest>,
 }
@@ -207,6 +267,7 @@ impl Operator for Planner {
     fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
         Ok(Self {
             fbe: FbePlanner::new(&config)?,
+            when_no_frontier: config.when_no_frontier,
             join: FrameJoin::new(),
             requests: Vec::new(),
         })
@@ -248,19 +309,16 @@ impl Operator for Planner {
             };
             let (_, grid) = read_grid(grid)?;
             self.requests.remove(0);
-            match self.fbe.choose(request.reason, &grid, frontiers, pose)? {
-                Some((target, focus)) => ctx.send(
-                    "goal",
-                    &Goal {
-                        frame_id: k,
-                        target: target as i32,
-                        focus: [focus.x, focus.y],
-                    },
-                )?,
-                None => {
-                    eprintln!("planner: no reachable frontier left at frame {k}: episode over");
-                    return Ok(Flow::Stop);
-                }
+            match goal_for_request(
+                &mut self.fbe,
+                self.when_no_frontier,
+                &request,
+                &grid,
+                frontiers,
+                pose,
+            )? {
+                Some(goal) => ctx.send("goal", &goal)?,
+                None => return Ok(Flow::Stop),
             }
             // Older frames are no longer needed (requests come in frame order).
             self.join.discard_before(k);
@@ -306,7 +364,7 @@ pub fn registered() -> Registered {
     Registered {
         descriptor: OperatorDescriptor {
             name: "planner",
-            summary: "Goal choice on replan: FBE utility/nearest/largest frontier now, LLM later (SPEC §6, §7)",
+            summary: "Goal choice on replan: FBE utility/nearest/largest frontier (or refine, -1, when none is left) now, LLM later (SPEC §6, §7)",
             inputs: INPUTS,
             outputs: OUTPUTS,
             evaluation: false,
@@ -353,6 +411,7 @@ mod tests {
             policy: Policy::Fbe,
             frontier: Choice::Nearest,
             exclusion_radius_cells: 3.0,
+            when_no_frontier: NoFrontier::End,
         };
         let mut planner = FbePlanner::new(&config).unwrap();
         let robot = PlanarPose::new(0.5, 0.5, 0.0);
@@ -390,6 +449,80 @@ mod tests {
             over.is_none(),
             "no growth since the amnesty: the episode is over"
         );
+    }
+
+    /// With no reachable frontier left, `end` (the default) ends the episode and `refine`
+    /// sends a refine goal (target −1 at the robot) instead, at every such request; a frontier
+    /// that appears again is chosen as before (the FBE decision itself is unchanged).
+    #[test]
+    fn no_frontier_ends_the_episode_or_asks_to_refine() {
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(config.when_no_frontier, NoFrontier::End);
+        let refine: Config = serde_json::from_value(
+            serde_json::json!({ "frontier": "largest", "when_no_frontier": "refine" }),
+        )
+        .unwrap();
+        assert_eq!(refine.when_no_frontier, NoFrontier::Refine);
+        let e = check_config(&serde_json::json!({ "when_no_frontier": "spin" })).unwrap_err();
+        assert!(e.contains("spin") && e.contains("refine"), "{e}");
+
+        let geometry = GridGeometry::new(0.0, 0.0, 0.05, 100, 100).unwrap();
+        let grid = PlanGrid::filled(geometry, CellState::Free);
+        let robot = PlanarPose::new(0.5, 0.75, 1.0);
+        let request = |frame_id, reason| ReplanRequest { frame_id, reason };
+        let none = Frontiers {
+            frame_id: 40,
+            ..frontiers(vec![])
+        };
+        let mut fbe = FbePlanner::new(&config).unwrap();
+        let end = goal_for_request(
+            &mut fbe,
+            config.when_no_frontier,
+            &request(40, ReplanReason::Startup),
+            &grid,
+            &none,
+            &robot,
+        )
+        .unwrap();
+        assert_eq!(end, None);
+
+        let mut fbe = FbePlanner::new(&refine).unwrap();
+        for (k, reason) in [(40, ReplanReason::Startup), (90, ReplanReason::PathDone)] {
+            let goal = goal_for_request(
+                &mut fbe,
+                refine.when_no_frontier,
+                &request(k, reason),
+                &grid,
+                &none,
+                &robot,
+            )
+            .unwrap();
+            assert_eq!(
+                goal,
+                Some(Goal {
+                    frame_id: k,
+                    target: REFINE_TARGET,
+                    focus: [0.5, 0.75]
+                })
+            );
+        }
+        assert!(
+            fbe.state().strikes().is_empty(),
+            "a refine goal strikes nothing"
+        );
+        let some = frontiers(vec![wire(4, 30, [60, 10], 3.0)]);
+        let goal = goal_for_request(
+            &mut fbe,
+            refine.when_no_frontier,
+            &request(120, ReplanReason::PathDone),
+            &grid,
+            &some,
+            &robot,
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!((goal.frame_id, goal.target), (120, 4));
+        assert_eq!(goal.focus, some.regions[0].centroid);
     }
 
     /// The default ranking is the utility: a large frontier beats a small nearer one.

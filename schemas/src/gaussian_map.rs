@@ -1,17 +1,24 @@
 //! Gaussian map snapshot (SPEC §3): `#[repr(C)]` header, then the 14 parameters per Gaussian as
 //! structure-of-arrays f32 slices: means (3), colours (3), rotations (4, xyzw unnormalised),
-//! opacities (1, pre-sigmoid), log-scales (3).
+//! opacities (1, pre-sigmoid), log-scales (3); then the mapper's stable id of each Gaussian
+//! (u64, increasing as Gaussians are added, surviving pruning), so that a consumer can follow
+//! a Gaussian across snapshots (the Fisher scorer keeps its model information per id). Every
+//! section starts on an 8-byte boundary, so the u64 ids are aligned whenever the buffer is.
+//!
+//! Version 2 added the ids section and the header's `keyframe_id`.
 
 use std::borrow::Cow;
 
 use bytemuck::{Pod, Zeroable};
 
 use crate::SchemaError;
-use crate::layout::{Layout, cast_mut, cast_or_copy, check_len, read_header};
+use crate::layout::{Layout, cast_mut, cast_or_copy, read_header};
 
 const WHAT: &str = "GaussianMap";
-/// Floats per Gaussian in each section, in payload order.
+/// Floats per Gaussian in each f32 section, in payload order (the u64 ids follow them).
 const SECTION_WIDTHS: [usize; 5] = [3, 3, 4, 1, 3];
+/// Index of the ids section in the layout.
+const IDS: usize = 5;
 
 /// Fixed header of a Gaussian map payload.
 #[repr(C)]
@@ -23,32 +30,47 @@ pub struct GaussianMapHeader {
     pub schema_version: u32,
     /// Time of the snapshot, seconds.
     pub stamp: f64,
-    /// Frame id of the keyframe that produced this snapshot.
+    /// The last frame the snapshot includes (the mapper publishes one snapshot per frame).
     pub frame_id: u64,
     /// Number of Gaussians.
     pub count: u64,
+    /// Frame id of the newest keyframe the map includes, i.e. the snapshot at which the map
+    /// last changed ([`GaussianMapHeader::NO_KEYFRAME`] before the first keyframe). Snapshots
+    /// with the same `keyframe_id` hold the same map.
+    pub keyframe_id: u64,
 }
 
 impl GaussianMapHeader {
     /// Magic number "GMAP".
     pub const MAGIC: u32 = u32::from_le_bytes(*b"GMAP");
     /// Current schema version.
-    pub const VERSION: u32 = 1;
+    pub const VERSION: u32 = 2;
+    /// `keyframe_id` of a map no keyframe has changed yet (the empty start map).
+    pub const NO_KEYFRAME: u64 = u64::MAX;
 
-    /// A header with magic and version filled in.
-    pub fn new(stamp: f64, frame_id: u64, count: u64) -> Self {
+    /// A header with magic and version filled in; `keyframe_id` `None` is written as
+    /// [`Self::NO_KEYFRAME`].
+    pub fn new(stamp: f64, frame_id: u64, count: u64, keyframe_id: Option<u64>) -> Self {
         Self {
             magic: Self::MAGIC,
             schema_version: Self::VERSION,
             stamp,
             frame_id,
             count,
+            keyframe_id: keyframe_id.unwrap_or(Self::NO_KEYFRAME),
         }
+    }
+
+    /// The newest keyframe the map includes, `None` before the first.
+    pub fn keyframe(&self) -> Option<u64> {
+        (self.keyframe_id != Self::NO_KEYFRAME).then_some(self.keyframe_id)
     }
 
     fn layout(&self) -> Result<Layout, SchemaError> {
         let n = usize::try_from(self.count).ok();
-        let sections = SECTION_WIDTHS.map(|w| n.and_then(|n| n.checked_mul(w * 4)));
+        let floats = SECTION_WIDTHS.map(|w| n.and_then(|n| n.checked_mul(w * 4)));
+        let ids = n.and_then(|n| n.checked_mul(8));
+        let sections = [floats[0], floats[1], floats[2], floats[3], floats[4], ids];
         Layout::new(WHAT, core::mem::size_of::<Self>(), &sections)
     }
 
@@ -63,8 +85,10 @@ impl GaussianMapHeader {
 pub struct GaussianMap {
     /// Stamp of the snapshot, seconds.
     pub stamp: f64,
-    /// Keyframe id.
+    /// The last frame the snapshot includes.
     pub frame_id: u64,
+    /// The newest keyframe the map includes (`None` before the first).
+    pub keyframe_id: Option<u64>,
     /// Means, xyz per Gaussian, world frame, metres.
     pub means: Vec<f32>,
     /// Colours, RGB per Gaussian (SH degree 0).
@@ -75,6 +99,8 @@ pub struct GaussianMap {
     pub opacities: Vec<f32>,
     /// Log-scales (through exp), xyz per Gaussian.
     pub log_scales: Vec<f32>,
+    /// The mapper's stable id of each Gaussian.
+    pub ids: Vec<u64>,
 }
 
 impl GaussianMap {
@@ -101,19 +127,26 @@ impl GaussianMap {
     /// Encode into a fresh byte vector.
     pub fn encode(&self) -> Result<Vec<u8>, SchemaError> {
         let n = self.len();
-        for (s, w) in self.sections().iter().zip(SECTION_WIDTHS) {
+        const NAMES: [&str; 5] = ["means", "colors", "rotations", "opacities", "log_scales"];
+        for ((s, w), name) in self.sections().iter().zip(SECTION_WIDTHS).zip(NAMES) {
             if s.len() != n * w {
                 return Err(SchemaError::InvalidHeader {
                     what: WHAT,
                     reason: format!(
-                        "a section has {} floats, {n} Gaussians need {}",
+                        "section `{name}` has {} floats, {n} Gaussians need {}",
                         s.len(),
                         n * w
                     ),
                 });
             }
         }
-        let header = GaussianMapHeader::new(self.stamp, self.frame_id, n as u64);
+        if self.ids.len() != n {
+            return Err(SchemaError::InvalidHeader {
+                what: WHAT,
+                reason: format!("{} ids for {n} Gaussians", self.ids.len()),
+            });
+        }
+        let header = GaussianMapHeader::new(self.stamp, self.frame_id, n as u64, self.keyframe_id);
         let layout = header.layout()?;
         let mut out = vec![0u8; layout.total];
         out[..core::mem::size_of::<GaussianMapHeader>()]
@@ -121,6 +154,7 @@ impl GaussianMap {
         for (i, s) in self.sections().iter().enumerate() {
             out[layout.range(i)].copy_from_slice(bytemuck::cast_slice(s));
         }
+        out[layout.range(IDS)].copy_from_slice(bytemuck::cast_slice(&self.ids));
         Ok(out)
     }
 
@@ -130,11 +164,13 @@ impl GaussianMap {
         Ok(Self {
             stamp: v.header.stamp,
             frame_id: v.header.frame_id,
+            keyframe_id: v.header.keyframe(),
             means: v.section(0).into_owned(),
             colors: v.section(1).into_owned(),
             rotations: v.section(2).into_owned(),
             opacities: v.section(3).into_owned(),
             log_scales: v.section(4).into_owned(),
+            ids: v.ids().into_owned(),
         })
     }
 }
@@ -144,11 +180,12 @@ impl GaussianMap {
 pub struct GaussianMapView<'a> {
     /// The header.
     pub header: GaussianMapHeader,
-    sections: [&'a [u8]; 5],
+    sections: [&'a [u8]; 6],
 }
 
 impl<'a> GaussianMapView<'a> {
-    /// Parse a payload, checking magic, version and lengths.
+    /// Parse a payload, checking magic, version and that its length is exactly what the
+    /// header's count makes (a corrupted count is an error, never a shifted read).
     pub fn parse(bytes: &'a [u8]) -> Result<Self, SchemaError> {
         let header: GaussianMapHeader = read_header(
             WHAT,
@@ -158,7 +195,25 @@ impl<'a> GaussianMapView<'a> {
             GaussianMapHeader::VERSION,
         )?;
         let layout = header.layout()?;
-        check_len(WHAT, bytes, layout.total)?;
+        if bytes.len() < layout.total {
+            return Err(SchemaError::Truncated {
+                what: WHAT,
+                needed: layout.total,
+                got: bytes.len(),
+            });
+        }
+        if bytes.len() > layout.total {
+            return Err(SchemaError::InvalidHeader {
+                what: WHAT,
+                reason: format!(
+                    "payload has {} bytes but {} Gaussians (frame {}) make {}",
+                    bytes.len(),
+                    header.count,
+                    header.frame_id,
+                    layout.total
+                ),
+            });
+        }
         Ok(Self {
             header,
             sections: core::array::from_fn(|i| &bytes[layout.range(i)]),
@@ -189,6 +244,11 @@ impl<'a> GaussianMapView<'a> {
     pub fn log_scales(&self) -> Cow<'a, [f32]> {
         self.section(4)
     }
+    /// The mapper's stable id of each Gaussian (borrowed when the payload is 8-byte aligned,
+    /// copied otherwise).
+    pub fn ids(&self) -> Cow<'a, [u64]> {
+        cast_or_copy(self.sections[IDS])
+    }
 }
 
 /// Mutable in-place view of a Gaussian map payload, for writing into a loaned sample.
@@ -204,6 +264,8 @@ pub struct GaussianMapMut<'a> {
     pub opacities: &'a mut [f32],
     /// Log-scales to fill.
     pub log_scales: &'a mut [f32],
+    /// Stable ids to fill.
+    pub ids: &'a mut [u64],
 }
 
 impl<'a> GaussianMapMut<'a> {
@@ -225,23 +287,24 @@ impl<'a> GaussianMapMut<'a> {
             .copy_from_slice(bytemuck::bytes_of(&header));
         let mut rest = &mut buf[layout.offsets[0]..];
         let mut consumed = layout.offsets[0];
-        let mut out: Vec<&'a mut [f32]> = Vec::with_capacity(5);
-        for i in 0..5 {
+        let mut sections: Vec<&'a mut [u8]> = Vec::with_capacity(6);
+        for i in 0..6 {
             let skip = layout.offsets[i] - consumed;
             let (_, tail) = rest.split_at_mut(skip);
             let (section, tail) = tail.split_at_mut(layout.lengths[i]);
             consumed = layout.offsets[i] + layout.lengths[i];
-            out.push(cast_mut::<f32>(WHAT, section)?);
+            sections.push(section);
             rest = tail;
         }
-        let [means, colors, rotations, opacities, log_scales]: [&'a mut [f32]; 5] =
-            out.try_into().expect("five sections");
+        let [means, colors, rotations, opacities, log_scales, ids]: [&'a mut [u8]; 6] =
+            sections.try_into().expect("six sections");
         Ok(Self {
-            means,
-            colors,
-            rotations,
-            opacities,
-            log_scales,
+            means: cast_mut::<f32>(WHAT, means)?,
+            colors: cast_mut::<f32>(WHAT, colors)?,
+            rotations: cast_mut::<f32>(WHAT, rotations)?,
+            opacities: cast_mut::<f32>(WHAT, opacities)?,
+            log_scales: cast_mut::<f32>(WHAT, log_scales)?,
+            ids: cast_mut::<u64>(WHAT, ids)?,
         })
     }
 }
@@ -255,20 +318,25 @@ mod tests {
         GaussianMap {
             stamp: 3.5,
             frame_id: 11,
+            keyframe_id: Some(9),
             means: f(3, 0.5),
             colors: f(3, 0.01),
             rotations: f(4, 0.1),
             opacities: f(1, -0.2),
             log_scales: f(3, -0.03),
+            // Ids above 2^53 and with gaps (pruned Gaussians): exact u64s on the wire.
+            ids: (0..n as u64).map(|i| (1 << 60) + 3 * i).collect(),
         }
     }
 
+    /// Encoding, in-place writing and decoding agree byte for byte, ids and keyframe
+    /// included; the view of an aligned payload borrows the ids.
     #[test]
     fn round_trip_and_in_place_agree() {
         let map = sample(5);
         let bytes = map.encode().unwrap();
         assert_eq!(GaussianMap::decode(&bytes).unwrap(), map);
-        let header = GaussianMapHeader::new(3.5, 11, 5);
+        let header = GaussianMapHeader::new(3.5, 11, 5, Some(9));
         let mut storage = vec![0u64; header.payload_len().unwrap() / 8];
         let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut storage);
         let m = GaussianMapMut::init(buf, header).unwrap();
@@ -277,16 +345,47 @@ mod tests {
         m.rotations.copy_from_slice(&map.rotations);
         m.opacities.copy_from_slice(&map.opacities);
         m.log_scales.copy_from_slice(&map.log_scales);
+        m.ids.copy_from_slice(&map.ids);
         assert_eq!(buf, bytes.as_slice());
+        let view = GaussianMapView::parse(buf).unwrap();
+        assert!(
+            matches!(view.ids(), Cow::Borrowed(_)),
+            "aligned ids are borrowed"
+        );
+        assert_eq!(view.ids().as_ref(), map.ids.as_slice());
+        assert_eq!(view.header.keyframe(), Some(9));
+    }
+
+    /// The ids section starts on an 8-byte boundary for every count (the f32 sections before
+    /// it have odd lengths for odd counts), and a misaligned payload is still read, by copy.
+    #[test]
+    fn ids_are_aligned_and_a_misaligned_payload_is_copied() {
+        for n in [0u64, 1, 3, 7] {
+            let layout = GaussianMapHeader::new(0.0, 0, n, None).layout().unwrap();
+            assert_eq!(layout.offsets[IDS] % 8, 0, "count {n}");
+            assert_eq!(layout.lengths[IDS], 8 * n as usize);
+        }
+        let map = sample(3);
+        let bytes = map.encode().unwrap();
+        let mut storage = vec![0u64; bytes.len() / 8 + 1];
+        let shifted = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[1..=bytes.len()];
+        shifted.copy_from_slice(&bytes);
+        let view = GaussianMapView::parse(shifted).unwrap();
+        assert!(matches!(view.ids(), Cow::Owned(_)));
+        assert_eq!(GaussianMap::decode(shifted).unwrap(), map);
+        // Writing in place needs an aligned buffer: a clear error otherwise.
+        let header = GaussianMapHeader::new(0.0, 0, 3, None);
+        let e = GaussianMapMut::init(shifted, header).unwrap_err();
+        assert!(matches!(e, SchemaError::Buffer { .. }), "{e}");
     }
 
     #[test]
     fn empty_map_and_bad_payloads() {
         let empty = GaussianMap::default();
-        assert_eq!(
-            GaussianMap::decode(&empty.encode().unwrap()).unwrap(),
-            empty
-        );
+        let bytes = empty.encode().unwrap();
+        let back = GaussianMap::decode(&bytes).unwrap();
+        assert_eq!(back, empty);
+        assert_eq!(back.keyframe_id, None, "no keyframe survives as None");
         let bytes = sample(3).encode().unwrap();
         assert!(matches!(
             GaussianMap::decode(&bytes[..bytes.len() - 4]),
@@ -297,6 +396,46 @@ mod tests {
         assert!(GaussianMap::decode(&huge).is_err());
         let mut bad = sample(3);
         bad.rotations.pop();
-        assert!(bad.encode().is_err());
+        let e = bad.encode().unwrap_err().to_string();
+        assert!(e.contains("`rotations`"), "{e}");
+        let mut bad = sample(3);
+        bad.ids.pop();
+        let e = bad.encode().unwrap_err().to_string();
+        assert!(e.contains("2 ids for 3 Gaussians"), "{e}");
+        // A version-1 payload (no ids) is refused by version, not misread.
+        let mut v1 = bytes.clone();
+        v1[4..8].copy_from_slice(&1u32.to_le_bytes());
+        assert_eq!(
+            GaussianMap::decode(&v1).unwrap_err(),
+            SchemaError::VersionMismatch {
+                what: "GaussianMap",
+                expected: 2,
+                found: 1
+            }
+        );
+    }
+
+    /// A corrupted count: one more Gaussian than the payload holds is a truncation, one fewer
+    /// leaves bytes over, which is refused too (naming both sizes) instead of reading the ids
+    /// from the middle of the log-scales.
+    #[test]
+    fn a_corrupted_count_is_refused_either_way() {
+        let bytes = sample(4).encode().unwrap();
+        let mut more = bytes.clone();
+        more[24..32].copy_from_slice(&5u64.to_le_bytes());
+        assert!(matches!(
+            GaussianMap::decode(&more),
+            Err(SchemaError::Truncated { what: "GaussianMap", got, .. }) if got == bytes.len()
+        ));
+        let mut fewer = bytes.clone();
+        fewer[24..32].copy_from_slice(&3u64.to_le_bytes());
+        let e = GaussianMap::decode(&fewer).unwrap_err();
+        assert!(matches!(e, SchemaError::InvalidHeader { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("payload has {} bytes", bytes.len()))
+                && msg.contains("3 Gaussians"),
+            "{msg}"
+        );
     }
 }

@@ -60,7 +60,7 @@ kinds! {
     RgbdFrame: SharedMemory, false, RgbdFrameHeader::VERSION,
         "RGB-D frame: repr(C) RgbdFrameHeader, rgb8 [w*h*3], depth f32 metres [w*h], sections 8-byte aligned";
     GaussianMap: SharedMemory, false, GaussianMapHeader::VERSION,
-        "Gaussian map: repr(C) GaussianMapHeader, f32 SoA means[3n] colors[3n] rotations[4n] opacities[n] log_scales[3n]";
+        "Gaussian map: repr(C) GaussianMapHeader (frame_id, count, keyframe_id), f32 SoA means[3n] colors[3n] rotations[4n] opacities[n] log_scales[3n], u64 ids[n] (stable per Gaussian), sections 8-byte aligned";
     OccupancyGrid: SharedMemory, false, OccupancyGridHeader::VERSION,
         "Occupancy grid: repr(C) OccupancyGridHeader, u8 cells [w*h] row-major (0 free, 1 occupied, 2 unknown)";
     Action: Small, false, <Action as SmallMessage>::VERSION as u32,
@@ -79,6 +79,8 @@ kinds! {
         "ReplanRequest { frame_id, reason } (u16 version + postcard)";
     EpisodeStatus: Small, false, <EpisodeStatus as SmallMessage>::VERSION as u32,
         "EpisodeStatus { step, max_steps, state: Running|Finished|Failed, message } (u16 version + postcard)";
+    FisherReport: Small, false, <FisherReport as SmallMessage>::VERSION as u32,
+        "FisherReport { frame_id, refine, focus, candidates: [{ x, y, yaw, eig }], paths: [{ goal, waypoints, actions, scored_steps, eig, c_local, objective }], chosen: i32 (-1 none), gaussians, unknown_gaussians, model_reused, note, timings, fallback } one Fisher replan (u16 version + postcard)";
     LlmExchange: Small, false, <LlmExchange as SmallMessage>::VERSION as u32,
         "LlmExchange { frame_id, prompt, bev_png, reply, target, fell_back } (u16 version + postcard)";
     Counter: Small, false, <Counter as SmallMessage>::VERSION as u32,
@@ -124,6 +126,7 @@ small_payload!(
     Path,
     ReplanRequest,
     EpisodeStatus,
+    FisherReport,
     LlmExchange,
     Counter
 );

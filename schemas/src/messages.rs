@@ -180,7 +180,9 @@ pub struct Path {
     pub frame_id: u64,
     /// Waypoints from the robot to the goal.
     pub waypoints: Vec<PlanarPose2>,
-    /// Objective value Σ C_local − η·log EIG of the path (lower is better).
+    /// The scorer's value of the path, lower is better: its Fisher objective (e.g.
+    /// Σ C_local − η·log EIG) in `fisher` mode, the A* cost in `shortest` mode, +∞ for an
+    /// empty path (none found) or a look-around.
     pub objective: f64,
 }
 small_message!(Path, 1);
@@ -242,6 +244,88 @@ pub struct EpisodeStatus {
     pub message: String,
 }
 small_message!(EpisodeStatus, 1);
+
+/// A candidate goal pose of a Fisher replan and its EIG against the model Fisher (SPEC §6).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FisherCandidate {
+    /// World x, metres.
+    pub x: f64,
+    /// World y, metres.
+    pub y: f64,
+    /// Heading (facing the focus), radians.
+    pub yaw: f64,
+    /// `EIG(x) = Σ_k H_k(x)/I_k`.
+    pub eig: f64,
+}
+
+/// A path to one of the top candidates of a Fisher replan, with the terms of its objective
+/// (SPEC §5). Non-finite values (+∞ for a pose that sees nothing) go through as they are.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FisherPath {
+    /// The candidate it leads to.
+    pub goal: PlanarPose2,
+    /// Number of waypoints of the path.
+    pub waypoints: u32,
+    /// Actions of the follower's rollout along it (before any cut).
+    pub actions: u32,
+    /// Index (1-based, in actions) of each scored pose.
+    pub scored_steps: Vec<u32>,
+    /// Path EIG of each scored pose (against `I` plus the views planned before it).
+    pub eig: Vec<f64>,
+    /// `C_local` of each scored pose.
+    pub c_local: Vec<f64>,
+    /// The objective (lower is better; +∞ refuses the path).
+    pub objective: f64,
+}
+
+/// Wall-clock milliseconds of the stages of one Fisher replan.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct FisherTimings {
+    /// Unknown-space seeding.
+    pub unknown_ms: f64,
+    /// Model Fisher update (0 when reused).
+    pub model_ms: f64,
+    /// Candidate sampling and their EIG.
+    pub candidates_ms: f64,
+    /// A* to the top candidates and the rollouts.
+    pub paths_ms: f64,
+    /// Path EIG and `C_local` along the paths.
+    pub path_scores_ms: f64,
+    /// The whole replan.
+    pub total_ms: f64,
+}
+
+/// What one replan of the scorer in `fisher` mode decided, with its intermediates (SPEC §5,
+/// §6; issue 14 "what the user sees"): published on the scorer's `report` port and recorded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FisherReport {
+    /// Frame of the replan (the goal's).
+    pub frame_id: u64,
+    /// True for a refine replan (no frontier, goal target −1).
+    pub refine: bool,
+    /// The point the candidates face (frontier centroid or refine cluster centre).
+    pub focus: Option<[f64; 2]>,
+    /// The candidates that survived the free-space test, best EIG first.
+    pub candidates: Vec<FisherCandidate>,
+    /// The paths to the top candidates.
+    pub paths: Vec<FisherPath>,
+    /// Index into `paths` of the chosen one, −1 when none was chosen.
+    pub chosen: i32,
+    /// Gaussians of the map scored.
+    pub gaussians: u64,
+    /// Unknown-space Gaussians added for this replan.
+    pub unknown_gaussians: u64,
+    /// Whether the model Fisher was reused unchanged from the previous replan.
+    pub model_reused: bool,
+    /// The scorer library's note on why it found no path, when it did not.
+    pub note: Option<String>,
+    /// Stage timings.
+    pub timings: FisherTimings,
+    /// Set when the operator sent its fallback path instead of a Fisher path (which one and
+    /// why).
+    pub fallback: Option<String>,
+}
+small_message!(FisherReport, 1);
 
 /// One exchange with the multimodal LLM (SPEC §7), recorded for inspection and replay.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -314,6 +398,57 @@ mod tests {
         assert!(Path::decode(&garbage).is_err());
         // An enum tag out of range.
         assert!(Action::decode(&[1, 0, 3, 9]).is_err());
+    }
+
+    /// A Fisher report goes through postcard unchanged, +∞ (a refused path), −∞ and NaN
+    /// included: postcard writes f64 as its 8 raw bytes.
+    #[test]
+    fn fisher_report_round_trips_non_finite_values() {
+        let report = FisherReport {
+            frame_id: 120,
+            refine: false,
+            focus: Some([1.5, -0.25]),
+            candidates: vec![FisherCandidate {
+                x: 1.0,
+                y: 0.5,
+                yaw: -3.0,
+                eig: 1e-9,
+            }],
+            paths: vec![FisherPath {
+                goal: PlanarPose2 {
+                    x: 1.0,
+                    y: 0.5,
+                    yaw: -3.0,
+                },
+                waypoints: 3,
+                actions: 27,
+                scored_steps: vec![5, 10, 27],
+                eig: vec![4.0, 2.0, 0.0],
+                c_local: vec![-30.0, f64::INFINITY, f64::NEG_INFINITY],
+                objective: f64::INFINITY,
+            }],
+            chosen: -1,
+            gaussians: 150_000,
+            unknown_gaussians: 4_000,
+            model_reused: true,
+            note: Some("no path has a finite objective".into()),
+            timings: FisherTimings {
+                total_ms: 812.5,
+                ..FisherTimings::default()
+            },
+            fallback: Some("shortest path to the frontier".into()),
+        };
+        let bytes = report.encode();
+        let back = FisherReport::decode(&bytes).unwrap();
+        assert_eq!(back, report);
+        assert_eq!(back.paths[0].objective, f64::INFINITY);
+        let mut nan = report.clone();
+        nan.paths[0].eig[2] = f64::NAN;
+        let back = FisherReport::decode(&nan.encode()).unwrap();
+        assert!(back.paths[0].eig[2].is_nan());
+        for cut in [0, 1, 2, bytes.len() / 2, bytes.len() - 1] {
+            assert!(FisherReport::decode(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
     }
 
     #[test]

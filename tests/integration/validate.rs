@@ -1,5 +1,5 @@
 //! Every malformed file in tests/data/dataflows/bad/ fails validation with its location; the
-//! reference dataflow.yaml and the good test flows validate.
+//! reference dataflow.yaml, the named flows of flows/ and the good test flows validate.
 
 use std::time::Duration;
 
@@ -53,6 +53,8 @@ fn every_bad_dataflow_fails_with_its_location() {
 fn reference_and_test_dataflows_validate() {
     for file in [
         "dataflow.yaml",
+        "flows/fisher.yaml",
+        "flows/fisher_eig_only.yaml",
         "tests/data/dataflows/good/counter.yaml",
         "tests/data/dataflows/good/frames.yaml",
     ] {

@@ -11,10 +11,21 @@
 //! - [`planning_bench`]: `activemap bench planning`, timings of the pieces the exploration loop
 //!   runs every step;
 //! - [`results`]: `activemap bench results` (methods × scenes × seeds, the paper's Table 1
-//!   layout), resumable.
+//!   layout and the ablation), resumable;
+//! - [`house_map`]: a partly explored house map (FBE trajectory, the mapper's own insertion,
+//!   the occupancy grid) for the Fisher benchmarks;
+//! - [`scorer_bench`]: `activemap bench scorer`, one Fisher replan stage by stage on it;
+//! - [`eig_psnr`]: `activemap bench eig-psnr`, the paper's Figure 2 (EIG against the map's
+//!   PSNR at poses in the free space);
+//! - [`stats`], [`scatter`]: medians, quantiles and Spearman ρ; the PNG scatter plot.
 
+pub mod eig_psnr;
 pub mod house_episode;
+pub mod house_map;
 pub mod planning_bench;
 pub mod results;
+pub mod scatter;
+pub mod scorer_bench;
 pub mod slam_bench;
 pub mod slam_loop;
+pub mod stats;

@@ -14,11 +14,12 @@ use activemap_operators::tracker::Tracker;
 use activemap_schemas::{ActionKind, PoseEstimate};
 use activemap_splat::Gaussians;
 
-/// The map as the tracker receives it from the mapper: through the wire layout.
-fn through_the_wire(map: &Gaussians<f32>, frame_id: u64) -> Gaussians<f32> {
-    let header = map_header(map, frame_id, 0.0);
+/// The map as the tracker receives it from the mapper: through the wire layout (with the
+/// Gaussians' ids, which the tracker does not read).
+fn through_the_wire(map: &Gaussians<f32>, ids: &[u64], frame_id: u64) -> Gaussians<f32> {
+    let header = map_header(map, frame_id, 0.0, None);
     let mut buf = vec![0u8; header.payload_len().unwrap()];
-    write_map(&mut buf, header, map).unwrap();
+    write_map(&mut buf, header, map, ids).unwrap();
     read_map(&buf).unwrap().1
 }
 
@@ -47,7 +48,7 @@ fn the_scripted_loop_and_the_operators_give_bit_identical_poses_and_maps() {
         mapper.add_frame(k, frame.clone());
         loop {
             for s in mapper.process_ready(false).unwrap() {
-                tracker.set_map(s.frame_id, through_the_wire(&s.map, s.frame_id));
+                tracker.set_map(s.frame_id, through_the_wire(&s.map, &s.ids, s.frame_id));
                 last_map = (*s.map).clone();
             }
             let out = tracker.process_ready().unwrap();

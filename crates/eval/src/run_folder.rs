@@ -8,6 +8,7 @@
 //! | `bev.png` | `evaluator` node | bird's-eye view ([`Bev`]) |
 //! | `coverage.csv` | `evaluator` node | [`CoverageRow`]s: `step,coverage` |
 //! | `summary.json` | `evaluator` node | [`Summary`] |
+//! | `fisher.csv` | `evaluator` node, when the scorer sent any `FisherReport` | [`FisherRow`]s, one per Fisher replan |
 //! | `timings.csv` | every node host (`activemap_runtime::node::append_timing`) | [`StageTime`]s: `stage,seconds,calls` |
 //! | `recording.mcap` | the launcher's recorder | MCAP |
 //! | `dataflow.yaml` | the launcher | the flow that ran |
@@ -43,6 +44,8 @@ impl RunFolder {
     pub const MAP: &'static str = "map.ply";
     /// 2D coverage per step ([`CoverageRow`]).
     pub const COVERAGE: &'static str = "coverage.csv";
+    /// One [`FisherRow`] per Fisher replan of the scorer, when the run had any.
+    pub const FISHER: &'static str = "fisher.csv";
     /// The evaluator's [`Summary`].
     pub const SUMMARY: &'static str = "summary.json";
     /// The launcher's copy of the dataflow.
@@ -245,6 +248,28 @@ impl RunFolder {
     /// and fixtures).
     pub fn write_timings(&self, rows: &[StageTime]) -> Result<(), RunError> {
         write_rows(&self.path(Self::TIMINGS), rows)
+    }
+
+    /// Reads `fisher.csv`; `None` when the run made no Fisher replan. Each row must hold
+    /// together ([`FisherRow::check`]); the first that does not is named by its line.
+    pub fn read_fisher(&self) -> Result<Option<Vec<FisherRow>>, RunError> {
+        let path = self.path(Self::FISHER);
+        let Some(rows) = read_rows::<FisherRow>(&path, "Fisher replans")? else {
+            return Ok(None);
+        };
+        for (line, row) in &rows {
+            row.check().map_err(|detail| RunError::MalformedRow {
+                path: path.clone(),
+                line: *line,
+                detail,
+            })?;
+        }
+        Ok(Some(rows.into_iter().map(|(_, r)| r).collect()))
+    }
+
+    /// Writes `fisher.csv` (header even when there is no row).
+    pub fn write_fisher(&self, rows: &[FisherRow]) -> Result<(), RunError> {
+        write_rows(&self.path(Self::FISHER), rows)
     }
 
     /// Reads `eval/views.csv`; `None` when absent.
@@ -494,6 +519,120 @@ pub struct ViewRow {
 
 impl CsvRow for ViewRow {
     const HEADER: &'static [&'static str] = &["view", "psnr_db", "ssim", "lpips", "depth_mae_m"];
+}
+
+/// A row of `fisher.csv`: what one replan of the scorer in `fisher` mode decided (SPEC §5–§6),
+/// from its `FisherReport`. The chosen-path columns are empty when no path was chosen
+/// (`chosen` = −1); reals have 6 decimals, `inf` for +∞.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FisherRow {
+    /// Frame id of the replan.
+    pub step: u64,
+    /// Whether it was a refine replan (no frontier).
+    pub refine: bool,
+    /// Candidates that survived the free-space test.
+    pub candidates: u64,
+    /// Paths scored.
+    pub paths: u64,
+    /// Index of the chosen path, −1 when none was chosen.
+    pub chosen: i64,
+    /// Objective of the chosen path (finite: a path with +∞ is never chosen).
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub objective: Option<f64>,
+    /// `Σ_i EIG_i` over the scored poses of the chosen path (finite, ≥ 0).
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub eig_sum: Option<f64>,
+    /// EIG of the chosen path's first scored pose (finite, ≥ 0); empty when it scored none.
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub eig_first: Option<f64>,
+    /// `Σ_i C_local(x_i)` of the chosen path; +∞ when a pose of it sees too little (the
+    /// `eig_only` objective ignores the term), never NaN or −∞.
+    #[serde(serialize_with = "six_decimals_opt")]
+    pub c_local_sum: Option<f64>,
+    /// Actions of the chosen path's rollout.
+    pub actions: Option<u32>,
+    /// Wall-clock milliseconds of the whole replan (finite, ≥ 0).
+    #[serde(serialize_with = "six_decimals")]
+    pub total_ms: f64,
+    /// Whether the model Fisher was reused from the previous replan.
+    pub model_reused: bool,
+    /// Whether the scorer sent its fallback path instead of a Fisher path.
+    pub fallback: bool,
+}
+
+impl CsvRow for FisherRow {
+    const HEADER: &'static [&'static str] = &[
+        "step",
+        "refine",
+        "candidates",
+        "paths",
+        "chosen",
+        "objective",
+        "eig_sum",
+        "eig_first",
+        "c_local_sum",
+        "actions",
+        "total_ms",
+        "model_reused",
+        "fallback",
+    ];
+}
+
+impl FisherRow {
+    /// Whether the row holds together: `chosen` in −1..paths, the chosen-path columns
+    /// (`objective`, `eig_sum`, `c_local_sum`, `actions`) present exactly when a path was chosen
+    /// (`eig_first` may be empty then), finite and non-negative where documented; the reason
+    /// when it does not.
+    pub fn check(&self) -> Result<(), String> {
+        if self.chosen < -1 || (self.chosen >= 0 && self.chosen as u64 >= self.paths) {
+            return Err(format!(
+                "chosen {} is not −1 or an index of the {} path(s)",
+                self.chosen, self.paths
+            ));
+        }
+        let chosen = self.chosen >= 0;
+        let present = [
+            ("objective", self.objective.is_some()),
+            ("eig_sum", self.eig_sum.is_some()),
+            ("eig_first", self.eig_first.is_some()),
+            ("c_local_sum", self.c_local_sum.is_some()),
+            ("actions", self.actions.is_some()),
+        ];
+        for (name, is_there) in present {
+            if is_there && !chosen {
+                return Err(format!(
+                    "{name} is given but no path was chosen (chosen −1)"
+                ));
+            }
+            if !is_there && chosen && name != "eig_first" {
+                return Err(format!(
+                    "{name} is empty but path {} was chosen",
+                    self.chosen
+                ));
+            }
+        }
+        if let Some(v) = self.objective
+            && !v.is_finite()
+        {
+            return Err(format!("objective {v} must be finite"));
+        }
+        for (name, v) in [("eig_sum", self.eig_sum), ("eig_first", self.eig_first)] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                return Err(format!("{name} {v} must be finite and ≥ 0"));
+            }
+        }
+        if let Some(v) = self.c_local_sum
+            && (v.is_nan() || v == f64::NEG_INFINITY)
+        {
+            return Err(format!("c_local_sum {v} must be a real or +inf"));
+        }
+        if !(self.total_ms.is_finite() && self.total_ms >= 0.0) {
+            return Err(format!("total_ms {} must be finite and ≥ 0", self.total_ms));
+        }
+        Ok(())
+    }
 }
 
 /// One line of `llm.jsonl`: an exchange with the LLM planner (absent fields = not recorded).
@@ -1014,6 +1153,127 @@ mod tests {
         assert_eq!(run.read_views().unwrap().unwrap(), views);
     }
 
+    fn fisher_rows() -> Vec<FisherRow> {
+        vec![
+            FisherRow {
+                step: 20,
+                refine: false,
+                candidates: 180,
+                paths: 20,
+                chosen: 3,
+                objective: Some(-41.25),
+                eig_sum: Some(1.5e-3),
+                eig_first: Some(1e-3),
+                c_local_sum: Some(f64::INFINITY),
+                actions: Some(27),
+                total_ms: 812.5,
+                model_reused: false,
+                fallback: false,
+            },
+            FisherRow {
+                step: 31,
+                refine: true,
+                candidates: 0,
+                paths: 0,
+                chosen: -1,
+                objective: None,
+                eig_sum: None,
+                eig_first: None,
+                c_local_sum: None,
+                actions: None,
+                total_ms: 3.0,
+                model_reused: true,
+                fallback: true,
+            },
+        ]
+    }
+
+    /// `fisher.csv` is absent until written, then holds its header, 6-decimal reals, `inf` for
+    /// +∞ and empty chosen-path columns when no path was chosen, and reads back the same rows.
+    #[test]
+    fn fisher_rows_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        assert!(run.read_fisher().unwrap().is_none());
+        run.write_fisher(&[]).unwrap();
+        assert_eq!(run.read_fisher().unwrap(), Some(vec![]));
+        let rows = fisher_rows();
+        run.write_fisher(&rows).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(run.path(RunFolder::FISHER)).unwrap(),
+            "step,refine,candidates,paths,chosen,objective,eig_sum,eig_first,c_local_sum,actions,total_ms,model_reused,fallback\n\
+             20,false,180,20,3,-41.250000,0.001500,0.001000,inf,27,812.500000,false,false\n\
+             31,true,0,0,-1,,,,,,3.000000,true,true\n"
+        );
+        assert_eq!(run.read_fisher().unwrap().unwrap(), rows);
+    }
+
+    /// A row that does not parse or does not hold together is named by file and line.
+    #[test]
+    fn malformed_fisher_rows_are_named_by_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        let header = FisherRow::HEADER.join(",");
+        let good = "20,false,180,20,3,-41.25,0.0015,0.001,inf,27,812.5,false,false";
+        for (bad, why) in [
+            (
+                "21,false,180,20,3,-41.25,NaN,0.001,inf,27,812.5,false,false",
+                "eig_sum NaN must be finite",
+            ),
+            (
+                "21,false,180,20,3,-41.25,-1,0.001,1,27,812.5,false,false",
+                "eig_sum -1 must be finite and ≥ 0",
+            ),
+            (
+                "21,false,180,20,3,inf,0.1,0.001,1,27,812.5,false,false",
+                "objective inf must be finite",
+            ),
+            (
+                "21,false,180,20,3,1,0.1,0.001,-inf,27,812.5,false,false",
+                "c_local_sum -inf must be a real or +inf",
+            ),
+            (
+                "21,false,180,20,20,1,0.1,0.001,1,27,812.5,false,false",
+                "chosen 20 is not −1 or an index of the 20 path(s)",
+            ),
+            (
+                "21,false,180,20,-1,1,,,,,812.5,false,false",
+                "objective is given but no path was chosen",
+            ),
+            (
+                "21,false,180,20,2,1,0.1,,,27,812.5,false,false",
+                "c_local_sum is empty but path 2 was chosen",
+            ),
+            (
+                "21,false,180,20,-1,,,,,,inf,false,false",
+                "total_ms inf must be finite",
+            ),
+            (
+                "21,maybe,180,20,-1,,,,,,1,false,false",
+                "expected `step,refine,",
+            ),
+            ("21,false,180,20,-1,,,,,,1,false", "found 12 field(s)"),
+        ] {
+            std::fs::write(
+                run.path(RunFolder::FISHER),
+                format!("{header}\n{good}\n{bad}\n"),
+            )
+            .unwrap();
+            let e = run.read_fisher().unwrap_err().to_string();
+            assert!(
+                e.contains("fisher.csv: malformed: line 3") && e.contains(why),
+                "{bad}: {e}"
+            );
+        }
+        // A chosen path that scored no pose has no first EIG.
+        std::fs::write(
+            run.path(RunFolder::FISHER),
+            format!("{header}\n21,false,1,1,0,-2,0,,-2,4,1,false,false\n"),
+        )
+        .unwrap();
+        assert_eq!(run.read_fisher().unwrap().unwrap()[0].eig_first, None);
+    }
+
     /// Each row type's `HEADER` is what serde writes for its fields.
     #[test]
     fn headers_match_the_serde_fields() {
@@ -1042,6 +1302,7 @@ mod tests {
             depth_mae_m: None,
         };
         assert_eq!(header_of(&view), ViewRow::HEADER.join(","));
+        assert_eq!(header_of(&fisher_rows()[0]), FisherRow::HEADER.join(","));
     }
 
     #[test]

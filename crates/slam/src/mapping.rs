@@ -261,6 +261,9 @@ pub struct Snapshot {
     pub stamp: f64,
     /// The map (shared between snapshots while no keyframe changes it).
     pub map: Arc<Gaussians<f32>>,
+    /// The stable id of each Gaussian of `map` (parallel to it; [`Mapper::ids`]: increasing
+    /// as Gaussians are added, surviving pruning), shared like `map`.
+    pub ids: Arc<Vec<u64>>,
     /// Set when frame `frame_id` became a keyframe.
     pub keyframe: Option<KeyframeEvent>,
 }
@@ -288,6 +291,7 @@ impl Worker {
             .name("mapper-worker".into())
             .spawn(move || {
                 let mut current = Arc::new(core.map().clone());
+                let mut current_ids = Arc::new(core.mapper().ids().to_vec());
                 while let Ok(job) = job_rx.recv() {
                     let started = Instant::now();
                     let result = core
@@ -295,6 +299,7 @@ impl Worker {
                         .map(|report| {
                             let keyframe = report.map(|report| {
                                 current = Arc::new(core.map().clone());
+                                current_ids = Arc::new(core.mapper().ids().to_vec());
                                 KeyframeEvent {
                                     keyframe: core.keyframes(),
                                     report,
@@ -305,6 +310,7 @@ impl Worker {
                                 frame_id: job.frame_id,
                                 stamp: job.stamp,
                                 map: current.clone(),
+                                ids: current_ids.clone(),
                                 keyframe,
                             }
                         });

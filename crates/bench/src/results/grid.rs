@@ -18,13 +18,65 @@ pub struct Method {
     pub dataflow: PathBuf,
 }
 
+/// A policy a bare method name stands for (SPEC §6 baselines, issue 14).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct KnownMethod {
+    /// The bare name (`--method fbe`).
+    pub name: &'static str,
+    /// Its dataflow, relative to the repository root (the working directory of the bench).
+    pub dataflow: &'static str,
+    /// What the paper's ablation calls it.
+    pub ablation: &'static str,
+}
+
+/// The named policies, in the order of the ablation table: FBE, then the paper's "w/o LLM &
+/// localisation" (largest frontier, paths by η·EIG only) and "w/o LLM" (largest frontier, the
+/// full objective).
+pub const KNOWN_METHODS: [KnownMethod; 3] = [
+    KnownMethod {
+        name: "fbe",
+        dataflow: "dataflow.yaml",
+        ablation: "FBE (frontiers, shortest paths)",
+    },
+    KnownMethod {
+        name: "fisher_eig_only",
+        dataflow: "flows/fisher_eig_only.yaml",
+        ablation: "w/o LLM & localisation",
+    },
+    KnownMethod {
+        name: "fisher",
+        dataflow: "flows/fisher.yaml",
+        ablation: "w/o LLM",
+    },
+];
+
+/// The named policy `name`, if it is one.
+pub fn known_method(name: &str) -> Option<&'static KnownMethod> {
+    KNOWN_METHODS.iter().find(|m| m.name == name)
+}
+
 impl Method {
-    /// Parses `NAME=DATAFLOW`, checking the name is usable as a folder name.
+    /// Parses `NAME=DATAFLOW`, or a bare NAME of [`KNOWN_METHODS`] (its dataflow, relative to
+    /// the working directory), checking the name is usable as a folder name.
     pub fn parse(text: &str) -> Result<Self, RunError> {
         let bad = |detail: String| RunError::Settings(format!("method `{text}`: {detail}"));
-        let (name, file) = text
-            .split_once('=')
-            .ok_or_else(|| bad("expected NAME=DATAFLOW, e.g. fbe=dataflow.yaml".into()))?;
+        let Some((name, file)) = text.split_once('=') else {
+            let name = text.trim();
+            return match known_method(name) {
+                Some(known) => Ok(Self {
+                    name: known.name.to_string(),
+                    dataflow: PathBuf::from(known.dataflow),
+                }),
+                None => Err(bad(format!(
+                    "not a known method ({}); give others as NAME=DATAFLOW, e.g. mine=flows/mine.yaml",
+                    KNOWN_METHODS
+                        .iter()
+                        .map(|m| format!("{} = {}", m.name, m.dataflow))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ))),
+            };
+        };
         let name = name.trim();
         if !is_folder_name(name) {
             return Err(bad(format!(
@@ -254,10 +306,41 @@ mod tests {
         let m = Method::parse("fbe=dataflow.yaml").unwrap();
         assert_eq!(m.name, "fbe");
         assert_eq!(m.dataflow, PathBuf::from("dataflow.yaml"));
-        for bad in ["fbe", "=x.yaml", "a/b=x.yaml", "fbe=", "..=x.yaml"] {
+        for bad in ["fbe_typo", "=x.yaml", "a/b=x.yaml", "fbe=", "..=x.yaml", ""] {
             let e = Method::parse(bad).unwrap_err().to_string();
             assert!(e.contains(&format!("method `{bad}`")), "{e}");
         }
+    }
+
+    /// A bare known name resolves to its dataflow; an unknown one is refused with the list.
+    #[test]
+    fn bare_names_resolve_to_the_known_dataflows() {
+        for (name, file) in [
+            ("fbe", "dataflow.yaml"),
+            ("fisher", "flows/fisher.yaml"),
+            ("fisher_eig_only", "flows/fisher_eig_only.yaml"),
+            (" fisher ", "flows/fisher.yaml"),
+        ] {
+            let m = Method::parse(name).unwrap();
+            assert_eq!(
+                (m.name.as_str(), m.dataflow),
+                (name.trim(), PathBuf::from(file))
+            );
+        }
+        // NAME=DATAFLOW still overrides a known name's file.
+        assert_eq!(
+            Method::parse("fisher=other.yaml").unwrap().dataflow,
+            PathBuf::from("other.yaml")
+        );
+        let e = Method::parse("llm").unwrap_err().to_string();
+        assert!(
+            e.contains("not a known method")
+                && e.contains("fbe = dataflow.yaml")
+                && e.contains("fisher = flows/fisher.yaml")
+                && e.contains("fisher_eig_only = flows/fisher_eig_only.yaml")
+                && e.contains("NAME=DATAFLOW"),
+            "{e}"
+        );
     }
 
     #[test]

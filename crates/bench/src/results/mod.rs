@@ -3,17 +3,23 @@
 //!
 //! - [`grid`]: the cells, their run folders and whether each is complete;
 //! - [`runner`]: runs the unfinished cells on worker threads, resuming after an interruption;
-//! - [`table`]: `results.md` and `results.csv` (mean ± spread over seeds).
+//! - [`table`]: `results.md` (Table 1 layout, the ablation, per scene) and `results.csv`
+//!   (mean ± spread over seeds).
 //!
-//! A method is a dataflow file (FBE: `dataflow.yaml`); the Fisher and LLM planners join as
-//! further dataflow files. How a cell's episode runs is the caller's closure (the CLI launches
-//! `activemap run`), so this crate stays free of process and transport code.
+//! A method is a dataflow file, named on the command line as NAME=DATAFLOW or by a bare known
+//! name ([`KNOWN_METHODS`]: `fbe` = `dataflow.yaml`, `fisher_eig_only` and `fisher` in
+//! `flows/`); the LLM planner joins as a further dataflow file. How a cell's episode runs is
+//! the caller's closure (the CLI launches `activemap run`), so this crate stays free of process
+//! and transport code.
 
 pub mod grid;
 pub mod runner;
 pub mod table;
 
-pub use grid::{Cell, CellState, GridSettings, Method, cell_state, cells};
+pub use grid::{
+    Cell, CellState, GridSettings, KNOWN_METHODS, KnownMethod, Method, cell_state, cells,
+    known_method,
+};
 pub use runner::{CellOutcome, CellResult, run_cells};
 
 use activemap_eval::run_folder::{RunError, write_file};

@@ -7,7 +7,12 @@
 //! spread (sample standard deviation, n − 1) over seeds. A seed counts for a metric only when every
 //! scene of it is complete with that metric, so a failed run never biases the mean (the `runs`
 //! column shows how many cells are complete). A per-scene table gives mean ± spread over seeds.
+//!
+//! When two or more of the named policies of the paper's ablation ([`KNOWN_METHODS`]: `fbe`,
+//! `fisher_eig_only` = "w/o LLM & localisation", `fisher` = "w/o LLM") are among the methods,
+//! an ablation table lists their all-scene rows in that order, each with the paper's name.
 
+use super::grid::{KNOWN_METHODS, KnownMethod};
 use super::runner::{CellOutcome, CellResult};
 use activemap_eval::MetricsReport;
 use std::collections::{BTreeMap, BTreeSet};
@@ -225,24 +230,45 @@ pub fn scene_rows(results: &[CellResult]) -> Vec<TableRow> {
         .collect()
 }
 
-fn markdown_table(rows: &[TableRow], with_scene: bool) -> String {
+/// The ablation rows: the all-scene rows of the [`KNOWN_METHODS`] present, in that order, each
+/// with its policy; empty unless at least two of them are present.
+pub fn ablation_rows(results: &[CellResult]) -> Vec<(&'static KnownMethod, TableRow)> {
+    let rows = method_rows(results);
+    let picked: Vec<(&'static KnownMethod, TableRow)> = KNOWN_METHODS
+        .iter()
+        .filter_map(|known| {
+            rows.iter()
+                .find(|r| r.method == known.name)
+                .map(|r| (known, r.clone()))
+        })
+        .collect();
+    if picked.len() >= 2 {
+        picked
+    } else {
+        Vec::new()
+    }
+}
+
+/// A Markdown table of `rows`: the method, then an optional second text column (`(header,
+/// one value per row)`), the metrics and the runs.
+fn markdown_table(rows: &[TableRow], second: Option<(&str, Vec<String>)>) -> String {
     let mut s = String::from("| Method |");
-    if with_scene {
-        s += " Scene |";
+    if let Some((header, _)) = &second {
+        let _ = write!(s, " {header} |");
     }
     for c in &COLUMNS {
         let _ = write!(s, " {} |", c.title);
     }
     s += " Runs |\n|---|";
-    if with_scene {
+    if second.is_some() {
         s += "---|";
     }
     s += &"---|".repeat(COLUMNS.len() + 1);
     s += "\n";
-    for row in rows {
+    for (i, row) in rows.iter().enumerate() {
         let _ = write!(s, "| {} |", row.method);
-        if let Some(scene) = row.scene.as_ref().filter(|_| with_scene) {
-            let _ = write!(s, " {scene} |");
+        if let Some((_, values)) = &second {
+            let _ = write!(s, " {} |", values.get(i).map_or("", String::as_str));
         }
         for (c, v) in COLUMNS.iter().zip(&row.values) {
             let _ = write!(
@@ -293,16 +319,28 @@ fn notes(results: &[CellResult]) -> String {
     s
 }
 
-/// The whole `results.md`: `heading` lines (settings, command), Table 1 layout, the per-scene
-/// table and the notes.
+/// The whole `results.md`: `heading` lines (settings, command), Table 1 layout, the ablation
+/// (when two or more of its policies ran), the per-scene table and the notes.
 pub fn markdown(heading: &str, results: &[CellResult]) -> String {
     let mut s = format!("# Results\n\n{heading}\n\n");
     s += "## Methods over all scenes (Table 1 layout)\n\n";
     s += "Mean ± sample standard deviation over seeds of the per-seed mean over scenes; \
           a seed counts for a metric only when all its scenes have it. Runs = complete / cells.\n\n";
-    s += &markdown_table(&method_rows(results), false);
+    s += &markdown_table(&method_rows(results), None);
+    let ablation = ablation_rows(results);
+    if !ablation.is_empty() {
+        s += "\n## Ablation (the paper's variants; same aggregation)\n\n";
+        let (known, rows): (Vec<&KnownMethod>, Vec<TableRow>) = ablation.into_iter().unzip();
+        let names = known.iter().map(|k| k.ablation.to_string()).collect();
+        s += &markdown_table(&rows, Some(("Variant", names)));
+    }
     s += "\n## Per scene (mean ± spread over seeds)\n\n";
-    s += &markdown_table(&scene_rows(results), true);
+    let rows = scene_rows(results);
+    let scenes = rows
+        .iter()
+        .map(|r| r.scene.clone().unwrap_or_default())
+        .collect();
+    s += &markdown_table(&rows, Some(("Scene", scenes)));
     let n = notes(results);
     if !n.is_empty() {
         s += "\n## Notes\n\n";
@@ -471,5 +509,89 @@ mod tests {
         let inf = Stat::of(&[f64::INFINITY, 3.0]).unwrap();
         assert!(inf.spread.is_none() && inf.markdown(2) == "∞");
         assert!(Stat::of(&[]).is_none());
+    }
+
+    /// Methods × one house × two seeds; PSNR `base + seed` for each method.
+    fn ablation_results(methods: &[(&str, f64)]) -> Vec<CellResult> {
+        let settings = GridSettings {
+            steps: 10,
+            resolution: 32,
+            max_rooms: None,
+            max_area: None,
+            eval_views: 4,
+        };
+        let parsed: Vec<Method> = methods
+            .iter()
+            .map(|(m, _)| Method::parse(&format!("{m}=x.yaml")).unwrap())
+            .collect();
+        cells(&parsed, &["house:1".into()], &[1, 2], &settings)
+            .into_iter()
+            .map(|cell| {
+                let base = methods
+                    .iter()
+                    .find(|(m, _)| *m == cell.method.name)
+                    .unwrap()
+                    .1;
+                let m = report(base + cell.seed as f64, Some(0.5));
+                CellResult {
+                    cell,
+                    outcome: CellOutcome::Ran(Box::new(m)),
+                }
+            })
+            .collect()
+    }
+
+    /// The ablation lists the paper's variants in the paper's order (whatever the command-line
+    /// order), with their names, and leaves other methods out; it needs two variants.
+    #[test]
+    fn ablation_rows_follow_the_paper_order_and_names() {
+        let r = ablation_results(&[
+            ("fisher", 30.0),
+            ("mine", 10.0),
+            ("fbe", 20.0),
+            ("fisher_eig_only", 25.0),
+        ]);
+        let rows = ablation_rows(&r);
+        let names: Vec<(&str, &str)> = rows
+            .iter()
+            .map(|(k, r)| (k.name, r.method.as_str()))
+            .collect();
+        assert_eq!(
+            names,
+            [
+                ("fbe", "fbe"),
+                ("fisher_eig_only", "fisher_eig_only"),
+                ("fisher", "fisher")
+            ]
+        );
+        // Mean over seeds 1, 2 of base + seed, spread √0.5.
+        assert_eq!(rows[2].1.values[0].unwrap().mean, 31.5);
+        let md = markdown("", &r);
+        let ablation = &md[md.find("## Ablation").expect("an ablation section")..];
+        let ablation = &ablation[..ablation.find("## Per scene").unwrap()];
+        assert!(
+            ablation.contains("| Method | Variant | PSNR ↑ |"),
+            "{ablation}"
+        );
+        assert!(
+            ablation.contains("| fisher_eig_only | w/o LLM & localisation | 26.50 ± 0.71 |"),
+            "{ablation}"
+        );
+        assert!(
+            ablation.contains("| fisher | w/o LLM | 31.50 ± 0.71 |"),
+            "{ablation}"
+        );
+        assert!(!ablation.contains("mine"), "{ablation}");
+        let fbe = ablation.find("| fbe |").unwrap();
+        let eig = ablation.find("| fisher_eig_only |").unwrap();
+        let full = ablation.find("| fisher |").unwrap();
+        assert!(fbe < eig && eig < full);
+        // The Table 1 rows keep the command-line order and every method.
+        let table1 = &md[..md.find("## Ablation").unwrap()];
+        assert!(table1.find("| fisher |").unwrap() < table1.find("| mine |").unwrap());
+        // One variant alone: no ablation section.
+        let single = ablation_results(&[("fbe", 20.0), ("mine", 10.0)]);
+        assert!(ablation_rows(&single).is_empty());
+        assert!(!markdown("", &single).contains("## Ablation"));
     }
 }

@@ -5,22 +5,29 @@
 //! - the bird's-eye map (`bev.png`: grid, true path blue, estimated green, frontiers red) and a
 //!   top-down plot of both trajectories after the ATE alignment;
 //! - 2D coverage (`coverage.csv`) and ATE RMSE of the trajectory so far against steps;
+//! - the Fisher replans (`fisher.csv`): log10 of the chosen path's EIG and its `C_local` sum
+//!   against steps, with the counts of replans, refine replans and fallbacks and the median
+//!   replan time, else "no Fisher replans";
 //! - test renders of the map next to the ground truth (`eval/view_NN_*.png`, `eval/views.csv`);
 //! - the per-stage time breakdown (`timings.csv`), else "not recorded";
 //! - the LLM exchanges (`llm.jsonl`), else "none".
 //!
 //! Figures carry stable ids (`fig-bev`, `fig-trajectories`, `fig-coverage`, `fig-ate`,
-//! `fig-renders`, `fig-timings`, `llm-exchanges`) so tests and people can find them.
+//! `fig-fisher`, `fig-renders`, `fig-timings`, `llm-exchanges`) so tests and people can find
+//! them.
 
 mod svg;
 
-use crate::run_folder::{CoverageRow, RunError, RunFolder, StageTime, Summary, ViewImage};
+use crate::run_folder::{
+    CoverageRow, FisherRow, RunError, RunFolder, StageTime, Summary, ViewImage,
+};
 use crate::{AteOptions, MetricsReport, ate};
 use activemap_geometry::tum::Trajectory;
 use base64::Engine as _;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use svg::Series;
+pub use svg::ticks;
 
 /// Escapes text for HTML element content and attribute values.
 pub fn escape(text: &str) -> String {
@@ -76,6 +83,7 @@ pub fn render_report(dir: &Path) -> Result<String, RunError> {
     page += &summary_section(&summary, metrics.as_ref());
     page += &map_section(&run, &truth, &estimate)?;
     page += &progress_section(coverage.as_deref(), &truth, &estimate);
+    page += &fisher_section(run.read_fisher()?.as_deref());
     page += &renders_section(&run)?;
     page += &timings_section(&run)?;
     page += &llm_section(&run)?;
@@ -259,6 +267,86 @@ fn progress_section(
     s + "</div>"
 }
 
+/// The median of `values` (mean of the middle two for an even count); `None` when empty.
+fn median(values: &[f64]) -> Option<f64> {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some((v[n / 2 - 1] + v[n / 2]) / 2.0),
+    }
+}
+
+/// One line on the Fisher replans: how many, how many refine, how many fell back, the median
+/// replan time.
+pub fn fisher_line(rows: &[FisherRow]) -> String {
+    let refine = rows.iter().filter(|r| r.refine).count();
+    let fallbacks = rows.iter().filter(|r| r.fallback).count();
+    let ms: Vec<f64> = rows.iter().map(|r| r.total_ms).collect();
+    format!(
+        "{} replans, {refine} refine, {fallbacks} fallbacks, median replan {}",
+        rows.len(),
+        median(&ms).map_or_else(|| "—".to_string(), |m| format!("{m:.1} ms"))
+    )
+}
+
+fn fisher_section(rows: Option<&[FisherRow]>) -> String {
+    let mut s = String::from("<h2>Fisher replans</h2>");
+    let Some(rows) = rows else {
+        s += "<p class=\"missing\" id=\"fig-fisher\">No Fisher replans (e.g. policy fbe): the run folder holds no fisher.csv.</p>";
+        return s;
+    };
+    // log10 of a non-positive EIG is not finite: the plot skips it.
+    let log_eig = |pick: fn(&FisherRow) -> Option<f64>| -> Vec<(f64, f64)> {
+        rows.iter()
+            .filter_map(|r| pick(r).map(|v| (r.step as f64, v.log10())))
+            .collect()
+    };
+    let eig = svg::line_plot(
+        "fig-fisher-eig",
+        "EIG of the chosen path (log10)",
+        "step",
+        "log10 EIG",
+        &[
+            Series {
+                name: "path Σ EIG_i",
+                colour: "#6a3d9a",
+                points: log_eig(|r| r.eig_sum),
+            },
+            Series {
+                name: "first scored pose EIG_1",
+                colour: "#1f9e89",
+                points: log_eig(|r| r.eig_first),
+            },
+        ],
+    );
+    let c_local = svg::line_plot(
+        "fig-fisher-c-local",
+        "C_local of the chosen path",
+        "step",
+        "Σ C_local",
+        &[Series {
+            name: "Σ C_local(x_i) (+∞ not drawn)",
+            colour: "#b03060",
+            points: rows
+                .iter()
+                .filter_map(|r| r.c_local_sum.map(|c| (r.step as f64, c)))
+                .collect(),
+        }],
+    );
+    let _ = write!(
+        s,
+        "<figure id=\"fig-fisher\"><div class=\"row\">{eig}{c_local}</div><figcaption>{}. \
+         Left: log10 of the chosen path's EIG (base-10 logarithm of the values, linear axis) per \
+         replan, summed over its scored poses and of its first one; right: the sum of its C_local \
+         terms. Replans with no chosen path are not drawn.</figcaption></figure>",
+        escape(&fisher_line(rows))
+    );
+    s
+}
+
 fn renders_section(run: &RunFolder) -> Result<String, RunError> {
     let per_view = run.read_views()?.unwrap_or_default();
     let mut s = String::from(
@@ -401,11 +489,83 @@ mod tests {
             "stage,seconds,calls\ntracker,2.0,8\nmapper,1.0,4\ntracker,1.0,4\n",
         )
         .unwrap();
+        RunFolder::new(dir).write_fisher(&fisher_rows()).unwrap();
         std::fs::write(
             dir.join(RunFolder::LLM),
             "{\"step\": 5, \"prompt\": \"pick <a frontier>\", \"reply\": \"{\\\"target\\\": 1}\", \"target\": 1}\n",
         )
         .unwrap();
+    }
+
+    /// Three replans: a frontier one with EIG 10² (first pose 10¹), a refine one that fell
+    /// back with no chosen path, a frontier one with EIG 10⁻¹ and C_local +∞.
+    fn fisher_rows() -> Vec<FisherRow> {
+        let row = |step, refine, chosen: Option<(f64, f64, f64)>, total_ms, fallback| FisherRow {
+            step,
+            refine,
+            candidates: 20,
+            paths: 4,
+            chosen: if chosen.is_some() { 1 } else { -1 },
+            objective: chosen.map(|_| -12.0),
+            eig_sum: chosen.map(|c| c.0),
+            eig_first: chosen.map(|c| c.1),
+            c_local_sum: chosen.map(|c| c.2),
+            actions: chosen.map(|_| 30),
+            total_ms,
+            model_reused: false,
+            fallback,
+        };
+        vec![
+            row(20, false, Some((100.0, 10.0, -25.0)), 800.0, false),
+            row(40, true, None, 4.0, true),
+            row(60, false, Some((0.1, 0.01, f64::INFINITY)), 900.0, false),
+        ]
+    }
+
+    #[test]
+    fn fisher_figure_draws_log10_eig_and_counts_the_replans() {
+        let rows = fisher_rows();
+        assert_eq!(
+            fisher_line(&rows),
+            "3 replans, 1 refine, 1 fallbacks, median replan 800.0 ms"
+        );
+        assert_eq!(
+            fisher_line(&rows[..2]),
+            "2 replans, 1 refine, 1 fallbacks, median replan 402.0 ms"
+        );
+        assert_eq!(
+            fisher_line(&[]),
+            "0 replans, 0 refine, 0 fallbacks, median replan —"
+        );
+        let html = fisher_section(Some(&rows));
+        for id in ["fig-fisher", "fig-fisher-eig", "fig-fisher-c-local"] {
+            assert!(html.contains(&format!("id=\"{id}\"")), "{id} missing");
+        }
+        assert!(html.contains("log10 of the chosen path's EIG"));
+        // The points of each polyline of the figure with id `id`.
+        let polylines = |id: &str| -> Vec<Vec<String>> {
+            let svg = &html[html.find(&format!("id=\"{id}\"")).unwrap()..];
+            let svg = &svg[..svg.find("</svg>").unwrap()];
+            svg.split("<polyline points=\"")
+                .skip(1)
+                .map(|p| {
+                    p[..p.find('"').unwrap()]
+                        .split(' ')
+                        .map(String::from)
+                        .collect()
+                })
+                .collect()
+        };
+        // log10 Σ EIG: 2 at step 20, −1 at step 60 (the refine replan chose nothing); of the
+        // first pose 1 and −2. The y axis spans [−2, 2] over the frame's rows 256..30.
+        assert_eq!(
+            polylines("fig-fisher-eig"),
+            [["64.0,30.0", "544.0,199.5"], ["64.0,86.5", "544.0,256.0"]],
+            "{html}"
+        );
+        // C_local: the +∞ sum is not drawn, leaving the point of step 20.
+        assert_eq!(polylines("fig-fisher-c-local"), [["304.0,143.0"]]);
+        assert!(fisher_section(None).contains("No Fisher replans (e.g. policy fbe)"));
     }
 
     #[test]
@@ -419,6 +579,9 @@ mod tests {
             "fig-trajectories",
             "fig-coverage",
             "fig-ate",
+            "fig-fisher",
+            "fig-fisher-eig",
+            "fig-fisher-c-local",
             "fig-renders",
             "fig-timings",
             "llm-exchanges",
@@ -441,6 +604,7 @@ mod tests {
         assert!(html.contains("<td>3.000</td><td>75.0 %</td><td>12</td><td>250.00</td>"));
         assert!(html.contains("pick &lt;a frontier&gt;"));
         assert!(html.contains("ATE RMSE 0.0000 m over 12 poses"));
+        assert!(html.contains("3 replans, 1 refine, 1 fallbacks, median replan 800.0 ms"));
     }
 
     #[test]
@@ -452,6 +616,23 @@ mod tests {
         assert!(html.contains("None: this run made no LLM exchange"));
         assert!(html.contains("bev.png not in the run folder"));
         assert!(html.contains("Not computed yet"));
+        assert!(html.contains(
+            "<p class=\"missing\" id=\"fig-fisher\">No Fisher replans (e.g. policy fbe)"
+        ));
+        std::fs::write(
+            dir.path().join(RunFolder::FISHER),
+            format!(
+                "{}\n20,false,1,1,0,,,,,,1,false,false\n",
+                <FisherRow as crate::run_folder::CsvRow>::HEADER.join(",")
+            ),
+        )
+        .unwrap();
+        let e = render_report(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("fisher.csv: malformed: line 2: objective is empty"),
+            "{e}"
+        );
+        std::fs::remove_file(dir.path().join(RunFolder::FISHER)).unwrap();
         std::fs::write(
             dir.path().join(RunFolder::TIMINGS),
             "stage,seconds,calls\nx,abc,1\n",
@@ -559,12 +740,13 @@ mod tests {
             "fig-trajectories",
             "fig-coverage",
             "fig-ate",
+            "fig-fisher",
             "fig-renders",
             "fig-timings",
         ] {
             assert!(dom.contains(&format!("id=\"{id}\"")), "{id} not in the DOM");
         }
-        assert_eq!(dom.matches("<svg").count(), 4, "4 inline SVG figures");
+        assert_eq!(dom.matches("<svg").count(), 6, "6 inline SVG figures");
         assert_eq!(dom.matches("<img").count(), 7, "BEV and 3 render pairs");
         let console: Vec<&str> = log
             .lines()

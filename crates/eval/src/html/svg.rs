@@ -20,8 +20,13 @@ const RIGHT: f64 = 16.0;
 const TOP: f64 = 30.0;
 const BOTTOM: f64 = 44.0;
 
-/// Up to ~6 round tick values covering [lo, hi].
-fn ticks(lo: f64, hi: f64) -> Vec<f64> {
+/// Up to about six round tick values (1, 2 or 5 × 10^k apart) covering `[lo, hi]`; none for
+/// a non-finite or reversed range. Shared by the report's SVG plots and the benchmarks' PNG
+/// plots.
+pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if !(lo.is_finite() && hi.is_finite()) || hi < lo {
+        return Vec::new();
+    }
     let span = (hi - lo).max(1e-12);
     let raw = span / 5.0;
     let mag = 10f64.powf(raw.log10().floor());
@@ -229,6 +234,11 @@ mod tests {
         assert!(close(ticks(0.0, 1.0), &[0.0, 0.2, 0.4, 0.6, 0.8, 1.0]));
         assert!(close(ticks(3.0, 47.0), &[10.0, 20.0, 30.0, 40.0]));
         assert!(close(ticks(-0.013, 0.004), &[-0.01, -0.005, 0.0]));
+        assert!(close(
+            ticks(-3.2, -0.4),
+            &[-3.0, -2.5, -2.0, -1.5, -1.0, -0.5]
+        ));
+        assert!(ticks(f64::NAN, 1.0).is_empty() && ticks(2.0, 1.0).is_empty());
         assert_eq!(fmt_tick(0.30000000000000004), "0.3");
     }
 

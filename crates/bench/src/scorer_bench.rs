@@ -1,0 +1,399 @@
+//! `activemap bench scorer` (issue 14): the Fisher scorer's replan (unknown space, model Fisher
+//! `I(w)`, candidates and their EIG, A* to the top 20 and their rollouts, path EIG and C_local)
+//! on a large partly explored house map ([`crate::house_map`]), timed stage by stage through
+//! [`FisherScorer::replan`], the very call the `scorer` operator makes.
+//!
+//! The goal is the largest reachable frontier region (the `frontier` operator's
+//! [`reachable_regions`], largest first), its centroid the candidates' focus; with no frontier
+//! left the replan refines. Three cases, each `repeats` times, medians reported:
+//!
+//! - `cold`: a fresh scorer per replan, the model Fisher built from scratch (`mc_poses` views);
+//! - `incremental`: one scorer, the map snapshot's frame id bumped before each replan (what a
+//!   keyframe does in the loop), so the model draws `mc_refresh` fresh poses and drops the
+//!   oldest (the replan frame id is bumped too: new candidate draws);
+//! - `reused`: the map unchanged since the last replan, the model Fisher reused as it is (only
+//!   the replan frame id changes).
+//!
+//! The summary line reports the `incremental` median: what a replan costs in an episode, where
+//! the map changes at every keyframe.
+
+use std::fmt::Write as _;
+
+use activemap_active::scorer::{ScoringMap, StageTimings};
+use activemap_active::{FisherScorer, GoalRequest, ReplanInput, ReplanOutcome};
+use activemap_geometry::{RobotModel, planar_from_camera_pose};
+use activemap_planning::clearance::ClearanceConfig;
+use activemap_planning::frontier::{FrontierConfig, reachable_regions};
+use anyhow::Context as _;
+use nalgebra::Point2;
+
+use crate::house_map::HouseMap;
+use crate::stats::median;
+
+/// The scorer's settings (re-exported for the CLI, which reads them from a flow's `scorer`
+/// node).
+pub use activemap_active::FisherConfig;
+
+/// One timed case: its replans' timings and what each replan produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Case {
+    /// `cold`, `incremental` or `reused`.
+    pub name: &'static str,
+    /// What the case does to the model Fisher.
+    pub model: String,
+    /// Timings of each replan.
+    pub timings: Vec<StageTimings>,
+    /// Candidates that survived the free-space test, per replan.
+    pub candidates: Vec<usize>,
+    /// Paths scored, per replan.
+    pub paths: Vec<usize>,
+    /// Whether each replan reused the model unchanged.
+    pub model_reused: Vec<bool>,
+    /// Whether each replan chose a path.
+    pub chosen: Vec<bool>,
+    /// Scored poses along all paths, per replan (the path-score stage's views).
+    pub path_views: Vec<usize>,
+    /// Median rollout length of the paths (actions), per replan.
+    pub path_actions: Vec<f64>,
+}
+
+impl Case {
+    fn new(name: &'static str, model: String) -> Self {
+        Self {
+            name,
+            model,
+            timings: Vec::new(),
+            candidates: Vec::new(),
+            paths: Vec::new(),
+            model_reused: Vec::new(),
+            chosen: Vec::new(),
+            path_views: Vec::new(),
+            path_actions: Vec::new(),
+        }
+    }
+
+    fn push(&mut self, outcome: &ReplanOutcome) {
+        self.timings.push(outcome.timings);
+        self.candidates.push(outcome.candidates.len());
+        self.paths.push(outcome.paths.len());
+        self.model_reused.push(outcome.model_reused);
+        self.chosen.push(outcome.chosen.is_some());
+        self.path_views
+            .push(outcome.paths.iter().map(|p| p.scored_steps.len()).sum());
+        let actions: Vec<f64> = outcome.paths.iter().map(|p| p.actions as f64).collect();
+        self.path_actions.push(median(&actions).unwrap_or(f64::NAN));
+    }
+
+    /// The median of one stage over the replans (ms).
+    pub fn median_of(&self, stage: fn(&StageTimings) -> f64) -> f64 {
+        median(&self.timings.iter().map(stage).collect::<Vec<_>>()).unwrap_or(f64::NAN)
+    }
+
+    /// The median total (ms).
+    pub fn median_total_ms(&self) -> f64 {
+        self.median_of(|t| t.total_ms)
+    }
+}
+
+/// What the benchmark measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScorerBench {
+    /// Gaussians of the map.
+    pub gaussians: usize,
+    /// Unknown-space Gaussians the replans added.
+    pub unknown_gaussians: usize,
+    /// The goal: the largest frontier's size (cells) and centroid, or `None` (refine).
+    pub frontier: Option<(usize, [f64; 2])>,
+    /// Reachable frontier regions of the grid.
+    pub regions: usize,
+    /// `cold`, `incremental`, `reused`.
+    pub cases: Vec<Case>,
+    /// The scorer settings.
+    pub fisher: FisherConfig,
+    /// Scoring image size, pixels.
+    pub scoring_size: (u32, u32),
+    /// Threads of the global pool (the machine's cores unless `RAYON_NUM_THREADS` says).
+    pub threads: usize,
+    /// The last replan's note (why it fell back), if any.
+    pub note: Option<String>,
+}
+
+/// Runs the three cases, `repeats` replans each, on `house`.
+pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::Result<ScorerBench> {
+    anyhow::ensure!(repeats >= 1, "bench scorer: --repeats must be at least 1");
+    let robot: RobotModel = house.sim.config().robot;
+    let camera = house.sim.config().intrinsics;
+    let grid = &house.grid;
+    let planar = planar_from_camera_pose(&house.pose);
+    let clearance = ClearanceConfig::for_disc(robot.radius_m, grid.geometry.resolution)?;
+    let regions = reachable_regions(
+        grid,
+        Point2::new(planar.x, planar.y),
+        &clearance,
+        &FrontierConfig::default(),
+    )
+    .context("bench scorer: frontier regions of the house grid")?;
+    let (goal, frontier) = match regions.first() {
+        Some(r) => (
+            GoalRequest::Frontier { focus: r.centroid },
+            Some((r.size(), [r.centroid.x, r.centroid.y])),
+        ),
+        None => (GoalRequest::Refine, None),
+    };
+    let base = house.frame_id;
+    let map_at = |frame_id: u64| ScoringMap {
+        gaussians: house.gaussians.clone(),
+        ids: house.ids.clone(),
+        frame_id,
+    };
+    let fresh = || FisherScorer::new(fisher.clone(), robot, camera).context("bench scorer");
+    let replan = |scorer: &mut FisherScorer, frame_id: u64, map: &ScoringMap| {
+        let input = ReplanInput {
+            frame_id,
+            grid,
+            pose: house.pose,
+            map,
+            goal,
+        };
+        scorer
+            .replan(&input)
+            .with_context(|| format!("bench scorer: replan at frame {frame_id}"))
+    };
+
+    // Cold: a fresh scorer each time, same frame (same draws).
+    let mut cold = Case::new("cold", format!("built: {} MC poses", fisher.mc_poses));
+    let map0 = map_at(base);
+    let mut scorer = fresh()?;
+    let mut last = None;
+    for r in 0..repeats {
+        if r > 0 {
+            scorer = fresh()?;
+        }
+        let out = replan(&mut scorer, base, &map0)?;
+        cold.push(&out);
+        last = Some(out);
+    }
+    let scoring_size = {
+        let k = scorer.view_settings().intrinsics;
+        (k.width, k.height)
+    };
+    // Incremental: the last cold scorer goes on, the map snapshot changing before each replan.
+    let mut incremental = Case::new(
+        "incremental",
+        format!("map changed: {} fresh MC poses", fisher.mc_refresh),
+    );
+    let mut frame = base;
+    for _ in 0..repeats {
+        frame += 1;
+        let out = replan(&mut scorer, frame, &map_at(frame))?;
+        incremental.push(&out);
+        last = Some(out);
+    }
+    // Reused: the map of the last incremental replan, unchanged.
+    let mut reused = Case::new("reused", "map unchanged: reused".into());
+    let unchanged = map_at(frame);
+    for r in 0..repeats {
+        let out = replan(&mut scorer, frame + 1 + r as u64, &unchanged)?;
+        reused.push(&out);
+        last = Some(out);
+    }
+    let last = last.expect("repeats >= 1");
+    Ok(ScorerBench {
+        gaussians: house.gaussians.len(),
+        unknown_gaussians: last.unknown_gaussians,
+        frontier,
+        regions: regions.len(),
+        cases: vec![cold, incremental, reused],
+        fisher: fisher.clone(),
+        scoring_size,
+        threads: rayon::current_num_threads(),
+        note: last.note,
+    })
+}
+
+impl ScorerBench {
+    /// The `incremental` case (the summary's).
+    pub fn incremental(&self) -> &Case {
+        self.cases
+            .iter()
+            .find(|c| c.name == "incremental")
+            .expect("the benchmark always runs the incremental case")
+    }
+
+    /// The summary line `scorer replan_median_ms <x> gaussians <n>` (x: the `incremental`
+    /// median total; n: the map's Gaussians).
+    pub fn summary(&self) -> String {
+        format!(
+            "scorer replan_median_ms {:.1} gaussians {}",
+            self.incremental().median_total_ms(),
+            self.gaussians
+        )
+    }
+
+    /// The table: one row per case, median ms per stage, and the counts.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        let f = &self.fisher;
+        let _ = writeln!(
+            s,
+            "# scorer settings: scoring {}×{} px, K = {} candidates, top {}, stride {}, max_actions {:?}, \
+             model {:?} (N = {}, refresh {}), objective {:?}; {} threads",
+            self.scoring_size.0,
+            self.scoring_size.1,
+            f.candidates,
+            f.top_candidates,
+            f.stride,
+            f.max_actions,
+            f.model_fisher,
+            f.mc_poses,
+            f.mc_refresh,
+            f.objective,
+            self.threads
+        );
+        let _ = writeln!(
+            s,
+            "# map {} Gaussians + {} unknown-space = {} scored; goal: {}",
+            self.gaussians,
+            self.unknown_gaussians,
+            self.gaussians + self.unknown_gaussians,
+            match self.frontier {
+                Some((cells, [x, y])) => format!(
+                    "largest of {} frontier regions ({cells} cells, centroid ({x:.2}, {y:.2}))",
+                    self.regions
+                ),
+                None => "refine (no reachable frontier)".into(),
+            }
+        );
+        let _ = writeln!(
+            s,
+            "{:<12} {:>4} {:>10} {:>11} {:>10} {:>10} {:>14} {:>10}  {:>5} {:>5} {:>7} {:>6} {:>6}  model",
+            "case",
+            "runs",
+            "unknown_ms",
+            "model_ms",
+            "cands_ms",
+            "paths_ms",
+            "path_scores_ms",
+            "total_ms",
+            "cands",
+            "paths",
+            "actions",
+            "views",
+            "chosen"
+        );
+        for c in &self.cases {
+            let med = |v: &[usize]| {
+                median(&v.iter().map(|&x| x as f64).collect::<Vec<_>>()).unwrap_or(f64::NAN)
+            };
+            let reused = c.model_reused.iter().filter(|r| **r).count();
+            let _ = writeln!(
+                s,
+                "{:<12} {:>4} {:>10.1} {:>11.1} {:>10.1} {:>10.1} {:>14.1} {:>10.1}  {:>5.0} {:>5.0} {:>7.0} {:>6.0} {:>3}/{:<2}  {}{}",
+                c.name,
+                c.timings.len(),
+                c.median_of(|t| t.unknown_ms),
+                c.median_of(|t| t.model_ms),
+                c.median_of(|t| t.candidates_ms),
+                c.median_of(|t| t.paths_ms),
+                c.median_of(|t| t.path_scores_ms),
+                c.median_total_ms(),
+                med(&c.candidates),
+                med(&c.paths),
+                median(&c.path_actions).unwrap_or(f64::NAN),
+                med(&c.path_views),
+                c.chosen.iter().filter(|x| **x).count(),
+                c.chosen.len(),
+                c.model,
+                if reused > 0 {
+                    format!(" ({reused} reused)")
+                } else {
+                    String::new()
+                },
+            );
+        }
+        let _ = writeln!(
+            s,
+            "# medians over the runs; cands = candidates in free space (each one view), actions = \
+             median rollout length of the paths, views = poses scored along all paths; the \
+             summary line reports `incremental` (the map changed since the last replan, as \
+             after every keyframe in an episode)"
+        );
+        if let Some(note) = &self.note {
+            let _ = writeln!(s, "# last replan's note: {note}");
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::house_map::{HouseMapConfig, build};
+
+    /// Smoke run of both Fisher benchmarks on a tiny house map (32² frames, a few steps, a
+    /// small scorer): the cases, the table and the exact summary lines.
+    #[test]
+    fn both_fisher_benchmarks_run_on_a_tiny_house() {
+        let mut mapping = activemap_slam::MappingConfig::default();
+        mapping.mapper.iterations = 2;
+        mapping.mapper.coarse_iterations = 1;
+        let config = HouseMapConfig {
+            insert_fraction: Some(0.5),
+            ..HouseMapConfig::new(1, 32, 6, mapping)
+        };
+        let house = build(&config).unwrap();
+        assert_eq!(house.frames, 6);
+        assert!(house.keyframes >= 1 && !house.gaussians.is_empty());
+        assert_eq!(house.ids.len(), house.gaussians.len());
+        assert!(house.describe(&config).contains("TRUE poses"));
+        let fisher = FisherConfig {
+            mc_poses: 2,
+            mc_refresh: 1,
+            candidates: 6,
+            top_candidates: 2,
+            scoring_width: 8,
+            max_actions: Some(10),
+            ..FisherConfig::default()
+        };
+        let bench = run(&house, &fisher, 2).unwrap();
+        let names: Vec<&str> = bench.cases.iter().map(|c| c.name).collect();
+        assert_eq!(names, ["cold", "incremental", "reused"]);
+        assert!(bench.cases.iter().all(|c| c.timings.len() == 2));
+        assert!(bench.cases[0].model_reused.iter().all(|r| !r));
+        assert!(bench.cases[1].model_reused.iter().all(|r| !r));
+        assert!(bench.cases[2].model_reused.iter().all(|r| *r));
+        let summary = bench.summary();
+        let fields: Vec<&str> = summary.split(' ').collect();
+        assert_eq!(fields.len(), 5, "{summary}");
+        assert_eq!(
+            (fields[0], fields[1], fields[3]),
+            ("scorer", "replan_median_ms", "gaussians")
+        );
+        assert!(fields[2].parse::<f64>().unwrap() > 0.0);
+        assert_eq!(fields[4], house.gaussians.len().to_string());
+        let table = bench.table();
+        assert!(
+            table.contains("incremental") && table.contains("path_scores_ms"),
+            "{table}"
+        );
+        assert!(run(&house, &fisher, 0).is_err());
+
+        let eig = crate::eig_psnr::run(&house, &fisher, 12, 3).unwrap();
+        assert_eq!(eig.samples.len(), 12);
+        assert!(
+            eig.samples
+                .iter()
+                .all(|s| s.eig >= 0.0 && s.psnr.is_finite())
+        );
+        let line = eig.summary();
+        assert!(
+            line.starts_with("eig_psnr spearman ") && line.ends_with(" poses 12"),
+            "{line}"
+        );
+        assert!(eig.table().contains("psnr_db"));
+        let dir = tempfile::tempdir().unwrap();
+        let png = dir.path().join("plot/eig_psnr.png");
+        eig.write_plot(&png).unwrap();
+        assert!(image::open(&png).is_ok());
+    }
+}

@@ -1,0 +1,134 @@
+//! Small statistics for the benchmarks: medians and quantiles of timings, and the Spearman rank
+//! correlation of the EIG–PSNR benchmark (ranks with average ties, then the Pearson correlation
+//! of the ranks, as `scipy.stats.spearmanr`).
+
+/// The `q`-quantile (`q` in [0, 1]) of `values` with linear interpolation between order
+/// statistics (numpy's default); `None` when empty. NaNs sort last.
+pub fn quantile(values: &[f64], q: f64) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    let frac = pos - lo as f64;
+    Some(if lo == hi {
+        v[lo]
+    } else {
+        v[lo] + (v[hi] - v[lo]) * frac
+    })
+}
+
+/// The median of `values` (the mean of the middle two for an even count); `None` when empty.
+pub fn median(values: &[f64]) -> Option<f64> {
+    quantile(values, 0.5)
+}
+
+/// Ranks of `values`, 1-based, tied values sharing the mean of their ranks (so `[10, 20, 20,
+/// 30]` ranks `[1, 2.5, 2.5, 4]`). Values compare by `total_cmp`.
+pub fn ranks(values: &[f64]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..values.len()).collect();
+    order.sort_by(|&a, &b| values[a].total_cmp(&values[b]));
+    let mut out = vec![0.0; values.len()];
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i + 1;
+        while j < order.len() && values[order[j]].total_cmp(&values[order[i]]).is_eq() {
+            j += 1;
+        }
+        // Ranks i+1 ..= j share their mean.
+        let rank = (i + 1 + j) as f64 / 2.0;
+        for &k in &order[i..j] {
+            out[k] = rank;
+        }
+        i = j;
+    }
+    out
+}
+
+/// The Pearson correlation of `a` and `b`; `None` when the lengths differ, fewer than two
+/// pairs are given, a value is not finite, or either side is constant.
+pub fn pearson(a: &[f64], b: &[f64]) -> Option<f64> {
+    if a.len() != b.len() || a.len() < 2 || a.iter().chain(b).any(|v| !v.is_finite()) {
+        return None;
+    }
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        let (dx, dy) = (x - ma, y - mb);
+        sab += dx * dy;
+        saa += dx * dx;
+        sbb += dy * dy;
+    }
+    (saa > 0.0 && sbb > 0.0).then(|| (sab / (saa * sbb).sqrt()).clamp(-1.0, 1.0))
+}
+
+/// The Spearman rank correlation of `a` and `b`: the Pearson correlation of their
+/// average-tie ranks; `None` as for [`pearson`] (a NaN or infinite value, a constant side).
+pub fn spearman(a: &[f64], b: &[f64]) -> Option<f64> {
+    if a.iter().chain(b).any(|v| !v.is_finite()) {
+        return None;
+    }
+    pearson(&ranks(a), &ranks(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranks_average_ties() {
+        assert_eq!(ranks(&[10.0, 20.0, 20.0, 30.0]), [1.0, 2.5, 2.5, 4.0]);
+        assert_eq!(ranks(&[3.0, 1.0, 2.0]), [3.0, 1.0, 2.0]);
+        assert_eq!(ranks(&[5.0, 5.0, 5.0]), [2.0, 2.0, 2.0]);
+        assert!(ranks(&[]).is_empty());
+    }
+
+    /// x = 1..5, y = [5, 6, 7, 8, 7]: y ranks [1, 2, 3.5, 5, 3.5]; with deviations
+    /// dx = [−2, −1, 0, 1, 2], dy = [−2, −1, 0.5, 2, 0.5]: Σdxdy = 8, Σdx² = 10, Σdy² = 9.5,
+    /// ρ = 8/√95 (scipy.stats.spearmanr gives 0.8207826816681233).
+    #[test]
+    fn spearman_matches_a_hand_computed_example() {
+        let x = [1.0, 2.0, 3.0, 4.0, 5.0];
+        let y = [5.0, 6.0, 7.0, 8.0, 7.0];
+        let rho = spearman(&x, &y).unwrap();
+        assert!((rho - 8.0 / 95f64.sqrt()).abs() < 1e-15, "{rho}");
+        assert!((rho - 0.8207826816681233).abs() < 1e-15);
+    }
+
+    /// A strictly monotone transform leaves the ranks, so ρ = ±1 exactly (Pearson would not).
+    #[test]
+    fn spearman_is_one_under_a_monotone_transform() {
+        let x: Vec<f64> = (0..50)
+            .map(|i| (i as f64 * 0.37).sin() * 3.0 + i as f64 * 0.01)
+            .collect();
+        let up: Vec<f64> = x.iter().map(|v| v.exp() * 7.0 + 2.0).collect();
+        let down: Vec<f64> = x.iter().map(|v| -v.powi(3)).collect();
+        assert_eq!(spearman(&x, &up), Some(1.0));
+        assert_eq!(spearman(&x, &down), Some(-1.0));
+        assert!(pearson(&x, &up).unwrap() < 0.99);
+    }
+
+    #[test]
+    fn degenerate_inputs_give_none() {
+        assert_eq!(spearman(&[1.0, 2.0], &[3.0]), None);
+        assert_eq!(spearman(&[1.0], &[3.0]), None);
+        assert_eq!(spearman(&[1.0, 2.0, 3.0], &[4.0, 4.0, 4.0]), None);
+        assert_eq!(spearman(&[1.0, f64::NAN, 3.0], &[1.0, 2.0, 3.0]), None);
+        assert_eq!(spearman(&[1.0, f64::INFINITY], &[1.0, 2.0]), None);
+    }
+
+    #[test]
+    fn quantiles_interpolate_like_numpy() {
+        let v = [4.0, 1.0, 3.0, 2.0];
+        assert_eq!(median(&v), Some(2.5));
+        assert_eq!(quantile(&v, 0.0), Some(1.0));
+        assert_eq!(quantile(&v, 1.0), Some(4.0));
+        // numpy.quantile([1, 2, 3, 4], 0.25) = 1.75
+        assert_eq!(quantile(&v, 0.25), Some(1.75));
+        assert_eq!(median(&[7.0]), Some(7.0));
+        assert_eq!(median(&[]), None);
+    }
+}

@@ -1,0 +1,202 @@
+//! `activemap bench scorer` and `activemap bench eig-psnr` (issue 14): the Fisher scorer on a
+//! partly explored house (`activemap_bench::house_map`), timed (`scorer_bench`) and checked
+//! against the map's rendering quality (`eig_psnr`, the paper's Figure 2).
+//!
+//! Both take the flow's settings: the `mapper` node's mapping session for the house map and
+//! the `scorer` node's `fisher:` block for the scorer (the library defaults, the paper's, when
+//! the flow has none); the CLI only parses options and prints.
+
+use std::path::{Path, PathBuf};
+
+use activemap_bench::house_map::{self, HouseMapConfig};
+use activemap_bench::scorer_bench::FisherConfig;
+use activemap_runtime::dataflow::{Dataflow, NodeImpl};
+use anyhow::Context as _;
+
+/// Options shared by both benchmarks: the flow and the house.
+#[derive(clap::Args)]
+pub struct HouseArgs {
+    /// The dataflow whose `mapper` node builds the map and whose `scorer` node's `fisher:`
+    /// block configures the scorer (defaults, the paper's, when it has none).
+    #[arg(long, default_value = "flows/fisher.yaml")]
+    flow: PathBuf,
+    /// The procedural house (`house:<n>`).
+    #[arg(long, default_value_t = 1)]
+    house: u64,
+    /// Square camera image side, pixels (the frames, the map's renders; the scorer renders at
+    /// its own `scoring_width`).
+    #[arg(long, default_value_t = 160)]
+    resolution: u32,
+    /// Overrides a field of the scorer's `fisher:` settings, KEY=VALUE with a JSON or plain
+    /// value (repeatable), e.g. `--fisher max_actions=30 --fisher scoring_width=32`.
+    #[arg(long = "fisher", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+}
+
+/// Options of `activemap bench scorer`.
+#[derive(clap::Args)]
+pub struct ScorerArgs {
+    #[command(flatten)]
+    house: HouseArgs,
+    /// Map size to reach: the exploration stops once the map holds this many Gaussians.
+    #[arg(long, default_value_t = 150_000)]
+    gaussians: usize,
+    /// Replans timed per case (medians reported).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+    /// Most exploration steps to reach the map size.
+    #[arg(long, default_value_t = 2000)]
+    max_steps: usize,
+    /// Insertion sampling fraction of the unobserved depth pixels (the mapper's default is
+    /// about 0.19 at 160²; denser reaches the map size in fewer frames). `0` keeps the mapper's.
+    #[arg(long, default_value_t = 1.0)]
+    insert_fraction: f64,
+}
+
+/// Options of `activemap bench eig-psnr`.
+#[derive(clap::Args)]
+pub struct EigPsnrArgs {
+    #[command(flatten)]
+    house: HouseArgs,
+    /// Exploration steps before the measurement (a partly mapped house).
+    #[arg(long, default_value_t = 300)]
+    steps: usize,
+    /// Poses sampled in the estimated free space.
+    #[arg(long, default_value_t = 300)]
+    poses: usize,
+    /// Seed of the pose draw.
+    #[arg(long, default_value_t = 2025)]
+    seed: u64,
+    /// Insertion sampling fraction (`0`: the mapper's default, as in an episode).
+    #[arg(long, default_value_t = 0.0)]
+    insert_fraction: f64,
+    /// The scatter plot (x = log10 EIG, y = PSNR), PNG.
+    #[arg(long, default_value = "runs/eig_psnr.png")]
+    out: PathBuf,
+}
+
+/// The flow's mapping session settings and the scorer's Fisher settings (with where they came
+/// from).
+fn flow_settings(
+    flow: &Path,
+    overrides: &[String],
+) -> anyhow::Result<(activemap_slam::MappingConfig, FisherConfig, String)> {
+    let loaded = Dataflow::load(flow, &activemap_operators::catalog()).map_err(|d| {
+        anyhow::anyhow!(
+            "{d}\n(the Fisher benchmarks read the `mapper` and `scorer` nodes of --flow {})",
+            flow.display()
+        )
+    })?;
+    let (_, mapper) = activemap_operators::mapper::slam_nodes(&loaded)
+        .with_context(|| format!("{}", flow.display()))?;
+    let mapping = mapper
+        .mapping_config()
+        .with_context(|| format!("{}: mapper node", flow.display()))?;
+    let scorer = loaded
+        .nodes
+        .iter()
+        .find(|n| matches!(&n.implementation, NodeImpl::Operator(o) if o == "scorer"));
+    let (mut block, mut source) = match scorer.and_then(|n| n.config.get("fisher").map(|v| (n, v)))
+    {
+        Some((node, block)) => (
+            block.clone(),
+            format!("the `{}` node of {}", node.id, flow.display()),
+        ),
+        None => (
+            serde_json::json!({}),
+            format!(
+                "the library defaults ({} has no scorer `fisher:` block)",
+                flow.display()
+            ),
+        ),
+    };
+    let serde_json::Value::Object(fields) = &mut block else {
+        anyhow::bail!(
+            "{}: the scorer's `fisher:` must be a mapping",
+            flow.display()
+        );
+    };
+    for o in overrides {
+        let (key, value) = o
+            .split_once('=')
+            .with_context(|| format!("--fisher `{o}`: expected KEY=VALUE"))?;
+        let value = serde_json::from_str(value.trim())
+            .unwrap_or_else(|_| serde_json::Value::String(value.trim().to_string()));
+        fields.insert(key.trim().to_string(), value);
+    }
+    if !overrides.is_empty() {
+        source += &format!(", overridden by --fisher {}", overrides.join(" --fisher "));
+    }
+    let fisher: FisherConfig =
+        serde_json::from_value(block).with_context(|| format!("fisher settings from {source}"))?;
+    fisher
+        .validate()
+        .map_err(|e| anyhow::anyhow!("fisher settings from {source}: {e}"))?;
+    Ok((mapping, fisher, source))
+}
+
+fn fraction(f: f64) -> Option<f64> {
+    (f != 0.0).then_some(f)
+}
+
+/// Runs `activemap bench scorer`.
+pub fn scorer(args: &ScorerArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.repeats >= 1,
+        "bench scorer: --repeats must be at least 1"
+    );
+    anyhow::ensure!(
+        args.gaussians >= 1,
+        "bench scorer: --gaussians must be at least 1"
+    );
+    let (mapping, fisher, source) = flow_settings(&args.house.flow, &args.house.overrides)?;
+    let config = HouseMapConfig {
+        target_gaussians: Some(args.gaussians),
+        insert_fraction: fraction(args.insert_fraction),
+        progress_every: 100,
+        ..HouseMapConfig::new(
+            args.house.house,
+            args.house.resolution,
+            args.max_steps,
+            mapping,
+        )
+    };
+    let house = house_map::build(&config).context("bench scorer: building the house map")?;
+    anyhow::ensure!(
+        house.gaussians.len() >= args.gaussians,
+        "bench scorer: the map holds only {} Gaussians after {} frames (target {}); raise \
+         --max-steps or --insert-fraction, or lower --gaussians",
+        house.gaussians.len(),
+        house.frames,
+        args.gaussians
+    );
+    println!("# bench scorer: {}", house.describe(&config));
+    println!("# fisher settings: {source}");
+    let bench = activemap_bench::scorer_bench::run(&house, &fisher, args.repeats)?;
+    print!("{}", bench.table());
+    println!("{}", bench.summary());
+    Ok(())
+}
+
+/// Runs `activemap bench eig-psnr`.
+pub fn eig_psnr(args: &EigPsnrArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.poses >= 2,
+        "bench eig-psnr: --poses must be at least 2"
+    );
+    let (mapping, fisher, source) = flow_settings(&args.house.flow, &args.house.overrides)?;
+    let config = HouseMapConfig {
+        insert_fraction: fraction(args.insert_fraction),
+        progress_every: 100,
+        ..HouseMapConfig::new(args.house.house, args.house.resolution, args.steps, mapping)
+    };
+    let house = house_map::build(&config).context("bench eig-psnr: building the house map")?;
+    println!("# bench eig-psnr: {}", house.describe(&config));
+    println!("# fisher settings: {source}");
+    let result = activemap_bench::eig_psnr::run(&house, &fisher, args.poses, args.seed)?;
+    print!("{}", result.table());
+    result.write_plot(&args.out)?;
+    println!("# scatter plot: {}", args.out.display());
+    println!("{}", result.summary());
+    Ok(())
+}
