@@ -266,3 +266,61 @@ impl FisherConfig {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The paper's defaults and the release variant are valid; a bad value is refused naming
+    /// its field; unknown fields are refused when read.
+    #[test]
+    fn defaults_and_variants_validate_and_bad_fields_are_named() {
+        let paper = FisherConfig::default();
+        paper.validate().unwrap();
+        assert_eq!(paper.model_fisher, ModelFisherSource::McFreeSpace);
+        assert_eq!((paper.candidates, paper.top_candidates), (256, 20));
+        assert_eq!((paper.lambda, paper.eta), (1e-6, 5.0));
+        let release = FisherConfig::release();
+        release.validate().unwrap();
+        assert_eq!(release.candidate_radius_m, [0.5, 1.0]);
+        for (bad, field) in [
+            (
+                FisherConfig {
+                    lambda: 0.0,
+                    ..FisherConfig::default()
+                },
+                "fisher.lambda",
+            ),
+            (
+                FisherConfig {
+                    mc_refresh: 40,
+                    ..FisherConfig::default()
+                },
+                "fisher.mc_refresh",
+            ),
+            (
+                FisherConfig {
+                    candidate_radius_m: [1.0, 0.3],
+                    ..FisherConfig::default()
+                },
+                "fisher.candidate_radius_m",
+            ),
+            (
+                FisherConfig {
+                    max_actions: Some(0),
+                    ..FisherConfig::default()
+                },
+                "fisher.max_actions",
+            ),
+        ] {
+            let e = bad.validate().unwrap_err();
+            assert!(e.contains(field), "{e}");
+        }
+        let read: FisherConfig =
+            serde_json::from_value(serde_json::json!({ "objective": "eig_only", "stride": 1 }))
+                .unwrap();
+        assert_eq!(read.objective, PathObjective::EigOnly);
+        assert_eq!(read.stride, 1);
+        assert!(serde_json::from_value::<FisherConfig>(serde_json::json!({ "etta": 5 })).is_err());
+    }
+}
