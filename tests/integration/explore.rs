@@ -11,31 +11,7 @@ use activemap_eval::{RunFolder, Summary};
 
 /// The reference dataflow with a smaller house, a 64×64 camera and a step budget.
 fn small_flow(max_steps: u64) -> String {
-    let text =
-        std::fs::read_to_string(harness::root().join("dataflow.yaml")).expect("read dataflow.yaml");
-    let scene = r#"scene: "house:3", max_rooms: 2, max_area: 30"#;
-    let sim = format!(
-        r#"config: {{ {scene}, width: 64, height: 64, hfov_deg: 90, lockstep: true, max_steps: {max_steps} }}"#
-    );
-    let out: Vec<String> = text
-        .lines()
-        .map(|l| {
-            if l.contains("config: { scene: \"house:7\", width") {
-                format!("    {sim}")
-            } else if l.contains("config: { scene: \"house:7\" }") {
-                format!("    config: {{ {scene} }}")
-            } else {
-                l.to_string()
-            }
-        })
-        .collect();
-    let joined = out.join("\n");
-    assert_eq!(
-        joined.matches("house:3").count(),
-        2,
-        "the test must rewrite both scene lines"
-    );
-    joined
+    harness::small_house_flow("dataflow.yaml", max_steps, &[])
 }
 
 /// Runs the small episode and returns the run folder (kept alive by the returned tempdir).

@@ -21,44 +21,20 @@ const STEPS: u64 = 130;
 /// `flows/fisher.yaml` with a small house, a 64×64 camera (the scorer's too), fewer
 /// candidates and paths per replan, and the budget.
 fn small_fisher_flow() -> String {
-    let text = std::fs::read_to_string(harness::root().join("flows/fisher.yaml"))
-        .expect("read flows/fisher.yaml");
-    let scene = r#"scene: "house:3", max_rooms: 2, max_area: 30"#;
-    let sim = format!(
-        r#"    config: {{ {scene}, width: 64, height: 64, hfov_deg: 90, lockstep: true, max_steps: {STEPS}, seed: 0 }}"#
-    );
-    let out: Vec<String> = text
-        .lines()
-        .map(|l| {
-            if l.contains("config: { scene: \"house:7\", width") {
-                sim.clone()
-            } else if l.contains("config: { scene: \"house:7\" }") {
-                format!("    config: {{ {scene} }}")
-            } else if l.contains("camera: { width: 160, height: 160, hfov_deg: 90 }") {
-                "      camera: { width: 64, height: 64, hfov_deg: 90 }".to_string()
-            } else if l.contains("fisher: { objective: paper }") {
-                "      fisher: { objective: paper, candidates: 64, top_candidates: 5 }".to_string()
-            } else {
-                l.to_string()
-            }
-        })
-        .collect();
-    let joined = out.join("\n");
-    assert_eq!(
-        joined.matches("house:3").count(),
-        2,
-        "the test must rewrite both scene lines"
-    );
-    assert_eq!(
-        joined.matches("width: 64, height: 64").count(),
-        2,
-        "the test must rewrite the sim's and the scorer's camera"
-    );
-    assert!(
-        joined.contains("top_candidates: 5"),
-        "the scorer's settings"
-    );
-    joined
+    harness::small_house_flow(
+        "flows/fisher.yaml",
+        STEPS,
+        &[
+            (
+                "camera: { width: 160, height: 160, hfov_deg: 90 }",
+                "      camera: { width: 64, height: 64, hfov_deg: 90 }",
+            ),
+            (
+                "fisher: { objective: paper }",
+                "      fisher: { objective: paper, candidates: 64, top_candidates: 5 }",
+            ),
+        ],
+    )
 }
 
 /// What one run leaves: the actions the simulator executed (steps 0..STEPS; the follower's

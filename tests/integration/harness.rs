@@ -15,6 +15,42 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The repository's dataflow `file` made small for a test: the sim and evaluator on a small
+/// procedural house (`house:3`, 2 rooms, 30 m²), a 64×64 camera and `max_steps`; each line
+/// that contains a needle of `more` is replaced by its line. Fails when a rewrite found no line.
+pub fn small_house_flow(file: &str, max_steps: u64, more: &[(&str, &str)]) -> String {
+    let text =
+        std::fs::read_to_string(root().join(file)).unwrap_or_else(|e| panic!("read {file}: {e}"));
+    let scene = r#"scene: "house:3", max_rooms: 2, max_area: 30"#;
+    let sim = format!(
+        r#"    config: {{ {scene}, width: 64, height: 64, hfov_deg: 90, lockstep: true, max_steps: {max_steps} }}"#
+    );
+    let out: Vec<String> = text
+        .lines()
+        .map(|l| {
+            if l.contains("config: { scene: \"house:7\", width") {
+                sim.clone()
+            } else if l.contains("config: { scene: \"house:7\" }") {
+                format!("    config: {{ {scene} }}")
+            } else if let Some((_, line)) = more.iter().find(|(needle, _)| l.contains(needle)) {
+                line.to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect();
+    let joined = out.join("\n");
+    assert_eq!(
+        joined.matches("house:3").count(),
+        2,
+        "the test must rewrite both scene lines of {file}"
+    );
+    for (needle, line) in more {
+        assert!(joined.contains(line), "no line of {file} holds `{needle}`");
+    }
+    joined
+}
+
 /// Output of a finished process.
 pub struct Finished {
     pub status: ExitStatus,
