@@ -21,10 +21,12 @@
 //!
 //! Modules, one stage each (gsplat style): [`gaussians`] (the 14-parameter store and its
 //! conventions), [`camera`], [`project`] (EWA projection), [`tiles`] (16×16 binning and depth
-//! sort), [`rasterize`] (forward), [`backward`], [`fisher`], [`adam`], [`ply`], [`bench`], and
+//! sort), [`rasterize`] (forward), [`backward`], [`fisher`], [`adam`], [`ply`], [`bench`],
+//! [`ortho`] (the orthographic top-down render of the floor plan for the LLM planner), and
 //! the private `walk` (the vectorised per-pixel loops and the one back-to-front traversal that
 //! the backward and Fisher passes share).
-//! Everything is generic over [`Real`] (`f32` in production, `f64` for gradient checks).
+//! Everything is generic over [`Real`] (`f32` in production, `f64` for gradient checks), except
+//! the display-only [`ortho`] render (`f32`).
 //! Results do not depend on the rayon thread count.
 //!
 //! # Conventions and choices
@@ -55,6 +57,7 @@ pub mod bench;
 pub mod camera;
 pub mod fisher;
 pub mod gaussians;
+pub mod ortho;
 pub mod ply;
 pub mod project;
 pub mod rasterize;
@@ -86,6 +89,9 @@ pub enum SplatError {
     /// The camera is unusable.
     #[error("invalid camera: {0}")]
     Camera(String),
+    /// An orthographic render's window or options are unusable ([`ortho`]).
+    #[error("invalid orthographic render: {0}")]
+    Ortho(String),
     /// A PLY file could not be read or written.
     #[error("PLY {path}: {message}")]
     Ply {

@@ -64,7 +64,7 @@ pub(crate) struct Chain<T: Real> {
 }
 
 /// Rotation matrix of a unit quaternion `[w, x, y, z]`.
-fn rotation_matrix<T: Real>(q: &[T; 4]) -> Matrix3<T> {
+pub(crate) fn rotation_matrix<T: Real>(q: &[T; 4]) -> Matrix3<T> {
     let [w, x, y, z] = *q;
     let one = T::one();
     let two = T::of(2.0);

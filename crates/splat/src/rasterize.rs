@@ -82,17 +82,23 @@ pub(crate) fn clip_box<T: Real>(s: &Splat<T>, rect: &[usize; 4]) -> Option<[usiz
     (bx0 <= bx1 && by0 <= by1).then_some([bx0, bx1, by0, by1])
 }
 
-/// One tile's forward result, tile-local pixel order (`TILE` pixels per row).
-struct TileOut<'a, T: Real> {
-    colour: &'a mut [[T; 3]],
-    depth: &'a mut [T],
-    transmittance: &'a mut [T],
-    contributors: &'a mut [u32],
+/// One tile's forward result, tile-local pixel order (`TILE` pixels per row), `TILE_PIXELS`
+/// entries each (also used by the orthographic render, [`crate::ortho`]).
+pub(crate) struct TileOut<'a, T: Real> {
+    pub(crate) colour: &'a mut [[T; 3]],
+    pub(crate) depth: &'a mut [T],
+    pub(crate) transmittance: &'a mut [T],
+    pub(crate) contributors: &'a mut [u32],
 }
 
 /// Composites tile `rect` front to back (dispatches to the best SIMD build the CPU runs; all
 /// builds give identical results, see [`crate::walk`]).
-fn raster_tile<T: Real>(splats: &[Splat<T>], list: &[u32], rect: [usize; 4], out: TileOut<'_, T>) {
+pub(crate) fn raster_tile<T: Real>(
+    splats: &[Splat<T>],
+    list: &[u32],
+    rect: [usize; 4],
+    out: TileOut<'_, T>,
+) {
     use crate::walk::SimdLevel;
     match crate::walk::simd_level() {
         // SAFETY: the CPU supports AVX-512 F and VL, AVX2 and FMA (checked by `simd_level`).

@@ -1,0 +1,378 @@
+//! The long-horizon decision (SPEC §7): at a replan with candidate frontiers, render the
+//! annotated BEV, build the prompt, ask the provider, parse the reply; on any failure fall
+//! back to the largest frontier, with the reason recorded. Stages: [`LlmPlanner::decide`] →
+//! ask policy → budget → [`crate::bev::render_bev`] → [`crate::prompt::build`] →
+//! [`crate::provider::Provider::complete`] → [`crate::parse::parse_reply`].
+//!
+//! When it asks ([`crate::config::AskPolicy`]): at each decision, unless the last query was
+//! fewer than `min_interval_steps` steps ago (the last chosen frontier is kept if one of the
+//! candidates lies within [`HOLD_RADIUS_M`] of it, else the largest is taken), or the map
+//! version and the candidates are those of the last query (`skip_unchanged_map`: its answer is
+//! reused, as the same question would be asked again).
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use activemap_splat::Gaussians;
+
+use crate::bev::{Annotations, render_bev};
+use crate::config::{LlmConfig, PromptStyle};
+use crate::error::LlmError;
+use crate::parse::{Answer, parse_reply};
+use crate::prompt::{Candidate, Prompt, PromptFacts, build};
+use crate::provider::{ChatRequest, Completion, Failure, FailureKind, Provider, Usage};
+
+/// A held target is the candidate nearest the last choice, if within this distance (m).
+pub const HOLD_RADIUS_M: f64 = 1.0;
+
+/// What the planner knows at a decision.
+#[derive(Debug, Clone, Copy)]
+pub struct Query<'a> {
+    /// Current step (`<STEP_ID>`).
+    pub step: u64,
+    /// Steps of the episode (`<TOTAL_STEPS>`).
+    pub total_steps: u64,
+    /// The current map.
+    pub map: &'a Gaussians<f32>,
+    /// Its version (the keyframe that made it): equal versions hold equal maps.
+    pub map_version: u64,
+    /// The camera height, metres (the BEV's ceiling cut).
+    pub camera_height_m: f64,
+    /// The robot's estimated pose (x, y metres, yaw radians).
+    pub robot: [f64; 3],
+    /// The visited path (estimated positions).
+    pub path: &'a [[f64; 2]],
+    /// The candidate frontiers; index = the number shown.
+    pub candidates: &'a [Candidate],
+}
+
+/// The decision.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Choice {
+    /// Explore candidate `i`.
+    Frontier(usize),
+    /// Refine what is mapped (the model's −1).
+    Refine,
+}
+
+impl Choice {
+    /// The target as the model names it: the index, or −1.
+    pub fn target(self) -> i64 {
+        match self {
+            Self::Frontier(i) => i as i64,
+            Self::Refine => -1,
+        }
+    }
+}
+
+/// Where a decision came from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Source {
+    /// The model's valid answer to a query made now.
+    Model,
+    /// The last query's answer, reused (same map and candidates).
+    Reused,
+    /// The last choice, kept (too soon to ask again).
+    Held,
+    /// The largest frontier, because of this failure.
+    Fallback(Failure),
+}
+
+/// One query to the model and what came of it (what goes on `planner/llm`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Exchange {
+    /// Step of the decision.
+    pub step: u64,
+    /// Number of candidates offered.
+    pub candidates: u32,
+    /// The prompt.
+    pub prompt: Prompt,
+    /// The annotated BEV, PNG (empty for the text prompt).
+    pub bev_png: Vec<u8>,
+    /// What the provider made of it.
+    pub completion: Completion,
+    /// The parsed answer, if valid.
+    pub answer: Option<Answer>,
+    /// The decision taken: the candidate index, or −1.
+    pub decision: i64,
+    /// Why it fell back to the largest frontier, if it did.
+    pub fallback: Option<Failure>,
+    /// The planner's own time (BEV, PNG, prompt, request, parsing), without the model's.
+    pub overhead_ms: f64,
+}
+
+/// A decision and, when a query was made, its exchange.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    /// What to do.
+    pub choice: Choice,
+    /// Why.
+    pub source: Source,
+    /// The query made for it, if any.
+    pub exchange: Option<Exchange>,
+}
+
+/// Totals over an episode (also recomputable from the recorded exchanges).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Stats {
+    /// Decisions made.
+    pub decisions: u64,
+    /// Queries sent to the provider.
+    pub queries: u64,
+    /// HTTP attempts.
+    pub calls: u64,
+    /// Fallbacks to the largest frontier, by kind.
+    pub fallbacks: BTreeMap<FailureKind, u64>,
+    /// Tokens used.
+    pub usage: Usage,
+    /// Model latency summed, milliseconds.
+    pub latency_ms: f64,
+}
+
+/// The last query, to reuse its answer.
+#[derive(Debug, Clone, PartialEq)]
+struct LastQuery {
+    step: u64,
+    map_version: u64,
+    candidates: Vec<Candidate>,
+    choice: Choice,
+}
+
+/// The LLM policy's decision state.
+pub struct LlmPlanner {
+    config: LlmConfig,
+    provider: Option<Box<dyn Provider>>,
+    last_query: Option<LastQuery>,
+    /// The last chosen frontier's label position (the yellow diamond).
+    last_choice: Option<[f64; 2]>,
+    stats: Stats,
+}
+
+/// The largest candidate (ties: the nearer by path, then the lower index): the paper's
+/// fallback.
+pub fn largest(candidates: &[Candidate]) -> Option<usize> {
+    (0..candidates.len()).min_by(|&a, &b| {
+        let (ca, cb) = (&candidates[a], &candidates[b]);
+        cb.size_cells
+            .cmp(&ca.size_cells)
+            .then(ca.path_distance_m.total_cmp(&cb.path_distance_m))
+            .then(a.cmp(&b))
+    })
+}
+
+impl LlmPlanner {
+    /// A planner of `config` asking `provider` (`None`: the offline default, the largest
+    /// frontier at every decision).
+    pub fn new(config: LlmConfig, provider: Option<Box<dyn Provider>>) -> Result<Self, LlmError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            provider,
+            last_query: None,
+            last_choice: None,
+            stats: Stats::default(),
+        })
+    }
+
+    /// The totals so far.
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &LlmConfig {
+        &self.config
+    }
+
+    /// One line for the node's log at start: which provider, or that the offline default
+    /// (the largest frontier) decides.
+    pub fn describe(&self) -> String {
+        match &self.provider {
+            Some(p) => format!("llm policy: {}", p.describe()),
+            None => "llm policy: no provider configured: every decision takes the largest \
+                     frontier (the paper's fallback, SPEC §7)"
+                .into(),
+        }
+    }
+
+    /// Decides among `query.candidates` (at least one).
+    pub fn decide(&mut self, query: &Query<'_>) -> Result<Decision, LlmError> {
+        let n = query.candidates.len();
+        let Some(fallback) = largest(query.candidates) else {
+            return Err(LlmError::Input(format!(
+                "step {}: a decision needs at least one candidate",
+                query.step
+            )));
+        };
+        if !query.robot.iter().all(|v| v.is_finite()) {
+            return Err(LlmError::Input(format!(
+                "step {}: non-finite robot pose {:?}",
+                query.step, query.robot
+            )));
+        }
+        self.stats.decisions += 1;
+        let decision = self.decide_inner(query, n, fallback)?;
+        if let Choice::Frontier(i) = decision.choice {
+            self.last_choice = Some(query.candidates[i].label_at);
+        }
+        if let Source::Fallback(f) = &decision.source {
+            *self.stats.fallbacks.entry(f.kind).or_default() += 1;
+        }
+        Ok(decision)
+    }
+
+    fn decide_inner(
+        &mut self,
+        query: &Query<'_>,
+        n: usize,
+        fallback: usize,
+    ) -> Result<Decision, LlmError> {
+        if self.provider.is_none() {
+            return Ok(Decision {
+                choice: Choice::Frontier(fallback),
+                source: Source::Fallback(Failure::new(
+                    FailureKind::NoProvider,
+                    "no provider configured",
+                )),
+                exchange: None,
+            });
+        }
+        if let Some(last) = &self.last_query {
+            if self.config.ask.skip_unchanged_map
+                && last.map_version == query.map_version
+                && last.candidates == query.candidates
+            {
+                return Ok(Decision {
+                    choice: last.choice,
+                    source: Source::Reused,
+                    exchange: None,
+                });
+            }
+            if query.step < last.step + self.config.ask.min_interval_steps {
+                let held = self.last_choice.and_then(|p| {
+                    nearest(query.candidates, p).filter(|&(_, d)| d <= HOLD_RADIUS_M)
+                });
+                return Ok(Decision {
+                    choice: Choice::Frontier(held.map_or(fallback, |(i, _)| i)),
+                    source: Source::Held,
+                    exchange: None,
+                });
+            }
+        }
+        let started = Instant::now();
+        let facts = PromptFacts {
+            total_steps: query.total_steps,
+            step: query.step,
+            candidates: query.candidates,
+            has_last_choice: self.last_choice.is_some(),
+            robot: query.robot,
+            last_choice: self.last_choice,
+        };
+        let prompt = build(self.config.prompt, &facts);
+        let budget = self.config.budget;
+        let spent_calls = budget.max_calls.is_some_and(|m| self.stats.calls >= m);
+        let spent_tokens = budget
+            .max_tokens
+            .is_some_and(|m| self.stats.usage.total() >= m);
+        let bev_png = if self.config.prompt == PromptStyle::Image && !(spent_calls || spent_tokens)
+        {
+            let annotations = Annotations {
+                robot: query.robot,
+                path: query.path.to_vec(),
+                last_frontier: self.last_choice,
+                candidates: query.candidates.iter().map(|c| c.label_at).collect(),
+            };
+            render_bev(
+                query.map,
+                query.camera_height_m,
+                &annotations,
+                &self.config.bev,
+            )
+            .map_err(|e| LlmError::Bev(e.to_string()))?
+            .png()
+        } else {
+            Vec::new()
+        };
+        let completion = if spent_calls || spent_tokens {
+            let what = if spent_calls {
+                format!("call budget of {} spent", budget.max_calls.unwrap_or(0))
+            } else {
+                format!("token budget of {} spent", budget.max_tokens.unwrap_or(0))
+            };
+            Completion::failed("", FailureKind::Budget, what)
+        } else {
+            let request = ChatRequest {
+                system: &prompt.system,
+                user: &prompt.user,
+                image_png: (!bev_png.is_empty()).then_some(bev_png.as_slice()),
+            };
+            match self.provider.as_mut() {
+                Some(p) => p.complete(&request),
+                None => unreachable!("checked above"),
+            }
+        };
+        self.stats.queries += u64::from(completion.attempts > 0);
+        self.stats.calls += u64::from(completion.attempts);
+        self.stats.latency_ms += completion.latency_ms;
+        self.stats.usage.prompt_tokens = Some(
+            self.stats.usage.prompt_tokens.unwrap_or(0)
+                + completion.usage.prompt_tokens.unwrap_or(0),
+        );
+        self.stats.usage.completion_tokens = Some(
+            self.stats.usage.completion_tokens.unwrap_or(0)
+                + completion.usage.completion_tokens.unwrap_or(0),
+        );
+        let parsed = match &completion.failure {
+            Some(f) => Err(f.clone()),
+            None => {
+                parse_reply(&completion.reply, n).map_err(|e| Failure::new(e.kind(), e.to_string()))
+            }
+        };
+        let (choice, source, answer, fallback_reason) = match parsed {
+            Ok(answer) => {
+                let choice = match answer.target {
+                    -1 => Choice::Refine,
+                    i => Choice::Frontier(i as usize),
+                };
+                (choice, Source::Model, Some(answer), None)
+            }
+            Err(f) => (
+                Choice::Frontier(fallback),
+                Source::Fallback(f.clone()),
+                None,
+                Some(f),
+            ),
+        };
+        let overhead_ms = (started.elapsed().as_secs_f64() * 1e3 - completion.latency_ms).max(0.0);
+        self.last_query = Some(LastQuery {
+            step: query.step,
+            map_version: query.map_version,
+            candidates: query.candidates.to_vec(),
+            choice,
+        });
+        Ok(Decision {
+            choice,
+            source,
+            exchange: Some(Exchange {
+                step: query.step,
+                candidates: n as u32,
+                prompt,
+                bev_png,
+                completion,
+                answer,
+                decision: choice.target(),
+                fallback: fallback_reason,
+                overhead_ms,
+            }),
+        })
+    }
+}
+
+/// The candidate whose label lies nearest `p`, and the distance.
+fn nearest(candidates: &[Candidate], p: [f64; 2]) -> Option<(usize, f64)> {
+    candidates
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (i, (c.label_at[0] - p[0]).hypot(c.label_at[1] - p[1])))
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+}
