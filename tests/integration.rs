@@ -7,6 +7,7 @@ mod integration {
     mod explore;
     mod fisher;
     pub mod harness;
+    mod llm;
     mod processes;
     mod python_bridge;
     mod validate;

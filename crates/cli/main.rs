@@ -225,6 +225,9 @@ enum BenchCommand {
     /// The Fisher scorer: one replan (unknown space, I(w), candidates, 20 paths) on a large
     /// house map, median ms per stage (cold, map changed, reused).
     Scorer(bench_fisher::ScorerArgs),
+    /// The LLM planner's own time per query (BEV, annotation, PNG, request, parsing) without
+    /// the model, on a large house map; prints `planner overhead_median_ms <x>`.
+    Planner(bench_fisher::PlannerArgs),
     /// The paper's Figure 2: view EIG against the map's PSNR at poses in the free space of a
     /// partly mapped house (Spearman ρ, scatter PNG).
     EigPsnr(bench_fisher::EigPsnrArgs),
@@ -436,6 +439,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             BenchCommand::Results(args) => return bench_results::run(&args),
             BenchCommand::Explore(args) => bench_explore::run(&args)?,
             BenchCommand::Scorer(args) => bench_fisher::scorer(&args)?,
+            BenchCommand::Planner(args) => bench_fisher::planner(&args)?,
             BenchCommand::EigPsnr(args) => bench_fisher::eig_psnr(&args)?,
         },
     }
@@ -600,7 +604,10 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
         .and_then(|r| r.implementation)
         .with_context(|| format!("operator `{op}` is not built in this version"))?;
     let inputs = record::recorded_inputs(&recording, &flow, node)?;
-    let produced = (implementation.replay)(spec, &inputs)?;
+    // A node that talks to the outside world (the LLM planner) is served the recorded answers.
+    let mut spec = spec.clone();
+    spec.config = activemap_operators::replay_config(op, &spec.config, recording_path, node);
+    let produced = (implementation.replay)(&spec, &inputs, recording.max_steps)?;
     let report = record::compare_outputs(&recording, node, &produced);
     if recording.truncated {
         eprintln!(

@@ -16,6 +16,9 @@
 //!   sees a frame, so its `camera` (width, height, hfov_deg) must equal the `sim` node's; it
 //!   reads the mapper's `map` (its `map_lag` is checked like the tracker's), and a `fisher`
 //!   scorer without a `map` input would wait for snapshots forever, so that is refused too.
+//! - **LLM planner.** A planner with policy `llm` draws its BEV from the mapper's lagged map
+//!   snapshot: its `map_lag` is checked like the tracker's, and it must read the map with
+//!   `drop: block`.
 
 use std::path::Path;
 
@@ -43,6 +46,11 @@ fn map_lag(node: &NodeSpec) -> Option<(&'static str, u64)> {
             .map(|c| ("occupancy", c.map_lag)),
         // Only the Fisher scorer reads the map (the shortest-path one ignores it).
         "scorer" => fisher_scorer(node).map(|c| ("scorer", c.map_lag)),
+        // Only the LLM planner reads the map (its BEV); the FBE one ignores it.
+        "planner" => config_from_value::<crate::planner::Config>(&node.config)
+            .ok()
+            .filter(|c| c.policy == crate::planner::Policy::Llm)
+            .map(|c| ("planner", c.map_lag)),
         _ => None,
     }
 }
@@ -163,6 +171,37 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
             Some(_) => {}
         }
     }
+    // The LLM planner draws its BEV from the lagged map snapshot and waits for it.
+    for node in flow
+        .nodes
+        .iter()
+        .filter(|n| matches!(map_lag(n), Some(("planner", _))))
+    {
+        let message = match node.inputs.iter().find(|i| i.name == "map") {
+            None => Some((
+                node.loc,
+                format!(
+                    "node `{}` (planner) has policy llm but no `map` input; wire it to the mapper's map (e.g. `map: {{ source: mapper/map, queue_size: 4, drop: block }}`): its bird's-eye view is drawn from it",
+                    node.id
+                ),
+            )),
+            Some(map) if map.drop != DropPolicy::Block => Some((
+                map.loc,
+                format!(
+                    "node `{}` (planner, policy llm): its `map` input must be `drop: block`; a dropped snapshot is one a decision waits for forever",
+                    node.id
+                ),
+            )),
+            Some(_) => None,
+        };
+        if let Some((loc, message)) = message {
+            diags.push(Diagnostic {
+                file: flow.file.clone(),
+                loc,
+                message,
+            });
+        }
+    }
     for consumer in &flow.nodes {
         let Some((consumer_op, consumer_lag)) = map_lag(consumer) else {
             continue;
@@ -256,13 +295,52 @@ mod tests {
         std::fs::read_to_string(root.join("flows/fisher.yaml")).unwrap()
     }
 
+    /// An LLM planner must read the mapper's map, blocking, at the mapper's lag.
+    #[test]
+    fn the_llm_planner_must_read_the_lagged_map() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let flow = std::fs::read_to_string(root.join("flows/llm.yaml")).unwrap();
+        parse("llm.yaml", &flow, Path::new(".")).unwrap();
+        let input = "      map: { source: mapper/map, queue_size: 4, drop: block }\n      grid: { source: occupancy/grid, queue_size: 4, drop: block }\n      regions: { source: frontier/regions, drop: block }\n      pose: { source: tracker/pose, drop: block }\n      replan";
+        assert!(flow.contains(input), "the planner's inputs moved");
+        let no_map = flow.replacen(
+            "      map: { source: mapper/map, queue_size: 4, drop: block }\n      grid: { source: occupancy/grid, queue_size: 4, drop: block }\n      regions: { source: frontier/regions, drop: block }\n      pose: { source: tracker/pose, drop: block }\n      replan",
+            "      grid: { source: occupancy/grid, queue_size: 4, drop: block }\n      regions: { source: frontier/regions, drop: block }\n      pose: { source: tracker/pose, drop: block }\n      replan",
+            1,
+        );
+        let msg = parse("nomap.yaml", &no_map, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("`planner`") && msg.contains("no `map` input"),
+            "{msg}"
+        );
+        let lag = flow.replacen(
+            "      map_lag: 10\n      llm:",
+            "      map_lag: 3\n      llm:",
+            1,
+        );
+        assert_ne!(lag, flow);
+        let msg = parse("lag.yaml", &lag, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("map_lag mismatch") && msg.contains("`planner`"),
+            "{msg}"
+        );
+    }
+
     /// The named Fisher flows pass; a Fisher scorer whose camera is not the simulator's, whose
     /// map lag is not the mapper's, whose map input may drop snapshots or that reads no map
     /// is refused, naming the scorer (and the other node).
     #[test]
     fn the_fisher_scorer_must_match_the_sim_camera_and_read_the_lagged_map() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        for name in ["flows/fisher.yaml", "flows/fisher_eig_only.yaml"] {
+        for name in [
+            "flows/fisher.yaml",
+            "flows/fisher_eig_only.yaml",
+            "flows/llm.yaml",
+        ] {
             let text = std::fs::read_to_string(root.join(name)).unwrap();
             parse(name, &text, Path::new(".")).unwrap();
         }

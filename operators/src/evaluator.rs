@@ -9,6 +9,9 @@
 //! (the scorer's `report`) brought at least one `FisherReport`, `fisher.csv`: one row per
 //! Fisher replan ([`fisher_row`]). A run without Fisher replans (policy `fbe`, or a `fisher`
 //! run too short to replan) has no `fisher.csv`, so an absent file means "no replan".
+//! The optional `llm` input (the LLM planner's exchanges) is written as it arrives: one line
+//! of `llm.jsonl` per query and its BEV as `llm/bev_NNNN_step_K.png`; `summary.json` then
+//! holds the totals (queries, calls, fallbacks by kind, tokens, model latency).
 //!
 //! A forward action is *blocked* when the true position it led to lies less than half the
 //! forward step (SPEC §1: 5 cm) from the one it started at: the robot drove into something.
@@ -19,7 +22,9 @@
 
 use std::path::PathBuf;
 
-use activemap_eval::run_folder::{Bev, BevCell, CoverageRow, FisherRow, RunFolder};
+use activemap_eval::run_folder::{
+    Bev, BevCell, CoverageRow, FisherRow, LlmRecord, LlmSummary, RunFolder,
+};
 use activemap_eval::{AteOptions, ate, coverage_2d};
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -32,8 +37,8 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{
-    Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, MessageKind as K, PoseEstimate,
-    TruePose,
+    Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, LlmExchange, MessageKind as K,
+    PoseEstimate, TruePose,
 };
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
@@ -144,6 +149,32 @@ pub struct Evaluator {
     robot: RobotModel,
     /// One row per `FisherReport` received, in arrival order (`fisher.csv`).
     fisher: Vec<FisherRow>,
+    /// One record per `LlmExchange` received (appended to `llm.jsonl` as it arrives).
+    llm: Vec<LlmRecord>,
+}
+
+/// The `llm.jsonl` record of an exchange whose BEV was written at `bev` (relative path).
+pub fn llm_record(e: &LlmExchange, bev: Option<String>) -> LlmRecord {
+    LlmRecord {
+        step: Some(e.frame_id),
+        system: Some(e.system.clone()),
+        prompt: Some(e.prompt.clone()),
+        bev,
+        provider: Some(e.provider.clone()).filter(|p| !p.is_empty()),
+        model: Some(e.model.clone()).filter(|m| !m.is_empty()),
+        candidates: Some(e.candidates),
+        http_status: e.http_status,
+        attempts: Some(e.attempts),
+        latency_ms: Some(e.latency_ms),
+        prompt_tokens: e.prompt_tokens,
+        completion_tokens: e.completion_tokens,
+        reply: Some(e.reply.clone()),
+        target: e.target.map(i64::from),
+        reason: e.reason.clone(),
+        decision: Some(i64::from(e.decision)),
+        failure: e.failure.clone(),
+        failure_detail: e.failure_detail.clone(),
+    }
 }
 
 /// Counts the forward actions whose outcome is known, and the blocked ones among them: the
@@ -267,6 +298,7 @@ impl Evaluator {
             max_area: self.scene.max_area,
             up_axis: self.scene.up_axis.map(|up| up.name().to_string()),
             robot: Some(self.robot),
+            llm: (!self.llm.is_empty()).then(|| LlmSummary::of(&self.llm)),
         };
         out.write_summary(&summary)?;
         eprintln!(
@@ -390,6 +422,7 @@ impl Operator for Evaluator {
             forward_steps: Vec::new(),
             robot: config.robot,
             fisher: Vec::new(),
+            llm: Vec::new(),
         })
     }
 
@@ -429,6 +462,20 @@ impl Operator for Evaluator {
                 "grid" => self.pending_grids.push(read_grid(input.bytes)?),
                 "regions" => self.regions = Some(input.decode()?),
                 "fisher" => self.fisher.push(fisher_row(&input.decode()?)?),
+                "llm" => {
+                    // Written as it arrives: a crash later loses no exchange.
+                    let e: LlmExchange = input.decode()?;
+                    self.out.create()?;
+                    let bev = (!e.bev_png.is_empty())
+                        .then(|| {
+                            self.out
+                                .write_llm_bev(self.llm.len(), e.frame_id, &e.bev_png)
+                        })
+                        .transpose()?;
+                    let record = llm_record(&e, bev);
+                    self.out.append_llm(&record)?;
+                    self.llm.push(record);
+                }
                 "action" => {
                     let a: Action = input.decode()?;
                     if a.action == ActionKind::Forward {
@@ -488,11 +535,16 @@ pub fn registered() -> Registered {
             name: "fisher",
             kind: K::FisherReport,
         },
+        // Optional: the LLM flows connect it to planner/llm (llm.jsonl, llm/*.png).
+        PortSpec {
+            name: "llm",
+            kind: K::LlmExchange,
+        },
     ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "evaluator",
-            summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE, Fisher replans (SPEC §8)",
+            summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE, Fisher replans, LLM exchanges (SPEC §8)",
             inputs: INPUTS,
             outputs: &[],
             evaluation: true,
@@ -595,6 +647,7 @@ mod tests {
             forward_steps: Vec::new(),
             robot: RobotModel::default(),
             fisher: Vec::new(),
+            llm: Vec::new(),
         };
         let summary = ev.write_outputs().unwrap();
         assert_eq!(run.read_summary().unwrap(), summary);

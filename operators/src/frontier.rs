@@ -65,6 +65,10 @@ pub fn frontier_regions(
                 centroid: [r.centroid.x, r.centroid.y],
                 closest_reachable_cell: [a.cell.x, a.cell.y],
                 path_distance_m: a.path_distance_m,
+                anchor: {
+                    let c = grid.geometry.center(r.anchor);
+                    [c.x, c.y]
+                },
             })
         })
         .collect();

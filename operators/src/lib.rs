@@ -64,6 +64,22 @@ pub fn catalog() -> Vec<OperatorDescriptor> {
     registry().into_iter().map(|r| r.descriptor).collect()
 }
 
+/// The config a node of operator `operator` runs with when `activemap replay` re-runs it
+/// alone from `recording`: nodes that talk to the outside world serve the recorded answers
+/// instead (the LLM planner's `recorded` provider, [`planner::replay_config`]); any other
+/// config is returned as it is.
+pub fn replay_config(
+    operator: &str,
+    config: &serde_json::Value,
+    recording: &std::path::Path,
+    node: &str,
+) -> serde_json::Value {
+    match operator {
+        "planner" => planner::replay_config(config, recording, node),
+        _ => config.clone(),
+    }
+}
+
 /// The registry entry of operator `name`.
 pub fn find(name: &str) -> Option<Registered> {
     registry().into_iter().find(|r| r.descriptor.name == name)

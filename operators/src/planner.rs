@@ -1,18 +1,40 @@
-//! `planner`: chooses the frontier to explore when the follower asks for a replan. Policy
-//! `fbe` (frontier-based exploration, SPEC §6 baseline): a thin wrapper around
+//! `planner`: chooses the frontier to explore when the follower asks for a replan.
+//!
+//! Policy `fbe` (frontier-based exploration, SPEC §6 baseline): a thin wrapper around
 //! [`activemap_planning::fbe::FbePlanner`], the decision the in-process explorer makes too
 //! (ranking: `utility` = size / (path + turn cost + offset) by default, or `nearest` / `largest`;
 //! strikes: a reached goal one, or two when its region did not shrink, a failed goal (no path,
 //! stuck) two; amnesty once per growth of the map). The path distances come with the regions
-//! (`FrontierRegion::path_distance_m`), so a replan costs no search here. The LLM policy
-//! (SPEC §7) is a later issue: `policy: llm` is a config error ([`Policy`]). With no reachable
-//! frontier left, `when_no_frontier` ([`NoFrontier`]) says what happens: `end` (the default,
-//! FBE) ends the episode (end of its `goal` stream); `refine` sends a goal with target −1, the
-//! scorer's refine mode (SPEC §6: refine what is mapped), and asks again at the next replan, so
-//! an episode with Fisher paths runs to its step budget (the simulator ends it at `max_steps`).
+//! (`FrontierRegion::path_distance_m`), so a replan costs no search here.
+//!
+//! Policy `llm` (SPEC §7): the multimodal-LLM long-horizon planner of `activemap-llm`. The
+//! candidates are the regions FBE's strikes leave eligible (numbered 0..N−1 in the frontier
+//! operator's order, largest first); the library renders the annotated BEV of the map snapshot
+//! of frame k − 1 − L (L = `map_lag`, the mapper's, so a seeded run stays deterministic), asks
+//! the configured provider, parses the reply and falls back to the largest frontier on any
+//! failure. Every query goes out on `llm` ([`LlmExchange`]: request without secrets, BEV PNG,
+//! raw reply, HTTP status, latency, tokens, decision, fallback reason) and so into the
+//! recording; a `recorded` provider serves a recording's replies back in order (what
+//! `activemap replay --node planner` uses, [`replay_config`]). With no provider configured the
+//! policy is the paper's fallback (the largest frontier), said once at start.
+//!
+//! With no reachable frontier left, `when_no_frontier` ([`NoFrontier`]) says what happens:
+//! `end` (the default, FBE) ends the episode (end of its `goal` stream); `refine` sends a goal
+//! with target −1, the scorer's refine mode (SPEC §6: refine what is mapped), and asks again
+//! at the next replan, so an episode with Fisher paths runs to its step budget (the simulator
+//! ends it at `max_steps`). The model's −1 sends the same refine goal.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
 
 use activemap_geometry::PlanarPose;
 use activemap_geometry::frames::planar_from_camera_pose;
+use activemap_llm::planner::Source;
+use activemap_llm::provider::{Completion, Failure, FailureKind, RecordedReply, Usage};
+use activemap_llm::{
+    Candidate, Choice as LlmChoice, Exchange, LlmConfig, LlmPlanner, ProviderConfig, Query,
+};
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::fbe::{FbeConfig, FbePolicy, FbeState};
 use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
@@ -21,40 +43,27 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
 use activemap_schemas::{
-    Frontiers, Goal, MessageKind as K, OccupancyGridView, PoseEstimate, ReplanReason, ReplanRequest,
+    Frontiers, GaussianMapView, Goal, LlmExchange, MessageKind as K, OccupancyGridView,
+    PoseEstimate, ReplanReason, ReplanRequest, SmallMessage,
 };
+use activemap_splat::Gaussians;
 use nalgebra::Point2;
 
 use crate::Registered;
-use crate::convert::{pose_from_wire, read_grid};
+use crate::convert::{pose_from_wire, read_grid, read_map};
 use crate::follower::reason_from_wire;
 use crate::join::FrameJoin;
+use crate::mapper::required_snapshot;
 
-/// The goal-choice policy. Only FBE is built; `llm` (SPEC §7) is refused when the config is
-/// read, the one place it is checked (`activemap validate` and the node's start alike).
+/// The goal-choice policy, checked once when the config is read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
-#[serde(try_from = "String")]
+#[serde(rename_all = "snake_case")]
 pub enum Policy {
     /// Frontier-based exploration.
     #[default]
     Fbe,
-}
-
-impl TryFrom<String> for Policy {
-    type Error = String;
-
-    fn try_from(name: String) -> Result<Self, String> {
-        match name.as_str() {
-            "fbe" => Ok(Self::Fbe),
-            "llm" => Err(
-                "policy `llm` is not built yet: only `fbe` (the LLM policy of SPEC §7 comes later)"
-                    .into(),
-            ),
-            other => Err(format!(
-                "unknown policy `{other}`: only `fbe` is built (`llm`, SPEC §7, comes later)"
-            )),
-        }
-    }
+    /// The multimodal-LLM planner (SPEC §7), settings in `llm:`.
+    Llm,
 }
 
 /// Which frontier FBE picks.
@@ -88,10 +97,10 @@ pub const REFINE_TARGET: i32 = -1;
 #[derive(Debug, Clone, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
-    /// `fbe` (the only policy built so far).
+    /// `fbe` (default) or `llm`.
     #[serde(default)]
     pub policy: Policy,
-    /// FBE choice.
+    /// FBE choice (policy `fbe`).
     #[serde(default = "default_choice")]
     pub frontier: Choice,
     /// Struck goals ban approach cells within this many cells.
@@ -100,6 +109,31 @@ pub struct Config {
     /// No reachable frontier left: `end` the episode (default) or send a `refine` goal.
     #[serde(default)]
     pub when_no_frontier: NoFrontier,
+    /// Policy `llm`: the planner's settings ([`activemap_llm::LlmConfig`]: prompt, provider,
+    /// BEV, when to ask, budget). Absent: the offline default.
+    #[serde(default)]
+    pub llm: Option<serde_json::Value>,
+    /// Policy `llm`: map lag L in frames; the BEV of the decision of frame k shows the map
+    /// snapshot of frame k − 1 − L. Must equal the mapper's `map_lag`.
+    #[serde(default)]
+    pub map_lag: u64,
+}
+
+impl Config {
+    /// The LLM settings (`llm:`, defaults when absent), checked.
+    pub fn llm_config(&self) -> Result<LlmConfig, String> {
+        match &self.llm {
+            None => Ok(LlmConfig::default()),
+            Some(v) => LlmConfig::from_value(v).map_err(|e| format!("llm: {e}")),
+        }
+    }
+
+    /// True when the LLM policy needs map snapshots (a provider with the image prompt).
+    fn needs_map(&self, llm: &LlmConfig) -> bool {
+        self.policy == Policy::Llm
+            && llm.provider.is_some()
+            && llm.prompt == activemap_llm::PromptStyle::Image
+    }
 }
 
 fn default_choice() -> Choice {
@@ -111,7 +145,13 @@ fn default_exclusion() -> f64 {
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
     let config: Config = activemap_runtime::catalog::config_from_value(value)?;
-    fbe_config(&config).validate().map_err(|e| e.to_string())
+    fbe_config(&config).validate().map_err(|e| e.to_string())?;
+    let llm = config.llm_config()?;
+    if config.policy == Policy::Fbe && config.llm.is_some() {
+        return Err("`llm:` settings need `policy: llm`".into());
+    }
+    drop(llm);
+    Ok(())
 }
 
 /// The library settings for an operator config.
@@ -213,6 +253,8 @@ struct Slot {
     grid: Option<Vec<u8>>,
     regions: Option<Frontiers>,
     pose: Option<PlanarPose>,
+    /// Camera height of the estimate (the BEV's ceiling cut).
+    camera_z: Option<f64>,
 }
 
 /// The goal for one replan request (transport-free): the FBE choice, or with no reachable
@@ -253,9 +295,333 @@ pub fn goal_for_request(
     )
 }
 
+/// The library's candidate of a wire region (its number is its index among the candidates).
+fn candidate(region: &activemap_schemas::FrontierRegion, cell_size_m: f64) -> Candidate {
+    Candidate {
+        centroid: region.centroid,
+        label_at: region.anchor,
+        size_cells: region.size_cells,
+        area_m2: region.size_cells as f64 * cell_size_m * cell_size_m,
+        path_distance_m: region.path_distance_m,
+    }
+}
+
+/// The wire record of an exchange made at frame `frame_id`.
+pub fn exchange_to_wire(frame_id: u64, e: &Exchange) -> LlmExchange {
+    let c = &e.completion;
+    LlmExchange {
+        frame_id,
+        system: e.prompt.system.clone(),
+        prompt: e.prompt.user.clone(),
+        bev_png: e.bev_png.clone(),
+        provider: c.provider.clone(),
+        model: c.model.clone(),
+        request: c.request.clone(),
+        candidates: e.candidates,
+        http_status: c.http_status,
+        attempts: c.attempts,
+        latency_ms: c.latency_ms,
+        prompt_tokens: c.usage.prompt_tokens,
+        completion_tokens: c.usage.completion_tokens,
+        reply: c.reply.clone(),
+        target: e.answer.as_ref().map(|a| a.target as i32),
+        reason: e.answer.as_ref().map(|a| a.reason.clone()),
+        decision: e.decision as i32,
+        failure: e.fallback.as_ref().map(|f| f.kind.name().to_string()),
+        failure_detail: e.fallback.as_ref().map(|f| f.detail.clone()),
+    }
+}
+
+/// The replies a recorded provider serves: the exchanges on `{node}/llm` of the recording
+/// at `path`, in order, without those that never reached a provider (budget spent). Parse
+/// and model failures are served as they were, so the same fallbacks happen again.
+pub fn recorded_replies(path: &Path, node: &str) -> anyhow::Result<Vec<RecordedReply>> {
+    let recording = activemap_runtime::record::read_recording(path)?;
+    let topic = format!("{node}/llm");
+    let mut replies = Vec::new();
+    for m in recording
+        .messages
+        .iter()
+        .filter(|m| m.topic == topic && !m.bytes.is_empty())
+    {
+        let e = LlmExchange::decode(&m.bytes).map_err(|e| {
+            anyhow::anyhow!("{}: message {} of `{topic}`: {e}", path.display(), m.seq)
+        })?;
+        let kind = e.failure.as_deref().map(|k| {
+            FailureKind::from_name(k).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: `{topic}` {}: unknown failure `{k}`",
+                    path.display(),
+                    m.seq
+                )
+            })
+        });
+        let kind = kind.transpose()?;
+        if kind == Some(FailureKind::Budget) {
+            continue;
+        }
+        // Parse failures are the planner's, not the provider's: the provider served a reply.
+        let provider_failure = kind.filter(|k| {
+            !matches!(
+                k,
+                FailureKind::NoJson | FailureKind::BadJson | FailureKind::BadTarget
+            )
+        });
+        replies.push(RecordedReply {
+            system: e.system,
+            user: e.prompt,
+            completion: Completion {
+                provider: e.provider,
+                model: e.model,
+                request: e.request,
+                http_status: e.http_status,
+                attempts: e.attempts,
+                latency_ms: e.latency_ms,
+                usage: Usage {
+                    prompt_tokens: e.prompt_tokens,
+                    completion_tokens: e.completion_tokens,
+                },
+                reply: e.reply,
+                failure: provider_failure
+                    .map(|k| Failure::new(k, e.failure_detail.unwrap_or_default())),
+            },
+        });
+    }
+    if replies.is_empty() {
+        eprintln!(
+            "planner: {} holds no exchange on `{topic}`: every query will fall back",
+            path.display()
+        );
+    }
+    Ok(replies)
+}
+
+/// The `llm` policy without transport: FBE's strikes pick the eligible regions, the library
+/// planner decides among them on the lagged map snapshot.
+pub struct LlmPolicy {
+    fbe: FbePlanner,
+    planner: LlmPlanner,
+    when_no_frontier: NoFrontier,
+    lag: u64,
+    needs_map: bool,
+    total_steps: u64,
+    /// Map snapshots by frame; snapshots of the same keyframe share one decoded map.
+    maps: BTreeMap<u64, (u64, Arc<Gaussians<f32>>)>,
+    /// The estimated positions so far (the green path), one per frame that moved ≥ 1 cm.
+    path: Vec<[f64; 2]>,
+}
+
+impl LlmPolicy {
+    /// The policy of `config` for node `node`; `max_steps` is the run's `--max-steps`.
+    pub fn new(config: &Config, node: &str, max_steps: Option<u64>) -> anyhow::Result<Self> {
+        let llm = config
+            .llm_config()
+            .map_err(|e| anyhow::anyhow!("planner: {e}"))?;
+        let recorded = match &llm.provider {
+            Some(ProviderConfig::Recorded {
+                recording,
+                node: from,
+            }) => Some(recorded_replies(
+                recording,
+                from.as_deref().unwrap_or(node),
+            )?),
+            _ => None,
+        };
+        let seed = match &llm.provider {
+            Some(ProviderConfig::Openai(h) | ProviderConfig::Ollama(h)) => h.seed.unwrap_or(0),
+            _ => 0,
+        };
+        let provider = llm
+            .provider
+            .as_ref()
+            .map(|p| activemap_llm::provider::from_config(p, recorded, seed))
+            .transpose()?;
+        let total_steps = llm.total_steps.or(max_steps).unwrap_or(2000);
+        Ok(Self {
+            fbe: FbePlanner::new(config)?,
+            needs_map: config.needs_map(&llm),
+            planner: LlmPlanner::new(llm, provider)?,
+            when_no_frontier: config.when_no_frontier,
+            lag: config.map_lag,
+            total_steps,
+            maps: BTreeMap::new(),
+            path: Vec::new(),
+        })
+    }
+
+    /// The line the node logs at start.
+    pub fn describe(&self) -> String {
+        self.planner.describe()
+    }
+
+    /// The library planner (its totals).
+    pub fn planner(&self) -> &LlmPlanner {
+        &self.planner
+    }
+
+    /// Stores a wire map snapshot (decoded only when its keyframe is new).
+    pub fn add_map(&mut self, bytes: &[u8]) -> anyhow::Result<()> {
+        if !self.needs_map {
+            return Ok(());
+        }
+        let header = GaussianMapView::parse(bytes)?.header;
+        let version = header.keyframe().unwrap_or(u64::MAX);
+        let reuse = self
+            .maps
+            .values()
+            .next_back()
+            .filter(|(v, m)| *v == version && m.len() as u64 == header.count)
+            .map(|(_, m)| m.clone());
+        let map = match reuse {
+            Some(m) => m,
+            None => Arc::new(read_map(bytes)?.1),
+        };
+        self.maps.insert(header.frame_id, (version, map));
+        Ok(())
+    }
+
+    /// Notes the estimated position of a frame (frames come in order).
+    pub fn add_position(&mut self, pose: &PlanarPose) {
+        let p = [pose.x, pose.y];
+        if self
+            .path
+            .last()
+            .is_none_or(|q| (q[0] - p[0]).hypot(q[1] - p[1]) >= 0.01)
+        {
+            self.path.push(p);
+        }
+    }
+
+    /// True once what the decision of frame `k` needs has arrived.
+    pub fn ready(&self, k: u64) -> bool {
+        !self.needs_map || self.maps.contains_key(&required_snapshot(k, self.lag))
+    }
+
+    /// The goal for `request` and the exchange to record, if a query was made; `None` goal:
+    /// the episode is over.
+    pub fn goal(
+        &mut self,
+        request: &ReplanRequest,
+        grid: &PlanGrid,
+        frontiers: &Frontiers,
+        pose: &PlanarPose,
+        camera_z: f64,
+    ) -> anyhow::Result<(Option<Goal>, Option<LlmExchange>)> {
+        let k = request.frame_id;
+        let regions = regions_from_wire(frontiers);
+        let eligible = self
+            .fbe
+            .planner
+            .eligible(reason_from_wire(request.reason), grid, &regions);
+        let refine = Goal {
+            frame_id: k,
+            target: REFINE_TARGET,
+            focus: [pose.x, pose.y],
+        };
+        if eligible.is_empty() {
+            self.fbe.planner.commit(&regions, None, grid);
+            return Ok(match self.when_no_frontier {
+                NoFrontier::End => {
+                    eprintln!("planner: no reachable frontier left at frame {k}: episode over");
+                    (None, None)
+                }
+                NoFrontier::Refine => {
+                    eprintln!("planner: no reachable frontier left at frame {k}: refine goal");
+                    (Some(refine), None)
+                }
+            });
+        }
+        let cell = grid.geometry.resolution;
+        let candidates: Vec<Candidate> = eligible
+            .iter()
+            .map(|&i| candidate(&frontiers.regions[i], cell))
+            .collect();
+        let empty = Arc::new(Gaussians::new());
+        let (version, map) = match self.maps.get(&required_snapshot(k, self.lag)) {
+            Some((v, m)) => (*v, m.clone()),
+            None if !self.needs_map => (u64::MAX, empty),
+            None => anyhow::bail!(
+                "planner: the decision of frame {k} needs map snapshot {}, which has not arrived",
+                required_snapshot(k, self.lag)
+            ),
+        };
+        let decision = self.planner.decide(&Query {
+            step: k,
+            total_steps: self.total_steps,
+            map: &map,
+            map_version: version,
+            camera_height_m: camera_z,
+            robot: [pose.x, pose.y, pose.yaw],
+            path: &self.path,
+            candidates: &candidates,
+        })?;
+        let goal = match decision.choice {
+            LlmChoice::Frontier(i) => {
+                let region = eligible[i];
+                self.fbe.planner.commit(&regions, Some(region), grid);
+                let r = &frontiers.regions[region];
+                Goal {
+                    frame_id: k,
+                    target: r.id as i32,
+                    focus: r.centroid,
+                }
+            }
+            LlmChoice::Refine => {
+                self.fbe.planner.commit(&regions, None, grid);
+                refine
+            }
+        };
+        let how = match &decision.source {
+            Source::Model => "the model's choice".to_string(),
+            Source::Reused => "the last answer (map unchanged)".to_string(),
+            Source::Held => "the last target (too soon to ask)".to_string(),
+            Source::Fallback(f) if f.kind == FailureKind::NoProvider => {
+                "largest frontier".to_string()
+            }
+            Source::Fallback(f) => format!("largest frontier, fallback after {f}"),
+        };
+        eprintln!(
+            "planner: frame {k}: target {} of {} candidates: {how}",
+            goal.target,
+            candidates.len()
+        );
+        // Older snapshots are no longer needed (requests come in frame order).
+        let keep = required_snapshot(k, self.lag);
+        self.maps = self.maps.split_off(&keep);
+        Ok((
+            Some(goal),
+            decision.exchange.as_ref().map(|e| exchange_to_wire(k, e)),
+        ))
+    }
+}
+
+/// How a `recorded` provider replaces the node's provider when `activemap replay` re-runs a
+/// planner alone: the config of node `node` with its LLM provider set to the recording at
+/// `recording` (unchanged for any other policy or an offline planner).
+pub fn replay_config(
+    config: &serde_json::Value,
+    recording: &Path,
+    node: &str,
+) -> serde_json::Value {
+    let mut config = config.clone();
+    let llm = config.get("policy").and_then(|p| p.as_str()) == Some("llm");
+    if let Some(provider) = config.pointer_mut("/llm/provider")
+        && llm
+        && !provider.is_null()
+    {
+        *provider = serde_json::json!({
+            "kind": "recorded",
+            "recording": recording,
+            "node": node,
+        });
+    }
+    config
+}
+
 /// The operator.
 pub struct Planner {
     fbe: FbePlanner,
+    llm: Option<LlmPolicy>,
     when_no_frontier: NoFrontier,
     join: FrameJoin<Slot>,
     requests: Vec<ReplanRequest>,
@@ -264,9 +630,18 @@ pub struct Planner {
 impl Operator for Planner {
     type Config = Config;
 
-    fn new(config: Config, _ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+    fn new(config: Config, ctx: &mut Context<'_>) -> anyhow::Result<Self> {
+        let llm = match config.policy {
+            Policy::Fbe => None,
+            Policy::Llm => {
+                let policy = LlmPolicy::new(&config, ctx.node_id(), ctx.max_steps())?;
+                eprintln!("planner: {}", policy.describe());
+                Some(policy)
+            }
+        };
         Ok(Self {
             fbe: FbePlanner::new(&config)?,
+            llm,
             when_no_frontier: config.when_no_frontier,
             join: FrameJoin::new(),
             requests: Vec::new(),
@@ -288,10 +663,20 @@ impl Operator for Planner {
                 "replan" => self.requests.push(input.decode()?),
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
-                    let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                    self.join.slot(e.frame_id).pose = Some(pose);
+                    let t = pose_from_wire(&e.t_world_camera)?;
+                    let pose = planar_from_camera_pose(&t);
+                    if let Some(llm) = &mut self.llm {
+                        llm.add_position(&pose);
+                    }
+                    let slot = self.join.slot(e.frame_id);
+                    slot.pose = Some(pose);
+                    slot.camera_z = Some(t.translation.z);
                 }
-                "map" => {}
+                "map" => {
+                    if let Some(llm) = &mut self.llm {
+                        llm.add_map(input.bytes)?;
+                    }
+                }
                 other => anyhow::bail!("planner: unexpected input `{other}`"),
             },
             Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
@@ -303,20 +688,34 @@ impl Operator for Planner {
                 grid: Some(grid),
                 regions: Some(frontiers),
                 pose: Some(pose),
+                camera_z: Some(camera_z),
             }) = self.join.get(k)
             else {
                 break;
             };
+            if self.llm.as_ref().is_some_and(|l| !l.ready(k)) {
+                break;
+            }
             let (_, grid) = read_grid(grid)?;
             self.requests.remove(0);
-            match goal_for_request(
-                &mut self.fbe,
-                self.when_no_frontier,
-                &request,
-                &grid,
-                frontiers,
-                pose,
-            )? {
+            let goal = match &mut self.llm {
+                None => goal_for_request(
+                    &mut self.fbe,
+                    self.when_no_frontier,
+                    &request,
+                    &grid,
+                    frontiers,
+                    pose,
+                )?,
+                Some(llm) => {
+                    let (goal, exchange) = llm.goal(&request, &grid, frontiers, pose, *camera_z)?;
+                    if let Some(exchange) = exchange {
+                        ctx.send("llm", &exchange)?;
+                    }
+                    goal
+                }
+            };
+            match goal {
                 Some(goal) => ctx.send("goal", &goal)?,
                 None => return Ok(Flow::Stop),
             }
@@ -364,7 +763,7 @@ pub fn registered() -> Registered {
     Registered {
         descriptor: OperatorDescriptor {
             name: "planner",
-            summary: "Goal choice on replan: FBE utility/nearest/largest frontier (or refine, -1, when none is left) now, LLM later (SPEC §6, §7)",
+            summary: "Goal choice on replan: FBE utility/nearest/largest frontier, or the multimodal LLM on the annotated BEV (refine, -1, when none is left) (SPEC §6, §7)",
             inputs: INPUTS,
             outputs: OUTPUTS,
             evaluation: false,
@@ -388,6 +787,7 @@ mod tests {
             centroid: [cell[0] as f64 * 0.05, cell[1] as f64 * 0.05 + 0.3],
             closest_reachable_cell: cell,
             path_distance_m: distance,
+            anchor: [cell[0] as f64 * 0.05, cell[1] as f64 * 0.05 + 0.1],
         }
     }
 
@@ -412,6 +812,8 @@ mod tests {
             frontier: Choice::Nearest,
             exclusion_radius_cells: 3.0,
             when_no_frontier: NoFrontier::End,
+            llm: None,
+            map_lag: 0,
         };
         let mut planner = FbePlanner::new(&config).unwrap();
         let robot = PlanarPose::new(0.5, 0.5, 0.0);
@@ -544,19 +946,42 @@ mod tests {
         assert!(check_config(&serde_json::json!({ "frontier": "widest" })).is_err());
     }
 
-    /// `policy` is checked once, when the config is read: `fbe` (the default) is built, `llm`
-    /// is refused as not built yet, anything else as unknown (naming both).
+    /// `policy` is checked once, when the config is read: `fbe` (the default) and `llm`;
+    /// anything else is refused naming both; `llm:` settings are checked with it (a key in
+    /// the YAML is refused) and need `policy: llm`.
     #[test]
-    fn only_the_fbe_policy_is_built() {
+    fn policies_and_llm_settings_are_checked_when_read() {
         let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
         assert_eq!(config.policy, Policy::Fbe);
         assert!(check_config(&serde_json::json!({ "policy": "fbe" })).is_ok());
-        let llm = check_config(&serde_json::json!({ "policy": "llm" })).unwrap_err();
-        assert!(llm.contains("`llm` is not built yet"), "{llm}");
+        assert!(check_config(&serde_json::json!({ "policy": "llm" })).is_ok());
         let other = check_config(&serde_json::json!({ "policy": "random" })).unwrap_err();
+        assert!(other.contains("random") && other.contains("llm"), "{other}");
+        let key = check_config(&serde_json::json!({ "policy": "llm", "llm": { "provider": {
+            "kind": "openai", "base_url": "http://127.0.0.1:1/v1", "model": "m",
+            "api_key": "sk-secret" } } }))
+        .unwrap_err();
         assert!(
-            other.contains("`random`") && other.contains("llm"),
-            "{other}"
+            key.contains("api_key_env") && !key.contains("sk-secret"),
+            "{key}"
         );
+        let fbe = check_config(&serde_json::json!({ "llm": {} })).unwrap_err();
+        assert!(fbe.contains("policy: llm"), "{fbe}");
+    }
+
+    /// Replay swaps an LLM planner's provider for the recording's replies, and leaves other
+    /// configs alone.
+    #[test]
+    fn replay_serves_the_recorded_replies() {
+        let live = serde_json::json!({ "policy": "llm", "llm": { "provider": {
+            "kind": "ollama", "base_url": "http://127.0.0.1:11434", "model": "llava" } } });
+        let r = replay_config(&live, Path::new("/runs/a/recording.mcap"), "planner");
+        assert_eq!(r["llm"]["provider"]["kind"], "recorded");
+        assert_eq!(r["llm"]["provider"]["recording"], "/runs/a/recording.mcap");
+        assert!(check_config(&r).is_ok());
+        let fbe = serde_json::json!({ "policy": "fbe" });
+        assert_eq!(replay_config(&fbe, Path::new("x"), "planner"), fbe);
+        let offline = serde_json::json!({ "policy": "llm" });
+        assert_eq!(replay_config(&offline, Path::new("x"), "planner"), offline);
     }
 }

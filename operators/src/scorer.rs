@@ -889,6 +889,7 @@ mod tests {
                 centroid: [1.5, 1.0],
                 closest_reachable_cell: [27, 20],
                 path_distance_m: 1.1,
+                anchor: [1.5, 1.0],
             }],
         };
         (grid, frontiers, PlanarPose::new(0.5, 1.0, 0.0))
@@ -980,6 +981,7 @@ mod tests {
             centroid: [2.5, 2.5],
             closest_reachable_cell: cell,
             path_distance_m: 1.0,
+            anchor: [2.5, 2.5],
         };
         let frontiers = Frontiers {
             frame_id: 3,

@@ -70,7 +70,7 @@ kinds! {
     TruePose: Small, true, <TruePose as SmallMessage>::VERSION as u32,
         "TruePose { frame_id, stamp, t_world_camera } ground truth, evaluation only (u16 version + postcard)";
     Frontiers: Small, false, <Frontiers as SmallMessage>::VERSION as u32,
-        "Frontiers { frame_id, stamp, regions: [{ id, size_cells, centroid, closest_reachable_cell, path_distance_m }] } (u16 version + postcard)";
+        "Frontiers { frame_id, stamp, regions: [{ id, size_cells, centroid, closest_reachable_cell, path_distance_m, anchor }] } (u16 version + postcard)";
     Goal: Small, false, <Goal as SmallMessage>::VERSION as u32,
         "Goal { frame_id, target: i32 (-1 = refine), focus: [x, y] } (u16 version + postcard)";
     Path: Small, false, <Path as SmallMessage>::VERSION as u32,
@@ -82,7 +82,7 @@ kinds! {
     FisherReport: Small, false, <FisherReport as SmallMessage>::VERSION as u32,
         "FisherReport { frame_id, refine, focus, candidates: [{ x, y, yaw, eig }], paths: [{ goal, waypoints, actions, scored_steps, eig, c_local, objective }], chosen: i32 (-1 none), gaussians, unknown_gaussians, model_reused, note, timings, fallback } one Fisher replan (u16 version + postcard)";
     LlmExchange: Small, false, <LlmExchange as SmallMessage>::VERSION as u32,
-        "LlmExchange { frame_id, prompt, bev_png, reply, target, fell_back } (u16 version + postcard)";
+        "LlmExchange { frame_id, system, prompt, bev_png, provider, model, request, candidates, http_status, attempts, latency_ms, prompt_tokens, completion_tokens, reply, target, reason, decision, failure, failure_detail } (u16 version + postcard)";
     Counter: Small, false, <Counter as SmallMessage>::VERSION as u32,
         "Counter { seq: u64, value: i64 } diagnostics and runtime tests (u16 version + postcard)";
 }

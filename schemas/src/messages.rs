@@ -147,6 +147,9 @@ pub struct FrontierRegion {
     /// Path length (metres) from the robot to `closest_reachable_cell` over cells the robot
     /// fits in (what FBE "nearest" ranks by, SPEC §6).
     pub path_distance_m: f64,
+    /// World (x, y), metres, of the region's frontier cell nearest its centroid (where the
+    /// LLM's BEV draws its number, SPEC §7).
+    pub anchor: [f64; 2],
 }
 
 /// The frontier regions of one occupancy grid.
@@ -159,7 +162,7 @@ pub struct Frontiers {
     /// The regions, largest first.
     pub regions: Vec<FrontierRegion>,
 }
-small_message!(Frontiers, 2);
+small_message!(Frontiers, 3);
 
 /// The planner's choice: a frontier to explore (or −1: refine the existing map, SPEC §7).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -327,23 +330,54 @@ pub struct FisherReport {
 }
 small_message!(FisherReport, 1);
 
-/// One exchange with the multimodal LLM (SPEC §7), recorded for inspection and replay.
+/// One exchange with the multimodal LLM (SPEC §7), recorded for inspection and replay: the
+/// request as sent (never a secret; the image replaced by a placeholder), the BEV, the raw
+/// reply, the HTTP facts, the token usage, the decision and any fallback reason. A `recorded`
+/// provider serves these back in order.
+///
+/// Version 2 added everything after `bev_png` but `reply`, `target`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LlmExchange {
     /// Frame the decision was made on.
     pub frame_id: u64,
-    /// Text prompt sent.
+    /// System message sent.
+    pub system: String,
+    /// User message text sent.
     pub prompt: String,
-    /// Annotated BEV image sent, PNG bytes.
+    /// Annotated BEV image sent, PNG bytes (empty for the text prompt or without a request).
     pub bev_png: Vec<u8>,
-    /// Raw reply.
+    /// `openai`, `ollama` (empty when no request was made).
+    pub provider: String,
+    /// Model asked.
+    pub model: String,
+    /// Request body as sent, without secrets, the image as `<bev.png: N bytes>`.
+    pub request: String,
+    /// Candidates offered (numbers 0..N−1).
+    pub candidates: u32,
+    /// Status of the last HTTP attempt, if an answer came.
+    pub http_status: Option<u16>,
+    /// HTTP attempts.
+    pub attempts: u32,
+    /// Model latency, retries and waits included, milliseconds.
+    pub latency_ms: f64,
+    /// Prompt tokens reported.
+    pub prompt_tokens: Option<u64>,
+    /// Completion tokens reported.
+    pub completion_tokens: Option<u64>,
+    /// Raw reply text (on a failure, the body excerpt, at most 64 KiB).
     pub reply: String,
     /// Parsed target, if the reply held a valid one.
     pub target: Option<i32>,
-    /// True when the planner fell back to the largest frontier.
-    pub fell_back: bool,
+    /// The model's reason, if the reply held a valid answer.
+    pub reason: Option<String>,
+    /// The target decided: the model's, or the largest frontier's on a fallback (−1: refine).
+    pub decision: i32,
+    /// Kind of failure that made the planner fall back (`timeout`, `no_json`, …), if any.
+    pub failure: Option<String>,
+    /// What exactly failed.
+    pub failure_detail: Option<String>,
 }
-small_message!(LlmExchange, 1);
+small_message!(LlmExchange, 2);
 
 /// A counter sample, for diagnostics and the runtime's own tests.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

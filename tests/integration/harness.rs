@@ -60,8 +60,15 @@ pub struct Finished {
 
 /// Start `activemap args...` with piped output.
 pub fn spawn(args: &[&str], cwd: &Path) -> Child {
+    spawn_env(args, cwd, &[])
+}
+
+/// Start `activemap args...` with piped output and the variables `env` set for it (and its
+/// node processes) only.
+pub fn spawn_env(args: &[&str], cwd: &Path, env: &[(&str, &str)]) -> Child {
     Command::new(exe())
         .args(args)
+        .envs(env.iter().copied())
         .current_dir(cwd)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -107,8 +114,13 @@ pub fn wait(mut child: Child, timeout: Duration, what: &str) -> Finished {
 
 /// Run `activemap args...` to completion under a timeout.
 pub fn run(args: &[&str], cwd: &Path, timeout: Duration) -> Finished {
+    run_env(args, cwd, &[], timeout)
+}
+
+/// [`run`] with the variables `env` set for the process.
+pub fn run_env(args: &[&str], cwd: &Path, env: &[(&str, &str)], timeout: Duration) -> Finished {
     let what = format!("activemap {}", args.join(" "));
-    wait(spawn(args, cwd), timeout, &what)
+    wait(spawn_env(args, cwd, env), timeout, &what)
 }
 
 /// Pids of processes whose command line contains every one of `needles`.

@@ -55,6 +55,7 @@ fn reference_and_test_dataflows_validate() {
         "dataflow.yaml",
         "flows/fisher.yaml",
         "flows/fisher_eig_only.yaml",
+        "flows/llm.yaml",
         "tests/data/dataflows/good/counter.yaml",
         "tests/data/dataflows/good/frames.yaml",
     ] {

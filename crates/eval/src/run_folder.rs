@@ -14,7 +14,7 @@
 //! | `dataflow.yaml` | the launcher | the flow that ran |
 //! | `metrics.json`, `metrics.md` | `activemap eval` | [`MetricsReport`] |
 //! | `eval/views.csv`, `eval/view_NN_{map,truth}.png` | `activemap eval` | [`ViewRow`]s; test renders |
-//! | `llm.jsonl` | the LLM planner | [`LlmRecord`] per line |
+//! | `llm.jsonl`, `llm/bev_NNNN_step_K.png` | the evaluator, from the LLM planner's `llm` | [`LlmRecord`] per line; the BEV of each query |
 //! | `report.html` | `activemap report` | the self-contained page |
 //!
 //! JSON files are (de)serialised by serde into typed structs; CSV files by the `csv` crate with
@@ -64,6 +64,8 @@ impl RunFolder {
     pub const TIMINGS: &'static str = "timings.csv";
     /// LLM exchanges, one [`LlmRecord`] per line, when the run had any.
     pub const LLM: &'static str = "llm.jsonl";
+    /// The BEV image of every LLM query (`bev_NNNN_step_K.png`).
+    pub const LLM_DIR: &'static str = "llm";
     /// The report page.
     pub const REPORT: &'static str = "report.html";
     /// The recording of every message of the run.
@@ -305,6 +307,45 @@ impl RunFolder {
         write_file(&self.path(Self::METRICS_MD), markdown)
     }
 
+    /// Appends one record to `llm.jsonl` (one JSON object per line), creating it.
+    pub fn append_llm(&self, record: &LlmRecord) -> Result<(), RunError> {
+        use std::io::Write;
+        let path = self.path(Self::LLM);
+        let line = serde_json::to_string(record).map_err(|e| RunError::Malformed {
+            path: path.clone(),
+            detail: e.to_string(),
+        })?;
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|e| RunError::Io {
+                path: path.clone(),
+                source: e,
+            })?;
+        writeln!(file, "{line}").map_err(|e| RunError::Io {
+            path: path.clone(),
+            source: e,
+        })
+    }
+
+    /// Writes the BEV PNG of LLM query `index` (decision at `step`) under `llm/`; returns
+    /// its path relative to the folder, as [`LlmRecord::bev`] holds it.
+    pub fn write_llm_bev(&self, index: usize, step: u64, png: &[u8]) -> Result<String, RunError> {
+        let dir = self.path(Self::LLM_DIR);
+        std::fs::create_dir_all(&dir).map_err(|e| RunError::Io {
+            path: dir.clone(),
+            source: e,
+        })?;
+        let name = format!("{}/bev_{index:04}_step_{step}.png", Self::LLM_DIR);
+        let path = self.path(&name);
+        std::fs::write(&path, png).map_err(|e| RunError::Io {
+            path: path.clone(),
+            source: e,
+        })?;
+        Ok(name)
+    }
+
     /// Reads `llm.jsonl`; `None` when the run made no LLM exchange. Blank lines are skipped.
     pub fn read_llm(&self) -> Result<Option<Vec<LlmRecord>>, RunError> {
         let path = self.path(Self::LLM);
@@ -405,6 +446,70 @@ pub struct Summary {
     /// The robot the run used (camera height, radius, step and turn sizes), as the `sim` and
     /// `evaluator` nodes' `robot` config; `None` (older runs): the default robot.
     pub robot: Option<RobotModel>,
+    /// The LLM planner's totals over the recorded exchanges; `None`: the run made none.
+    pub llm: Option<LlmSummary>,
+}
+
+/// The LLM planner's totals in `summary.json` (SPEC §7), over its recorded exchanges.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LlmSummary {
+    /// Queries (exchanges recorded).
+    pub queries: u64,
+    /// HTTP attempts, retries included.
+    pub calls: u64,
+    /// Queries whose decision fell back to the largest frontier.
+    pub fallbacks: u64,
+    /// Fallbacks by failure kind (`timeout`, `no_json`, …).
+    pub failures: std::collections::BTreeMap<String, u64>,
+    /// Prompt tokens reported.
+    pub prompt_tokens: u64,
+    /// Completion tokens reported.
+    pub completion_tokens: u64,
+    /// Model latency summed over the queries, seconds.
+    pub latency_s: f64,
+}
+
+impl LlmSummary {
+    /// The totals of `records`.
+    pub fn of(records: &[LlmRecord]) -> Self {
+        let mut s = Self::default();
+        for r in records {
+            s.queries += 1;
+            s.calls += u64::from(r.attempts.unwrap_or(0));
+            if let Some(kind) = &r.failure {
+                s.fallbacks += 1;
+                *s.failures.entry(kind.clone()).or_default() += 1;
+            }
+            s.prompt_tokens += r.prompt_tokens.unwrap_or(0);
+            s.completion_tokens += r.completion_tokens.unwrap_or(0);
+            s.latency_s += r.latency_ms.unwrap_or(0.0) / 1e3;
+        }
+        s
+    }
+
+    /// One line for the report's summary table.
+    pub fn line(&self) -> String {
+        let failures: Vec<String> = self
+            .failures
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect();
+        format!(
+            "{} queries, {} calls, {} fallbacks{}, {} + {} tokens, {:.1} s model latency",
+            self.queries,
+            self.calls,
+            self.fallbacks,
+            if failures.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", failures.join(", "))
+            },
+            self.prompt_tokens,
+            self.completion_tokens,
+            self.latency_s
+        )
+    }
 }
 
 impl Summary {
@@ -440,6 +545,7 @@ impl Summary {
                     )
                 })),
             ),
+            ("llm", opt(self.llm.as_ref().map(LlmSummary::line))),
         ]
     }
 }
@@ -641,12 +747,40 @@ impl FisherRow {
 pub struct LlmRecord {
     /// Step the decision was made on.
     pub step: Option<u64>,
-    /// Text prompt sent.
+    /// System message sent.
+    pub system: Option<String>,
+    /// User message text sent.
     pub prompt: Option<String>,
+    /// The BEV sent, relative to the run folder (`llm/bev_NNNN_step_K.png`).
+    pub bev: Option<String>,
+    /// `openai`, `ollama`.
+    pub provider: Option<String>,
+    /// Model asked.
+    pub model: Option<String>,
+    /// Candidates offered.
+    pub candidates: Option<u32>,
+    /// Status of the last HTTP attempt.
+    pub http_status: Option<u16>,
+    /// HTTP attempts.
+    pub attempts: Option<u32>,
+    /// Model latency, milliseconds.
+    pub latency_ms: Option<f64>,
+    /// Prompt tokens.
+    pub prompt_tokens: Option<u64>,
+    /// Completion tokens.
+    pub completion_tokens: Option<u64>,
     /// Raw reply.
     pub reply: Option<String>,
     /// Parsed target frontier, if the reply held a valid one.
     pub target: Option<i64>,
+    /// The model's reason, if valid.
+    pub reason: Option<String>,
+    /// The target decided (the model's or the fallback's; −1: refine).
+    pub decision: Option<i64>,
+    /// Failure kind that made the planner fall back, if any.
+    pub failure: Option<String>,
+    /// What failed.
+    pub failure_detail: Option<String>,
 }
 
 /// One cell of the bird's-eye view.
@@ -998,6 +1132,15 @@ mod tests {
             robot: Some(RobotModel {
                 camera_height_m: 1.25,
                 ..RobotModel::default()
+            }),
+            llm: Some(LlmSummary {
+                queries: 3,
+                calls: 4,
+                fallbacks: 1,
+                failures: [("timeout".to_string(), 1)].into(),
+                prompt_tokens: 2400,
+                completion_tokens: 90,
+                latency_s: 7.5,
             }),
         }
     }

@@ -257,6 +257,42 @@ impl FbeState {
         Some(goal)
     }
 
+    /// Indices of the `regions` (on a grid with `geometry`) a goal may go to now: those with
+    /// an approach cell that the strikes do not ban (the rule [`FbeState::choose`] applies), in
+    /// their order. For a choice made elsewhere (the LLM's, SPEC §7).
+    pub fn eligible(&self, regions: &[FrontierRegion], geometry: &GridGeometry) -> Vec<usize> {
+        let excluded: Vec<Cell> = self.strikes.iter().map(|p| geometry.cell_of(*p)).collect();
+        regions
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| {
+                r.approach.is_some_and(|a| {
+                    !is_banned(
+                        a.cell,
+                        &excluded,
+                        self.config.exclusion_radius_cells,
+                        self.config.strikes_to_ban,
+                    )
+                })
+            })
+            .map(|(i, _)| i)
+            .collect()
+    }
+
+    /// Remembers `regions[index]` (which must have an approach cell) as the pending goal, so
+    /// that its outcome is judged at the next replan as if [`FbeState::choose`] had chosen it.
+    pub fn commit(&mut self, regions: &[FrontierRegion], index: usize, geometry: &GridGeometry) {
+        self.pending = regions[index].approach.map(|a| PendingGoal {
+            approach: geometry.center(a.cell),
+            size: regions[index].size(),
+        });
+    }
+
+    /// Forgets the pending goal (a refine goal was sent instead: nothing to judge).
+    pub fn clear_pending(&mut self) {
+        self.pending = None;
+    }
+
     /// When nothing is left to choose: forgives every strike if there are any and the map grew
     /// (`free_cells` free cells now) since the last amnesty. True when it forgave (choose again).
     pub fn forgive(&mut self, free_cells: usize) -> bool {
@@ -317,6 +353,38 @@ impl FbePlanner {
         &self.state
     }
 
+    /// For a choice made elsewhere (the LLM's): judges the last goal by `reason` as
+    /// [`FbePlanner::choose`] does, then returns the indices of the regions eligible now
+    /// ([`FbeState::eligible`]), forgiving the strikes (once per growth of the map) when none
+    /// is. Empty: nothing is left to explore. Tell the choice with [`FbePlanner::commit`].
+    pub fn eligible(
+        &mut self,
+        reason: ReplanReason,
+        grid: &OccupancyGrid,
+        regions: &[FrontierRegion],
+    ) -> Vec<usize> {
+        self.state.record(outcome(reason), regions, &grid.geometry);
+        let mut eligible = self.state.eligible(regions, &grid.geometry);
+        if eligible.is_empty() && self.state.forgive(grid.count(CellState::Free)) {
+            eligible = self.state.eligible(regions, &grid.geometry);
+        }
+        eligible
+    }
+
+    /// Remembers the region chosen among [`FbePlanner::eligible`] as the pending goal, or
+    /// none (`None`: a refine goal) so that no strike follows.
+    pub fn commit(
+        &mut self,
+        regions: &[FrontierRegion],
+        chosen: Option<usize>,
+        grid: &OccupancyGrid,
+    ) {
+        match chosen {
+            Some(i) => self.state.commit(regions, i, &grid.geometry),
+            None => self.state.clear_pending(),
+        }
+    }
+
     /// Judges the last goal by the executor's `reason` against the current `regions` (the
     /// reachable ones, [`crate::frontier::reachable_regions`]) of `grid`, then chooses among
     /// them for the robot at `robot`. When every region is banned the strikes are forgiven,
@@ -343,6 +411,16 @@ impl FbePlanner {
     }
 }
 
+/// True when at least `strikes` (> 0) cells of `excluded` lie within `exclusion_radius_cells`
+/// of `cell`: a goal there is banned.
+fn is_banned(cell: Cell, excluded: &[Cell], exclusion_radius_cells: f64, strikes: usize) -> bool {
+    let hits = excluded
+        .iter()
+        .filter(|e| e.distance(&cell) <= exclusion_radius_cells)
+        .count();
+    strikes > 0 && hits >= strikes
+}
+
 /// Picks a region by `policy`, skipping regions without an approach cell and regions whose
 /// approach cell has at least `strikes` cells of `excluded` (goals struck, a cell listed once
 /// per strike) within `exclusion_radius_cells`. The utility policy adds `turn_cost(approach,
@@ -359,11 +437,7 @@ pub fn choose_frontier(
 ) -> Option<FbeGoal> {
     let candidates = regions.iter().enumerate().filter_map(|(i, r)| {
         let a = r.approach?;
-        let hits = excluded
-            .iter()
-            .filter(|e| e.distance(&a.cell) <= exclusion_radius_cells)
-            .count();
-        let banned = strikes > 0 && hits >= strikes;
+        let banned = is_banned(a.cell, excluded, exclusion_radius_cells, strikes);
         (!banned).then_some((i, r.size(), a, r))
     });
     let best = match policy {
@@ -570,6 +644,36 @@ mod tests {
         assert!(!s.forgive(100), "the map did not grow");
         assert!(s.forgive(101));
         assert_eq!(s.amnesties, 2);
+    }
+
+    /// A choice made elsewhere (the LLM's) follows the same rules: eligible are the regions
+    /// with an approach that no strikes ban; a committed goal that failed is struck and drops
+    /// out; a refine goal (nothing committed) strikes nothing.
+    #[test]
+    fn eligible_regions_and_committed_goals_follow_the_strike_rules() {
+        let g = geometry();
+        let regions = vec![
+            region(20, Some((10, 1.0))),
+            region(30, None),
+            region(10, Some((60, 2.0))),
+        ];
+        let mut s = FbeState::new(FbeConfig::default()).unwrap();
+        assert_eq!(
+            s.eligible(&regions, &g),
+            vec![0, 2],
+            "no approach, not eligible"
+        );
+        s.commit(&regions, 2, &g);
+        assert_eq!(s.record(GoalOutcome::Failed, &regions, &g), 2);
+        assert_eq!(s.eligible(&regions, &g), vec![0]);
+        s.commit(&regions, 0, &g);
+        s.clear_pending();
+        assert_eq!(
+            s.record(GoalOutcome::Failed, &regions, &g),
+            0,
+            "nothing pending"
+        );
+        assert_eq!(s.eligible(&regions, &g), vec![0]);
     }
 
     #[test]

@@ -109,8 +109,9 @@ pub struct ProducedOutput {
 pub struct OperatorImpl {
     /// Run as a node of a live flow.
     pub run: fn(NodeSetup<'_>) -> Result<(), RuntimeError>,
-    /// Run alone on recorded inputs, returning its outputs.
-    pub replay: fn(&NodeSpec, &[RecordedInput]) -> Result<Vec<ProducedOutput>, RuntimeError>,
+    /// Run alone on recorded inputs (with the recorded run's `--max-steps`), returning its
+    /// outputs.
+    pub replay: ReplayFn,
 }
 
 impl OperatorImpl {
@@ -226,17 +227,24 @@ impl OutputSink for VecSink<'_> {
     }
 }
 
-/// Run operator `O` alone on recorded inputs (in order) and return what it sent.
+/// The replay entry point of an operator: its node spec, the recorded inputs in order and the
+/// recorded run's `--max-steps` in, what it sent out.
+pub type ReplayFn =
+    fn(&NodeSpec, &[RecordedInput], Option<u64>) -> Result<Vec<ProducedOutput>, RuntimeError>;
+
+/// Run operator `O` alone on recorded inputs (in order) and return what it sent; `max_steps`
+/// is the recorded run's `--max-steps`, which the operator sees as it did then.
 pub fn replay_operator<O: Operator>(
     spec: &NodeSpec,
     inputs: &[RecordedInput],
+    max_steps: Option<u64>,
 ) -> Result<Vec<ProducedOutput>, RuntimeError> {
     let outputs = outputs_of(spec);
     let mut sink = VecSink {
         outputs: &outputs,
         produced: Vec::new(),
     };
-    let mut op: O = make_operator(spec, &outputs, &mut sink, None)?;
+    let mut op: O = make_operator(spec, &outputs, &mut sink, max_steps)?;
     let mut timing = StageTiming::default();
     for input in inputs {
         let Some(in_spec) = spec.inputs.iter().find(|i| i.name == input.port) else {
@@ -757,7 +765,7 @@ mod tests {
                 .unwrap(),
             })
             .collect();
-        let out = replay_operator::<Summer>(spec, &inputs).unwrap();
+        let out = replay_operator::<Summer>(spec, &inputs, None).unwrap();
         let values: Vec<i64> = out
             .iter()
             .map(|o| Counter::from_bytes(&o.bytes).unwrap().value)
@@ -769,7 +777,7 @@ mod tests {
             seq: 1,
             bytes: vec![1, 0, 0xff],
         }];
-        let err = replay_operator::<Summer>(spec, &bad)
+        let err = replay_operator::<Summer>(spec, &bad, None)
             .unwrap_err()
             .to_string();
         assert!(err.contains("input `in`"), "{err}");

@@ -146,6 +146,9 @@ fn record_loop(
         meta.insert("run_id".to_string(), run.run_id.clone());
         meta.insert("dataflow_file".to_string(), dataflow.file.clone());
         meta.insert("dataflow_yaml".to_string(), dataflow.source.clone());
+        if let Some(n) = run.max_steps {
+            meta.insert("max_steps".to_string(), n.to_string());
+        }
         writer
             .write_metadata(&mcap::records::Metadata {
                 name: "activemap.dataflow".into(),
@@ -327,6 +330,8 @@ pub struct Recording {
     pub messages: Vec<RecordedMessage>,
     /// True when the file ended early (writer killed); messages up to the cut are still returned.
     pub truncated: bool,
+    /// The run's `--max-steps`, if it was given.
+    pub max_steps: Option<u64>,
 }
 
 /// Read a recording, tolerating a file cut short by a crash; delta-encoded payloads are decoded
@@ -336,6 +341,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, RuntimeError> {
     let mut dataflow_yaml = String::new();
     let mut messages: Vec<RecordedMessage> = Vec::new();
     let mut truncated = false;
+    let mut max_steps = None;
     // Per channel: topic, whether it is delta-encoded, and its last decoded non-empty payload.
     let mut channels: BTreeMap<u16, (String, bool, Option<usize>)> = BTreeMap::new();
     let reader = mcap::read::LinearReader::new_with_options(
@@ -354,6 +360,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, RuntimeError> {
         match record {
             mcap::records::Record::Metadata(m) if m.name == "activemap.dataflow" => {
                 dataflow_yaml = m.metadata.get("dataflow_yaml").cloned().unwrap_or_default();
+                max_steps = m.metadata.get("max_steps").and_then(|v| v.parse().ok());
             }
             mcap::records::Record::Channel(c) => {
                 let delta = c.message_encoding == DELTA_ENCODING;
@@ -399,6 +406,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, RuntimeError> {
         dataflow_yaml,
         messages,
         truncated,
+        max_steps,
     })
 }
 

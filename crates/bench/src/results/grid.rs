@@ -30,9 +30,10 @@ pub struct KnownMethod {
 }
 
 /// The named policies, in the order of the ablation table: FBE, then the paper's "w/o LLM &
-/// localisation" (largest frontier, paths by η·EIG only) and "w/o LLM" (largest frontier, the
-/// full objective).
-pub const KNOWN_METHODS: [KnownMethod; 3] = [
+/// localisation" (largest frontier, paths by η·EIG only), "w/o LLM" (largest frontier, the
+/// full objective) and the full method (the LLM planner with the Fisher paths; offline, with
+/// no provider in its flow, the LLM's fallback is the largest frontier).
+pub const KNOWN_METHODS: [KnownMethod; 4] = [
     KnownMethod {
         name: "fbe",
         dataflow: "dataflow.yaml",
@@ -47,6 +48,11 @@ pub const KNOWN_METHODS: [KnownMethod; 3] = [
         name: "fisher",
         dataflow: "flows/fisher.yaml",
         ablation: "w/o LLM",
+    },
+    KnownMethod {
+        name: "llm",
+        dataflow: "flows/llm.yaml",
+        ablation: "Ours (LLM + Fisher)",
     },
 ];
 
@@ -332,7 +338,11 @@ mod tests {
             Method::parse("fisher=other.yaml").unwrap().dataflow,
             PathBuf::from("other.yaml")
         );
-        let e = Method::parse("llm").unwrap_err().to_string();
+        assert_eq!(
+            Method::parse("llm").unwrap().dataflow,
+            PathBuf::from("flows/llm.yaml")
+        );
+        let e = Method::parse("gpt").unwrap_err().to_string();
         assert!(
             e.contains("not a known method")
                 && e.contains("fbe = dataflow.yaml")

@@ -443,13 +443,42 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
         s += "<p class=\"missing\">None: this run made no LLM exchange (no llm.jsonl).</p>";
         return Ok(s + "</div>");
     };
+    let totals = crate::run_folder::LlmSummary::of(&records);
+    let _ = write!(s, "<p>{}</p>", escape(&totals.line()));
     let dash = || "—".to_string();
     for r in &records {
+        let decided = match (r.target, r.failure.as_deref()) {
+            (Some(t), _) => format!("target {t}"),
+            (None, Some(kind)) => format!(
+                "fallback to {} ({kind})",
+                r.decision.map_or_else(dash, |v| v.to_string())
+            ),
+            (None, None) => format!(
+                "decision {}",
+                r.decision.map_or_else(dash, |v| v.to_string())
+            ),
+        };
+        let image = match &r.bev {
+            Some(rel) => png_img(run, &run.path(rel), "class=\"bev\" width=\"400\"")?
+                .unwrap_or_else(|| format!("<p class=\"missing\">{} is missing</p>", escape(rel))),
+            None => String::new(),
+        };
         let _ = write!(
             s,
-            "<details class=\"llm\"><summary>step {} — target {}</summary><b>prompt</b><pre>{}</pre><b>reply</b><pre>{}</pre></details>",
+            "<details class=\"llm\"><summary>step {} — {} of {} candidates — {}</summary>{image}<p><b>reason</b> {}</p><p><b>model</b> {} {} · HTTP {} · {} attempts · {} ms · {} + {} tokens</p><b>system</b><pre>{}</pre><b>prompt</b><pre>{}</pre><b>reply</b><pre>{}</pre></details>",
             escape(&r.step.map_or_else(dash, |v| v.to_string())),
-            escape(&r.target.map_or_else(dash, |v| v.to_string())),
+            escape(&decided),
+            escape(&r.candidates.map_or_else(dash, |v| v.to_string())),
+            escape(r.failure_detail.as_deref().unwrap_or("valid reply")),
+            escape(r.reason.as_deref().unwrap_or("—")),
+            escape(r.provider.as_deref().unwrap_or("—")),
+            escape(r.model.as_deref().unwrap_or("")),
+            escape(&r.http_status.map_or_else(dash, |v| v.to_string())),
+            escape(&r.attempts.map_or_else(dash, |v| v.to_string())),
+            escape(&r.latency_ms.map_or_else(dash, |v| format!("{v:.0}"))),
+            escape(&r.prompt_tokens.map_or_else(dash, |v| v.to_string())),
+            escape(&r.completion_tokens.map_or_else(dash, |v| v.to_string())),
+            escape(r.system.as_deref().unwrap_or("—")),
             escape(r.prompt.as_deref().unwrap_or("—")),
             escape(r.reply.as_deref().unwrap_or("—"))
         );
@@ -464,6 +493,7 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
 mod tests {
     use super::*;
     use crate::run_eval::{EvalOptions, LpipsSource, evaluate_run};
+    use crate::run_folder::LlmRecord;
     use crate::testing::{MapKind, write_run};
     use activemap_geometry::Isometry3;
     use std::process::Command;
@@ -605,6 +635,56 @@ mod tests {
         assert!(html.contains("pick &lt;a frontier&gt;"));
         assert!(html.contains("ATE RMSE 0.0000 m over 12 poses"));
         assert!(html.contains("3 replans, 1 refine, 1 fallbacks, median replan 800.0 ms"));
+    }
+
+    /// Each LLM query shows its BEV inline, the choice (or the fallback and its kind) and the
+    /// reason; the totals line counts calls, fallbacks by kind, tokens and latency.
+    #[test]
+    fn llm_queries_show_their_bev_choice_and_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        let bev = run.write_llm_bev(0, 72, b"\x89PNG-bytes").unwrap();
+        assert_eq!(bev, "llm/bev_0000_step_72.png");
+        let valid = LlmRecord {
+            step: Some(72),
+            bev: Some(bev),
+            candidates: Some(4),
+            attempts: Some(2),
+            latency_ms: Some(1500.0),
+            prompt_tokens: Some(800),
+            completion_tokens: Some(30),
+            target: Some(2),
+            reason: Some("unvisited <bedroom>".into()),
+            decision: Some(2),
+            reply: Some("plan {\"target\": 2}".into()),
+            ..LlmRecord::default()
+        };
+        let fallback = LlmRecord {
+            step: Some(90),
+            candidates: Some(3),
+            attempts: Some(1),
+            latency_ms: Some(500.0),
+            decision: Some(0),
+            failure: Some("no_json".into()),
+            failure_detail: Some("no JSON object in the reply".into()),
+            ..LlmRecord::default()
+        };
+        run.append_llm(&valid).unwrap();
+        run.append_llm(&fallback).unwrap();
+        assert_eq!(run.read_llm().unwrap().unwrap(), [valid, fallback]);
+        let html = llm_section(&run).unwrap();
+        assert!(
+            html.contains(
+                "2 queries, 3 calls, 1 fallbacks (no_json 1), 800 + 30 tokens, 2.0 s model latency"
+            ),
+            "{html}"
+        );
+        assert_eq!(html.matches("class=\"bev\"").count(), 1);
+        assert!(html.contains("step 72 — target 2 of 4 candidates"));
+        assert!(html.contains("unvisited &lt;bedroom&gt;"));
+        assert!(html.contains(
+            "step 90 — fallback to 0 (no_json) of 3 candidates — no JSON object in the reply"
+        ));
     }
 
     #[test]
