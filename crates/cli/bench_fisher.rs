@@ -33,17 +33,12 @@ pub struct HouseArgs {
     overrides: Vec<String>,
 }
 
-/// Options of `activemap bench scorer`.
+/// The large map both timing benchmarks build: how many Gaussians, in how many steps.
 #[derive(clap::Args)]
-pub struct ScorerArgs {
-    #[command(flatten)]
-    house: HouseArgs,
+pub struct MapSizeArgs {
     /// Map size to reach: the exploration stops once the map holds this many Gaussians.
     #[arg(long, default_value_t = 150_000)]
     gaussians: usize,
-    /// Replans timed per case (medians reported).
-    #[arg(long, default_value_t = 5)]
-    repeats: usize,
     /// Most exploration steps to reach the map size.
     #[arg(long, default_value_t = 2000)]
     max_steps: usize,
@@ -51,6 +46,36 @@ pub struct ScorerArgs {
     /// about 0.19 at 160²; denser reaches the map size in fewer frames). `0` keeps the mapper's.
     #[arg(long, default_value_t = 1.0)]
     insert_fraction: f64,
+}
+
+/// Options of `activemap bench scorer`.
+#[derive(clap::Args)]
+pub struct ScorerArgs {
+    #[command(flatten)]
+    house: HouseArgs,
+    #[command(flatten)]
+    size: MapSizeArgs,
+    /// Replans timed per case (medians reported).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
+}
+
+/// Options of `activemap bench planner`.
+#[derive(clap::Args)]
+pub struct PlannerArgs {
+    #[command(flatten)]
+    house: HouseArgs,
+    #[command(flatten)]
+    size: MapSizeArgs,
+    /// BEV long side, pixels (the paper's 800).
+    #[arg(long = "bev-size", default_value_t = 800)]
+    bev_size: u32,
+    /// Queries timed (medians reported).
+    #[arg(long, default_value_t = 15)]
+    repeats: usize,
+    /// Also write the last query's BEV (the PNG the model was sent) here.
+    #[arg(long)]
+    png: Option<PathBuf>,
 }
 
 /// Options of `activemap bench eig-psnr`.
@@ -139,40 +164,62 @@ fn fraction(f: f64) -> Option<f64> {
     (f != 0.0).then_some(f)
 }
 
+/// The house map of `house` grown to `size` with the flow's `mapping`; `what` names the
+/// benchmark in errors and progress.
+fn large_house(
+    house: &HouseArgs,
+    size: &MapSizeArgs,
+    mapping: activemap_slam::MappingConfig,
+    what: &str,
+) -> anyhow::Result<house_map::HouseMap> {
+    anyhow::ensure!(
+        size.gaussians >= 1,
+        "bench {what}: --gaussians must be at least 1"
+    );
+    let config = HouseMapConfig {
+        target_gaussians: Some(size.gaussians),
+        insert_fraction: fraction(size.insert_fraction),
+        progress_every: 100,
+        ..HouseMapConfig::new(house.house, house.resolution, size.max_steps, mapping)
+    };
+    let map = house_map::build(&config)
+        .with_context(|| format!("bench {what}: building the house map"))?;
+    anyhow::ensure!(
+        map.gaussians.len() >= size.gaussians,
+        "bench {what}: the map holds only {} Gaussians after {} frames (target {}); raise \
+         --max-steps or --insert-fraction, or lower --gaussians",
+        map.gaussians.len(),
+        map.frames,
+        size.gaussians
+    );
+    println!("# bench {what}: {}", map.describe(&config));
+    Ok(map)
+}
+
 /// Runs `activemap bench scorer`.
 pub fn scorer(args: &ScorerArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         args.repeats >= 1,
         "bench scorer: --repeats must be at least 1"
     );
-    anyhow::ensure!(
-        args.gaussians >= 1,
-        "bench scorer: --gaussians must be at least 1"
-    );
     let (mapping, fisher, source) = flow_settings(&args.house.flow, &args.house.overrides)?;
-    let config = HouseMapConfig {
-        target_gaussians: Some(args.gaussians),
-        insert_fraction: fraction(args.insert_fraction),
-        progress_every: 100,
-        ..HouseMapConfig::new(
-            args.house.house,
-            args.house.resolution,
-            args.max_steps,
-            mapping,
-        )
-    };
-    let house = house_map::build(&config).context("bench scorer: building the house map")?;
-    anyhow::ensure!(
-        house.gaussians.len() >= args.gaussians,
-        "bench scorer: the map holds only {} Gaussians after {} frames (target {}); raise \
-         --max-steps or --insert-fraction, or lower --gaussians",
-        house.gaussians.len(),
-        house.frames,
-        args.gaussians
-    );
-    println!("# bench scorer: {}", house.describe(&config));
+    let house = large_house(&args.house, &args.size, mapping, "scorer")?;
     println!("# fisher settings: {source}");
     let bench = activemap_bench::scorer_bench::run(&house, &fisher, args.repeats)?;
+    print!("{}", bench.table());
+    println!("{}", bench.summary());
+    Ok(())
+}
+
+/// Runs `activemap bench planner`: the LLM planner's own time per query on the house map.
+pub fn planner(args: &PlannerArgs) -> anyhow::Result<()> {
+    let (mapping, _, _) = flow_settings(&args.house.flow, &args.house.overrides)?;
+    let house = large_house(&args.house, &args.size, mapping, "planner")?;
+    let bench = activemap_bench::planner_bench::run(&house, args.bev_size, args.repeats)?;
+    if let Some(path) = &args.png {
+        std::fs::write(path, &bench.png).with_context(|| format!("{}", path.display()))?;
+        println!("# BEV written to {}", path.display());
+    }
     print!("{}", bench.table());
     println!("{}", bench.summary());
     Ok(())

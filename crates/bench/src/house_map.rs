@@ -131,7 +131,7 @@ impl HouseMap {
         };
         format!(
             "house:{} at {res}×{res}: FBE exploration with the simulator's TRUE poses (no SLAM \
-             tracking: this measures the scorer), {} frames, {} keyframes, {} Gaussians, {density}; \
+             tracking: the benchmark times the planning, not localisation), {} frames, {} keyframes, {} Gaussians, {density}; \
              built in {:.1} s ({:.1} s mapping){}",
             config.house,
             self.frames,

@@ -22,6 +22,7 @@
 pub mod eig_psnr;
 pub mod house_episode;
 pub mod house_map;
+pub mod planner_bench;
 pub mod planning_bench;
 pub mod results;
 pub mod scatter;
