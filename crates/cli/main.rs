@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use activemap_runtime::dataflow::{Dataflow, NodeImpl};
+use activemap_runtime::dataflow::{Dataflow, NodeImpl, Override};
 use activemap_runtime::graph::{GraphFormat, render};
 use activemap_runtime::launch::{LaunchOptions, NodeExit, run_local};
 use activemap_runtime::node::{NodeSetup, RunInfo, install_stop_signals};
@@ -40,6 +40,8 @@ enum Command {
     Validate {
         /// Dataflow file.
         file: PathBuf,
+        #[command(flatten)]
+        set: Overrides,
     },
     /// Print the dataflow as a graph.
     Graph {
@@ -48,6 +50,8 @@ enum Command {
         /// Output format.
         #[arg(long, value_enum, default_value_t = Format::Mermaid)]
         format: Format,
+        #[command(flatten)]
+        set: Overrides,
     },
     /// Run every node of a dataflow on this machine (Ctrl-C stops everything cleanly).
     Run {
@@ -68,6 +72,8 @@ enum Command {
         /// Test views of the end-of-run evaluation (SPEC §8: 2000).
         #[arg(long, default_value_t = 2000)]
         eval_views: usize,
+        #[command(flatten)]
+        set: Overrides,
     },
     /// Evaluate a finished run (SPEC §8): renders the map at seeded test views against the
     /// simulator's ground truth; writes metrics.json, metrics.md and report.html.
@@ -133,6 +139,8 @@ enum Command {
         /// Wait for the run to end; exit non-zero when a machine reports a failure.
         #[arg(long)]
         wait: bool,
+        #[command(flatten)]
+        set: Overrides,
     },
     /// Stop a run on every machine.
     Stop {
@@ -255,16 +263,27 @@ struct TransportArgs {
     endpoint: String,
 }
 
+/// `--set` overrides of node configs, shared by the subcommands that read a dataflow file.
+#[derive(clap::Args)]
+struct Overrides {
+    /// Set a key of a node's `config:` (repeatable): NODE.KEY[.SUBKEY...]=VALUE, VALUE read as
+    /// YAML (`--set sim.scene=house:3 --set sim.width=320`); missing keys are created. Only
+    /// `config:` can be set, not inputs or other node keys. Checked like the file; the run
+    /// folder's dataflow.yaml holds the effective values.
+    #[arg(long = "set", value_name = "NODE.KEY=VALUE", value_parser = Override::parse)]
+    set: Vec<Override>,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Format {
     Mermaid,
     Dot,
 }
 
-/// Reads a dataflow file, validated against the operator catalog and across nodes
-/// (`activemap_operators::checks`).
-fn load(file: &Path) -> anyhow::Result<Dataflow> {
-    activemap_operators::checks::load(file).map_err(|d| anyhow::anyhow!("{d}"))
+/// Reads a dataflow file with `--set` overrides applied, validated against the operator catalog
+/// and across nodes (`activemap_operators::checks`).
+fn load(file: &Path, overrides: &[Override]) -> anyhow::Result<Dataflow> {
+    activemap_operators::checks::load_with(file, overrides).map_err(|d| anyhow::anyhow!("{d}"))
 }
 
 fn main() -> ExitCode {
@@ -280,17 +299,21 @@ fn main() -> ExitCode {
 fn real_main() -> anyhow::Result<ExitCode> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Validate { file } => {
-            let flow = load(&file)?;
+        Command::Validate { file, set } => {
+            let flow = load(&file, &set.set)?;
+            let shown: Vec<String> = set.set.iter().map(Override::label).collect();
             println!(
                 "{}: ok ({} nodes, {} machines)",
-                file.display(),
+                std::iter::once(file.display().to_string())
+                    .chain(shown)
+                    .collect::<Vec<_>>()
+                    .join(" "),
                 flow.nodes.len(),
                 flow.machines.len()
             );
         }
-        Command::Graph { file, format } => {
-            let flow = load(&file)?;
+        Command::Graph { file, format, set } => {
+            let flow = load(&file, &set.set)?;
             let format = match format {
                 Format::Mermaid => GraphFormat::Mermaid,
                 Format::Dot => GraphFormat::Dot,
@@ -315,12 +338,13 @@ fn real_main() -> anyhow::Result<ExitCode> {
             no_record,
             no_eval,
             eval_views,
+            set,
         } => {
             let eval = (!no_eval).then(|| evaluate::EvalArgs {
                 views: eval_views,
                 ..Default::default()
             });
-            return run(&file, out, max_steps, !no_record, None, eval);
+            return run(&file, &set.set, out, max_steps, !no_record, None, eval);
         }
         Command::Eval { run_dir, args } => evaluate::eval(&run_dir, &args)?,
         Command::Report { run_dir } => evaluate::report(&run_dir)?,
@@ -339,6 +363,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
                 let run_id = run_id.context("one-shot `up FILE` needs --run-id")?;
                 return run(
                     &file,
+                    &[],
                     out,
                     max_steps,
                     !no_record,
@@ -358,8 +383,9 @@ fn real_main() -> anyhow::Result<ExitCode> {
             max_steps,
             no_record,
             wait,
+            set,
         } => {
-            let flow = load(&file)?;
+            let flow = load(&file, &set.set)?;
             if !daemons::start(&flow, &connect, run_id, max_steps, !no_record, wait)? {
                 return Ok(ExitCode::FAILURE);
             }
@@ -448,13 +474,14 @@ fn real_main() -> anyhow::Result<ExitCode> {
 
 fn run(
     file: &Path,
+    overrides: &[Override],
     out: Option<PathBuf>,
     max_steps: Option<u64>,
     record: bool,
     distributed: Option<(String, String)>,
     eval: Option<evaluate::EvalArgs>,
 ) -> anyhow::Result<ExitCode> {
-    let flow = load(file)?;
+    let flow = load(file, overrides)?;
     let local = |machine: &str| distributed.as_ref().is_none_or(|(m, _)| m == machine);
     for n in flow.nodes.iter().filter(|n| local(&n.machine)) {
         if let NodeImpl::Operator(op) = &n.implementation {
@@ -557,7 +584,7 @@ fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Resul
 
 fn run_node(run_dir: &Path, node: &str) -> anyhow::Result<()> {
     let run = RunInfo::load(run_dir)?;
-    let flow = load(&run_dir.join(RunInfo::DATAFLOW))?;
+    let flow = load(&run_dir.join(RunInfo::DATAFLOW), &[])?;
     let spec = flow
         .node(node)
         .with_context(|| format!("node `{node}` is not in the dataflow"))?;
@@ -579,8 +606,9 @@ fn run_node(run_dir: &Path, node: &str) -> anyhow::Result<()> {
 }
 
 fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
-    let recording = record::read_recording(recording_path)?;
-    if recording.dataflow_yaml.is_empty() {
+    // Streamed: the recording is read input by input, never held whole.
+    let reader = record::RecordingReader::open(recording_path)?;
+    if reader.dataflow_yaml().is_empty() {
         bail!(
             "{}: no embedded dataflow (not an activemap recording?)",
             recording_path.display()
@@ -589,7 +617,7 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     let name = format!("{} (embedded dataflow)", recording_path.display());
     let flow = Dataflow::parse(
         &name,
-        &recording.dataflow_yaml,
+        reader.dataflow_yaml(),
         PathBuf::new(),
         &activemap_operators::catalog(),
     )
@@ -603,13 +631,15 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     let implementation = activemap_operators::find(op)
         .and_then(|r| r.implementation)
         .with_context(|| format!("operator `{op}` is not built in this version"))?;
-    let inputs = record::recorded_inputs(&recording, &flow, node)?;
     // A node that talks to the outside world (the LLM planner) is served the recorded answers.
     let mut spec = spec.clone();
     spec.config = activemap_operators::replay_config(op, &spec.config, recording_path, node);
-    let produced = (implementation.replay)(&spec, &inputs, recording.max_steps)?;
-    let report = record::compare_outputs(&recording, node, &produced);
-    if recording.truncated {
+    let record::StreamedReplay {
+        report,
+        inputs,
+        truncated,
+    } = record::replay_recording(reader, &spec, implementation.replay)?;
+    if truncated {
         eprintln!(
             "warning: the recording ends early (its writer was killed); replaying what it holds"
         );
@@ -619,7 +649,7 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     }
     println!(
         "replay {node}: {} inputs, {}/{} outputs matched",
-        inputs.len(),
+        inputs,
         report.matched(),
         report.recorded()
     );

@@ -23,7 +23,7 @@
 use std::path::Path;
 
 use activemap_geometry::RobotModel;
-use activemap_runtime::dataflow::NodeImpl;
+use activemap_runtime::dataflow::{NodeImpl, Override};
 use activemap_runtime::{
     Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, catalog::config_from_value,
 };
@@ -243,8 +243,22 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
 
 /// Reads and validates a dataflow file against the operator catalog, then [`check_flow`].
 pub fn load(path: &Path) -> Result<Dataflow, Diagnostics> {
-    let flow = Dataflow::load(path, &crate::catalog())?;
-    check_flow(&flow)?;
+    load_with(path, &[])
+}
+
+/// As [`load`], with `--set` overrides of node configs applied first (see [`Override`]); a
+/// cross-node problem then says which overrides were in force.
+pub fn load_with(path: &Path, overrides: &[Override]) -> Result<Dataflow, Diagnostics> {
+    let flow = Dataflow::load_with(path, &crate::catalog(), overrides)?;
+    check_flow(&flow).map_err(|Diagnostics(mut diags)| {
+        if !overrides.is_empty() {
+            let labels: Vec<String> = overrides.iter().map(Override::label).collect();
+            for d in &mut diags {
+                d.message.push_str(&format!(" (with {})", labels.join(" ")));
+            }
+        }
+        Diagnostics(diags)
+    })?;
     Ok(flow)
 }
 

@@ -68,6 +68,8 @@ pub fn spawn(args: &[&str], cwd: &Path) -> Child {
 pub fn spawn_env(args: &[&str], cwd: &Path, env: &[(&str, &str)]) -> Child {
     Command::new(exe())
         .args(args)
+        // No LPIPS download from the tests: absent weights stay "missing" (a test may override).
+        .env("ACTIVEMAP_LPIPS_FETCH", "0")
         .envs(env.iter().copied())
         .current_dir(cwd)
         .stdin(Stdio::null())

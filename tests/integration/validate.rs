@@ -77,3 +77,29 @@ fn reference_and_test_dataflows_validate() {
         out.stdout
     );
 }
+
+/// `--set` overrides are checked like the file: a value the node refuses names the override.
+#[test]
+fn set_overrides_are_validated_and_named() {
+    let check = |args: &[&str]| run(args, &root(), Duration::from_secs(30));
+    let out = check(&["validate", "dataflow.yaml", "--set", "sim.width=abc"]);
+    assert!(!out.status.success(), "{}", out.stdout);
+    assert!(
+        out.stderr
+            .contains("--set sim.width=abc: error: bad config for operator `sim`"),
+        "{}",
+        out.stderr
+    );
+    let out = check(&["validate", "dataflow.yaml", "--set", "simm.width=96"]);
+    assert!(out.stderr.contains("no node `simm`"), "{}", out.stderr);
+    let out = check(&[
+        "validate",
+        "dataflow.yaml",
+        "--set",
+        "sim.width=96",
+        "--set",
+        "sim.scene=house:3",
+    ]);
+    assert!(out.status.success(), "{}", out.stderr);
+    assert!(out.stdout.contains(": ok ("), "{}", out.stdout);
+}

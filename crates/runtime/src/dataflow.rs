@@ -31,6 +31,9 @@ use activemap_schemas::MessageKind;
 use crate::catalog::OperatorDescriptor;
 use crate::yaml::{self, Loc, Node};
 
+mod overrides;
+pub use overrides::Override;
+
 /// Name of the implicit machine when a file declares none.
 pub const DEFAULT_MACHINE: &str = "local";
 
@@ -47,7 +50,12 @@ pub struct Diagnostic {
 
 impl fmt::Display for Diagnostic {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}:{}: error: {}", self.file, self.loc, self.message)
+        // Line 0: a problem of the whole file, or of a `--set` override (named in `file`).
+        if self.loc.line == 0 {
+            write!(f, "{}: error: {}", self.file, self.message)
+        } else {
+            write!(f, "{}:{}: error: {}", self.file, self.loc, self.message)
+        }
     }
 }
 
@@ -190,7 +198,8 @@ pub struct Dataflow {
     pub file: String,
     /// Folder external `path:` executables are relative to.
     pub base_dir: PathBuf,
-    /// Original text (embedded in recordings).
+    /// Text of the dataflow, copied to run folders and embedded in recordings: the file as
+    /// written, or with `--set` overrides the effective document (see [`Override`]).
     pub source: String,
     /// Machines; at least one.
     pub machines: Vec<MachineSpec>,
@@ -201,6 +210,15 @@ pub struct Dataflow {
 impl Dataflow {
     /// Read and validate a dataflow file against the operator catalogue.
     pub fn load(path: &Path, catalog: &[OperatorDescriptor]) -> Result<Self, Diagnostics> {
+        Self::load_with(path, catalog, &[])
+    }
+
+    /// As [`Dataflow::load`], with `--set` overrides of node configs applied first.
+    pub fn load_with(
+        path: &Path,
+        catalog: &[OperatorDescriptor],
+        overrides: &[Override],
+    ) -> Result<Self, Diagnostics> {
         let file = path.display().to_string();
         let source = std::fs::read_to_string(path).map_err(|e| {
             Diagnostics(vec![Diagnostic {
@@ -210,7 +228,7 @@ impl Dataflow {
             }])
         })?;
         let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Self::parse(&file, &source, base_dir, catalog)
+        Self::parse_with(&file, &source, base_dir, catalog, overrides)
     }
 
     /// Validate dataflow text; `file` only names it in messages.
@@ -220,17 +238,64 @@ impl Dataflow {
         base_dir: PathBuf,
         catalog: &[OperatorDescriptor],
     ) -> Result<Self, Diagnostics> {
+        Self::parse_with(file, source, base_dir, catalog, &[])
+    }
+
+    /// As [`Dataflow::parse`], with `--set` overrides of node configs applied to the parsed
+    /// document first; the result's `source` is then the effective document, and problems
+    /// caused by an override name it.
+    pub fn parse_with(
+        file: &str,
+        source: &str,
+        base_dir: PathBuf,
+        catalog: &[OperatorDescriptor],
+        overrides: &[Override],
+    ) -> Result<Self, Diagnostics> {
         let mut v = Validator {
             file: file.to_string(),
             diags: Vec::new(),
+            labels: overrides.iter().map(Override::label).collect(),
+            changed: Vec::new(),
         };
-        let root = match yaml::parse(source) {
+        let mut root = match yaml::parse(source) {
             Ok(r) => r,
             Err(e) => {
                 v.err(e.loc, format!("YAML syntax error: {}", e.message));
                 return Err(Diagnostics(v.diags));
             }
         };
+        let mut effective = None;
+        if !overrides.is_empty() {
+            for (i, o) in overrides.iter().enumerate() {
+                match o.apply(&mut root, i) {
+                    Ok(node) => v.changed.push((node, o.label())),
+                    Err(message) => v.diags.push(Diagnostic {
+                        file: o.label(),
+                        loc: Loc::default(),
+                        message: message
+                            .strip_prefix(&format!("{}: ", o.label()))
+                            .unwrap_or(&message)
+                            .to_string(),
+                    }),
+                }
+            }
+            let labels: Vec<&str> = v.labels.iter().map(String::as_str).collect();
+            let mut text = format!(
+                "# Effective dataflow: {file} {}\n# (the file with these overrides applied; its comments are not kept)\n",
+                labels.join(" ")
+            );
+            let body = yaml::emit(&root);
+            match yaml::parse(&body) {
+                Ok(back) if yaml::canonical(&back) == yaml::canonical(&root) => {}
+                _ => v.err(
+                    Loc::default(),
+                    "internal error: the dataflow with the overrides applied cannot be written back as YAML",
+                ),
+            }
+            text.push_str(&body);
+            effective = Some(text);
+        }
+        let source = effective.as_deref().unwrap_or(source);
         let flow = v.dataflow(&root, catalog, source, base_dir);
         if v.diags.is_empty() {
             Ok(flow)
@@ -268,6 +333,10 @@ impl Dataflow {
 struct Validator {
     file: String,
     diags: Vec<Diagnostic>,
+    /// `--set` overrides as shown in messages, in command-line order.
+    labels: Vec<String>,
+    /// (node id, override label) for each override applied.
+    changed: Vec<(String, String)>,
 }
 
 /// A node as written, before cross-node checks.
@@ -288,8 +357,13 @@ struct RawNode<'a> {
 
 impl Validator {
     fn err(&mut self, loc: Loc, message: impl Into<String>) {
+        // A value brought by an override: the diagnostic names the override, not the file.
+        let file = match Override::index_of(loc).and_then(|i| self.labels.get(i)) {
+            Some(label) => label.clone(),
+            None => self.file.clone(),
+        };
         self.diags.push(Diagnostic {
-            file: self.file.clone(),
+            file,
             loc,
             message: message.into(),
         });
@@ -678,13 +752,21 @@ impl Validator {
             let loc = config_node
                 .map(|c| self.config_error_loc(c, &e))
                 .unwrap_or(raw.loc);
-            self.err(
-                loc,
-                format!(
-                    "bad config for operator `{}` of node `{}`: {e}",
-                    d.name, raw.id
-                ),
+            let mut message = format!(
+                "bad config for operator `{}` of node `{}`: {e}",
+                d.name, raw.id
             );
+            // Not pinned on an override's value, but the node's config was overridden.
+            let by: Vec<&str> = self
+                .changed
+                .iter()
+                .filter(|(node, _)| *node == raw.id)
+                .map(|(_, label)| label.as_str())
+                .collect();
+            if Override::index_of(loc).is_none() && !by.is_empty() {
+                message.push_str(&format!(" (config changed by {})", by.join(", ")));
+            }
+            self.err(loc, message);
         }
         Some(raw)
     }
@@ -1076,6 +1158,150 @@ mod tests {
         assert_eq!(
             m1.tls,
             Some(serde_json::json!({"root_ca_certificate": "ca.pem"}))
+        );
+    }
+
+    fn overrides(texts: &[&str]) -> Vec<Override> {
+        texts.iter().map(|t| Override::parse(t).unwrap()).collect()
+    }
+
+    #[test]
+    fn override_syntax_reads_the_value_as_yaml() {
+        let json = |t: &str| {
+            let o = Override::parse(t).unwrap();
+            let mut root = yaml::parse("nodes: [{ id: sim }]").unwrap();
+            o.apply(&mut root, 0).unwrap();
+            root.get("nodes").unwrap().to_json()[0]["config"].clone()
+        };
+        assert_eq!(
+            json("sim.scene=house:3"),
+            serde_json::json!({"scene": "house:3"})
+        );
+        assert_eq!(json("sim.width=320"), serde_json::json!({"width": 320}));
+        assert_eq!(json("sim.lock=true"), serde_json::json!({"lock": true}));
+        assert_eq!(json("sim.m={a: 1}"), serde_json::json!({"m": {"a": 1}}));
+        assert_eq!(json("sim.s=\"7\""), serde_json::json!({"s": "7"}));
+        assert_eq!(json("sim.n="), serde_json::json!({"n": null}));
+        for (bad, why) in [
+            (
+                "sim.scene",
+                "`--set sim.scene`: expected NODE.KEY=VALUE (no `=`)",
+            ),
+            ("sim=3", "is not NODE.KEY"),
+            ("sim..x=3", "is not NODE.KEY"),
+            ("sim.x=[1, 2", "the value is not valid YAML"),
+        ] {
+            let e = Override::parse(bad).unwrap_err();
+            assert!(e.contains(why) && e.contains(bad), "{bad}: {e}");
+        }
+        assert_eq!(
+            Override::parse("sim.scene=a b").unwrap().label(),
+            "--set 'sim.scene=a b'"
+        );
+    }
+
+    #[test]
+    fn overrides_set_nested_keys_and_create_missing_ones() {
+        let src = "nodes:\n  - id: a\n    operator: ping\n  - id: b.c\n    path: ./b\n    config: { x: { y: 1 }, s: str, e: }\n";
+        let mut root = yaml::parse(src).unwrap();
+        for (i, o) in overrides(&["a.gain=2", "b.c.x.z=[1, 2]", "b.c.x.y=3", "b.c.e.f.g=h"])
+            .iter()
+            .enumerate()
+        {
+            o.apply(&mut root, i).unwrap();
+        }
+        let nodes = root.get("nodes").unwrap().to_json();
+        assert_eq!(nodes[0]["config"], serde_json::json!({"gain": 2}));
+        assert_eq!(
+            nodes[1]["config"],
+            serde_json::json!({"x": {"y": 3, "z": [1, 2]}, "s": "str", "e": {"f": {"g": "h"}}})
+        );
+        let e = overrides(&["simm.scene=x"])[0]
+            .apply(&mut root, 0)
+            .unwrap_err();
+        assert_eq!(e, "--set simm.scene=x: no node `simm` (nodes: a, b.c)");
+        let e = overrides(&["b.c.s.t=1"])[0]
+            .apply(&mut root, 0)
+            .unwrap_err();
+        assert!(
+            e.contains("`b.c.s` is a scalar (`str`), not a mapping"),
+            "{e}"
+        );
+        let mut scalar_config = yaml::parse("nodes: [{ id: a, config: 3 }]").unwrap();
+        let e = overrides(&["a.k=1"])[0]
+            .apply(&mut scalar_config, 0)
+            .unwrap_err();
+        assert!(e.contains("the `config` of node `a` is a scalar"), "{e}");
+    }
+
+    #[test]
+    fn overridden_flows_validate_and_carry_the_effective_text() {
+        let src = "# comment\nnodes:\n  - id: a\n    operator: ping\n    config: { gain: 1 }\n    inputs:\n      in: a/out\n";
+        let set = overrides(&["a.gain=2.5"]);
+        let flow = Dataflow::parse_with("t.yaml", src, PathBuf::new(), &catalog(), &set).unwrap();
+        assert_eq!(
+            flow.node("a").unwrap().config,
+            serde_json::json!({"gain": 2.5})
+        );
+        assert!(
+            flow.source
+                .starts_with("# Effective dataflow: t.yaml --set a.gain=2.5\n"),
+            "{}",
+            flow.source
+        );
+        // The effective text is a dataflow of its own, with the same values.
+        let again = Dataflow::parse(
+            "run/dataflow.yaml",
+            &flow.source,
+            PathBuf::new(),
+            &catalog(),
+        )
+        .unwrap();
+        assert_eq!(
+            again.node("a").unwrap().config,
+            flow.node("a").unwrap().config
+        );
+        // Without overrides the text is kept as written.
+        let plain = Dataflow::parse_with("t.yaml", src, PathBuf::new(), &catalog(), &[]).unwrap();
+        assert_eq!(plain.source, src);
+    }
+
+    #[test]
+    fn override_errors_name_the_override_and_file_errors_keep_their_location() {
+        let src = "nodes:\n  - id: a\n    operator: ping\n    inputs:\n      in: zz/out\n";
+        let set = overrides(&["a.gain=abc", "b.gain=1"]);
+        let err = Dataflow::parse_with("t.yaml", src, PathBuf::new(), &catalog(), &set)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--set a.gain=abc: error: bad config for operator `ping` of node `a`: invalid type: string \"abc\""),
+            "{err}"
+        );
+        assert!(
+            err.contains("--set b.gain=1: error: no node `b` (nodes: a)"),
+            "{err}"
+        );
+        assert!(
+            err.contains("t.yaml:5:11: error: input `in` reads from unknown node `zz`"),
+            "{err}"
+        );
+        let parse = |src: &str, set: &[&str]| {
+            Dataflow::parse_with("t.yaml", src, PathBuf::new(), &catalog(), &overrides(set))
+                .unwrap_err()
+                .to_string()
+        };
+        let err = parse(src, &["a.extra.deep=1"]);
+        assert!(
+            err.contains("--set a.extra.deep=1: error: bad config for operator `ping` of node `a`: unknown field `extra`"),
+            "{err}"
+        );
+        // A refusal pinned on the file still says the config was overridden.
+        let src = "nodes:\n  - id: a\n    operator: ping\n    config: { gain: 1, bogus: 2 }\n";
+        let err = parse(src, &["a.gain=3"]);
+        assert!(
+            err.starts_with("t.yaml:4:24: error: bad config for operator `ping` of node `a`: unknown field `bogus`")
+                && err.ends_with("(config changed by --set a.gain=3)"),
+            "{err}"
         );
     }
 }

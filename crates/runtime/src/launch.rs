@@ -12,8 +12,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use crate::RuntimeError;
 use crate::dataflow::{Dataflow, NodeImpl, RestartPolicy};
 use crate::node::{RunInfo, control_key, logs_dir};
+use crate::progress::Progress;
 use crate::record::{Recorder, RecorderStats};
 use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh, topic_key};
+use activemap_schemas::{EpisodeStatus, MessageKind, SmallMessage};
 
 /// Options of [`run_local`].
 #[derive(Debug, Clone)]
@@ -400,16 +402,16 @@ fn supervise(
             },
         );
     }
-    let bar = if opts.progress {
-        let b = indicatif::ProgressBar::new_spinner();
-        b.set_style(
-            indicatif::ProgressStyle::with_template("{spinner} {elapsed_precise} {msg}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
-        );
-        b.enable_steady_tick(Duration::from_millis(200));
-        Some(b)
+    let mut progress = opts.progress.then(|| Progress::new(opts.max_steps));
+    // The episode's progress: every `EpisodeStatus` output (the simulator's `episode`).
+    let episode_subs = if opts.progress {
+        episode_subscribers(dataflow, run, session)?
     } else {
-        None
+        Vec::new()
+    };
+    let say = |progress: &Option<Progress>, message: String| match progress {
+        Some(p) => p.println(&message),
+        None => eprintln!("{message}"),
     };
     let started_at = Instant::now();
     let mut ready: BTreeSet<String> = BTreeSet::new();
@@ -449,6 +451,9 @@ fn supervise(
             interrupted = true;
             break;
         }
+        if let Some(p) = &mut progress {
+            drain_statuses(&episode_subs, p, None)?;
+        }
         let mut crashed = None;
         for (id, r) in nodes.iter_mut() {
             let Some(child) = &mut r.child else { continue };
@@ -458,7 +463,7 @@ fn supervise(
             r.child = None;
             if status.success() {
                 r.exit = Some(NodeExit::Finished);
-                eprintln!("activemap: node `{id}` finished");
+                say(&progress, format!("activemap: node `{id}` finished"));
                 continue;
             }
             let what = describe_status(status);
@@ -473,12 +478,15 @@ fn supervise(
                     .join(format!("{id}.stderr.log"))
                     .display()
             );
-            eprintln!("activemap: {report}");
+            say(&progress, format!("activemap: {report}"));
             match spec.restart {
                 RestartPolicy::OnFailure(max) if r.restarts < max => {
                     r.restarts += 1;
                     ready.remove(id);
-                    eprintln!("activemap: restarting `{id}` ({}/{max})", r.restarts);
+                    say(
+                        &progress,
+                        format!("activemap: restarting `{id}` ({}/{max})", r.restarts),
+                    );
                     r.child = Some(spawn_node(dataflow, run, id, opts)?);
                 }
                 _ => {
@@ -494,13 +502,13 @@ fn supervise(
         if nodes.values().all(|r| r.child.is_none()) {
             break;
         }
-        if let Some(b) = &bar {
+        if let Some(p) = &mut progress {
             let running: Vec<_> = nodes
                 .iter()
                 .filter(|(_, r)| r.child.is_some())
                 .map(|(id, _)| id.as_str())
                 .collect();
-            b.set_message(format!(
+            p.waiting(&format!(
                 "{}/{} nodes running: {}",
                 running.len(),
                 nodes.len(),
@@ -532,7 +540,10 @@ fn supervise(
                     std::thread::sleep(Duration::from_millis(20))
                 }
                 _ => {
-                    eprintln!("activemap: node `{id}` ignored SIGTERM; killing it");
+                    say(
+                        &progress,
+                        format!("activemap: node `{id}` ignored SIGTERM; killing it"),
+                    );
                     let _ = child.kill();
                     let _ = child.wait();
                     r.exit.get_or_insert(NodeExit::Stopped);
@@ -542,14 +553,59 @@ fn supervise(
         }
         r.child = None;
     }
-    if let Some(b) = bar {
-        b.finish_and_clear();
+    if let Some(mut p) = progress {
+        // The simulator's last status may arrive after its process ended.
+        if !p.ended() {
+            drain_statuses(&episode_subs, &mut p, Some(Duration::from_millis(300)))?;
+        }
+        p.finish();
     }
     let summary = nodes
         .into_iter()
         .map(|(id, r)| (id, (r.exit.unwrap_or(NodeExit::Stopped), r.restarts)))
         .collect();
     Ok((summary, failure, interrupted))
+}
+
+/// Hands every waiting episode status to `progress`; with `wait`, waits that long for one more on
+/// each subscriber until the episode's end is seen.
+fn drain_statuses(
+    subs: &[ZenohSubscriber],
+    progress: &mut Progress,
+    wait: Option<Duration>,
+) -> Result<(), RuntimeError> {
+    for sub in subs {
+        while let Some(sample) = sub.recv(wait.filter(|_| !progress.ended()))? {
+            if let Ok(status) = EpisodeStatus::decode(&sample.payload().to_bytes()) {
+                progress.status(&status);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Subscribers to every `EpisodeStatus` output of the dataflow (small messages travel on Zenoh).
+fn episode_subscribers(
+    dataflow: &Dataflow,
+    run: &RunInfo,
+    session: &zenoh::Session,
+) -> Result<Vec<ZenohSubscriber>, RuntimeError> {
+    let mut subs = Vec::new();
+    for n in &dataflow.nodes {
+        for o in n
+            .outputs
+            .iter()
+            .filter(|o| o.kind == MessageKind::EpisodeStatus)
+        {
+            subs.push(ZenohSubscriber::create(
+                session,
+                &topic_key(&run.run_id, &n.id, &o.name),
+                256,
+                crate::dataflow::DropPolicy::DropOldest,
+            )?);
+        }
+    }
+    Ok(subs)
 }
 
 /// Broadcast a stop to every node and daemon of run `run_id` through the router at `connect`.

