@@ -36,6 +36,8 @@ pub fn up(
     listen: Vec<String>,
     connect: Vec<String>,
     runs: PathBuf,
+    allow_exec: Vec<PathBuf>,
+    insecure: bool,
 ) -> anyhow::Result<()> {
     let opts = DaemonOptions {
         machine,
@@ -44,6 +46,8 @@ pub fn up(
         runs_dir: runs,
         exe: std::env::current_exe().context("locating the activemap executable")?,
         base_dir: std::env::current_dir().context("reading the working directory")?,
+        allow_exec,
+        insecure,
     };
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;

@@ -107,6 +107,14 @@ enum Command {
         /// Daemon mode: folder of the run folders.
         #[arg(long, default_value = "runs", requires = "listen")]
         runs: PathBuf,
+        /// Daemon mode: a folder whose executables submitted flows' `path:` nodes may run
+        /// (repeatable); without it only built-in operators run.
+        #[arg(long = "allow-exec", value_name = "DIR", requires = "listen")]
+        allow_exec: Vec<PathBuf>,
+        /// Daemon mode: accept listening on a non-loopback address without TLS (warned at
+        /// start and at every submitted flow).
+        #[arg(long, requires = "listen")]
+        insecure: bool,
         /// One-shot mode: run id shared by all machines of the run.
         #[arg(long, requires = "file")]
         run_id: Option<String>,
@@ -354,6 +362,8 @@ fn real_main() -> anyhow::Result<ExitCode> {
             listen,
             connect,
             runs,
+            allow_exec,
+            insecure,
             run_id,
             out,
             max_steps,
@@ -374,7 +384,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             None if listen.is_empty() => {
                 bail!("`up` needs --listen ENDPOINT (daemon mode) or a dataflow FILE (one-shot)")
             }
-            None => daemons::up(machine, listen, connect, runs)?,
+            None => daemons::up(machine, listen, connect, runs, allow_exec, insecure)?,
         },
         Command::Start {
             file,

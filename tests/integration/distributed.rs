@@ -326,3 +326,96 @@ fn start_names_the_machine_whose_daemon_is_missing() {
     let out_a = wait(daemon_a, Duration::from_secs(60), "daemon a");
     assert!(out_a.status.success(), "daemon a:\n{}", out_a.stderr);
 }
+
+/// A daemon refuses to listen on a non-loopback address without TLS unless `--insecure`, and
+/// runs `path:` executables only from its `--allow-exec` folders: a flow with another one is
+/// refused, naming the node, and nothing of it runs.
+#[test]
+fn daemons_refuse_exposed_listening_and_executables_outside_allow_exec() {
+    let exposed = run(
+        &["up", "--machine", "a", "--listen", "tcp/10.255.255.1:7400"],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(!exposed.status.success());
+    assert!(
+        exposed
+            .stderr
+            .contains("refusing to listen on tcp/10.255.255.1:7400 without TLS")
+            && exposed.stderr.contains("--insecure"),
+        "{}",
+        exposed.stderr
+    );
+
+    let tmp = tempfile::tempdir().unwrap();
+    let tools = tmp.path().join("tools");
+    std::fs::create_dir_all(&tools).unwrap();
+    let script = tmp.path().join("outside.sh");
+    std::fs::write(&script, "#!/bin/sh\ntouch \"$0.ran\"\n").unwrap();
+    let pa = free_port("127.0.0.4");
+    let ca = free_port("127.0.0.4");
+    let file = tmp.path().join("exec.yaml");
+    std::fs::write(
+        &file,
+        format!(
+            "machines:\n  - id: a\n    listen: [tcp/127.0.0.4:{pa}]\nnodes:\n  - id: intruder\n    path: {}\n    outputs: [{{ id: out, type: Counter }}]\n    deploy: {{ machine: a }}\n",
+            script.display()
+        ),
+    )
+    .unwrap();
+    let control = format!("tcp/127.0.0.4:{ca}");
+    let runs = tmp.path().join("runs");
+    let daemon = spawn(
+        &[
+            "up",
+            "--machine",
+            "a",
+            "--listen",
+            &control,
+            "--runs",
+            runs.to_str().unwrap(),
+            "--allow-exec",
+            tools.to_str().unwrap(),
+        ],
+        &root(),
+    );
+    let mut out = None;
+    for _ in 0..40 {
+        let o = run(
+            &[
+                "start",
+                file.to_str().unwrap(),
+                "--connect",
+                &control,
+                "--timeout",
+                "2",
+            ],
+            &root(),
+            Duration::from_secs(60),
+        );
+        if !(o.stderr.contains("no daemon reachable") || o.stderr.contains("no daemon answered")) {
+            out = Some(o);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let out = out.expect("the daemon never answered");
+    assert!(!out.status.success());
+    assert!(
+        out.stderr.contains("node `intruder`") && out.stderr.contains("--allow-exec"),
+        "{}",
+        out.stderr
+    );
+    let down = run(
+        &["down", "--connect", &control],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(down.status.success(), "{}", down.stderr);
+    let done = wait(daemon, Duration::from_secs(60), "daemon");
+    assert!(done.status.success(), "daemon:\n{}", done.stderr);
+    assert!(
+        !tmp.path().join("outside.sh.ran").exists(),
+        "the refused node ran"
+    );
+}

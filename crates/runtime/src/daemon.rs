@@ -45,6 +45,93 @@ pub struct DaemonOptions {
     pub exe: PathBuf,
     /// `path:` executables of submitted flows are relative to this folder.
     pub base_dir: PathBuf,
+    /// Folders whose executables a submitted flow's `path:` nodes may run (`--allow-exec`);
+    /// empty: no `path:` node is run at all, only built-in operators.
+    pub allow_exec: Vec<PathBuf>,
+    /// Accept listening on a non-loopback address without TLS (`--insecure`), with a warning
+    /// at start and at every submitted flow.
+    pub insecure: bool,
+}
+
+/// True when a Zenoh endpoint (`tcp/HOST:PORT`, `udp/…`, `tls/…`, optionally with a
+/// `#…`/`?…` suffix) names a loopback host: `localhost`, 127.0.0.0/8 or ::1.
+pub fn endpoint_is_loopback(endpoint: &str) -> bool {
+    let rest = endpoint.split_once('/').map_or(endpoint, |(_, r)| r);
+    let rest = rest.split(['#', '?']).next().unwrap_or(rest);
+    let host = match rest.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or(""),
+        None => rest.rsplit_once(':').map_or(rest, |(h, _)| h),
+    };
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Refuses a daemon that would listen on a non-loopback address without TLS, unless
+/// `insecure`; returns the exposed endpoints (to warn about) when it is allowed.
+pub fn check_listen(listen: &[String], insecure: bool) -> Result<Vec<String>, RuntimeError> {
+    let exposed: Vec<String> = listen
+        .iter()
+        .filter(|e| !endpoint_is_loopback(e))
+        .cloned()
+        .collect();
+    if !exposed.is_empty() && !insecure {
+        return Err(RuntimeError::Other(format!(
+            "refusing to listen on {} without TLS: anyone who can reach it could submit flows \
+             to this machine; listen on a loopback address, or pass --insecure to accept the risk",
+            exposed.join(", ")
+        )));
+    }
+    Ok(exposed)
+}
+
+/// Refuses a flow whose `path:` nodes deployed on `machine` run an executable outside the
+/// `allowed` folders, naming each such node; a path is resolved against the flow's folder
+/// and compared after resolving symbolic links and `..`.
+pub fn check_exec_allowed(
+    flow: &Dataflow,
+    machine: &str,
+    allowed: &[PathBuf],
+) -> Result<(), String> {
+    let allowed: Vec<PathBuf> = allowed
+        .iter()
+        .filter_map(|d| std::fs::canonicalize(d).ok())
+        .collect();
+    let mut refused = Vec::new();
+    for node in flow.nodes.iter().filter(|n| n.machine == machine) {
+        let crate::dataflow::NodeImpl::Path { path, .. } = &node.implementation else {
+            continue;
+        };
+        let p = Path::new(path);
+        let exe = if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            flow.base_dir.join(p)
+        };
+        let inside = std::fs::canonicalize(&exe)
+            .is_ok_and(|exe| allowed.iter().any(|dir| exe.starts_with(dir)));
+        if !inside {
+            refused.push(format!(
+                "node `{}`: executable `{path}` is outside the daemon's --allow-exec folders ({})",
+                node.id,
+                if allowed.is_empty() {
+                    "none given".to_string()
+                } else {
+                    allowed
+                        .iter()
+                        .map(|d| d.display().to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }
+            ));
+        }
+    }
+    if refused.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("{}: refused: {}", flow.file, refused.join("; ")))
+    }
 }
 
 /// A flow submitted to the daemons (`activemap start`).
@@ -128,6 +215,10 @@ pub fn serve(
                 .into(),
         ));
     }
+    let exposed = check_listen(&opts.listen, opts.insecure)?;
+    if !exposed.is_empty() {
+        eprintln!("{}", insecure_warning(&exposed));
+    }
     std::fs::create_dir_all(&opts.runs_dir).map_err(|e| RuntimeError::io(&opts.runs_dir, e))?;
     let session = open_zenoh(&ZenohSettings {
         mode: "router".into(),
@@ -195,6 +286,15 @@ pub fn serve(
     Ok(())
 }
 
+fn insecure_warning(exposed: &[String]) -> String {
+    format!(
+        "activemap daemon: WARNING: listening on {} without TLS (--insecure): anyone who can \
+         reach it can submit flows (built-in operators, and `path:` executables inside \
+         --allow-exec) and read their logs",
+        exposed.join(", ")
+    )
+}
+
 fn entries(machine: &str, runs: &BTreeMap<String, Run>) -> Vec<RunEntry> {
     runs.iter()
         .map(|(id, r)| RunEntry {
@@ -243,6 +343,16 @@ fn start_run(
             "{}: machine `{}` is not in the flow's `machines:`",
             request.file, opts.machine
         ));
+    }
+    check_exec_allowed(&flow, &opts.machine, &opts.allow_exec)?;
+    let exposed: Vec<String> = opts
+        .listen
+        .iter()
+        .filter(|e| !endpoint_is_loopback(e))
+        .cloned()
+        .collect();
+    if !exposed.is_empty() {
+        eprintln!("{}", insecure_warning(&exposed));
     }
     let run_dir = opts.runs_dir.join(&request.run_id);
     let mut launch = LaunchOptions::new(run_dir.clone(), opts.exe.clone());
@@ -562,5 +672,83 @@ fn state_of(nodes: &BTreeMap<String, (NodeExit, u32)>, failure: Option<&str>) ->
             RunState::Failed("a node crashed".into())
         }
         None => RunState::Finished,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn loopback_endpoints_are_told_from_exposed_ones() {
+        for e in [
+            "tcp/127.0.0.1:7400",
+            "tcp/127.0.0.3:7400",
+            "tcp/localhost:7400",
+            "tcp/[::1]:7400",
+            "udp/127.0.0.2:9#iface=lo",
+        ] {
+            assert!(endpoint_is_loopback(e), "{e}");
+        }
+        for e in [
+            "tcp/10.0.0.1:7400",
+            "tcp/0.0.0.0:7400",
+            "tcp/[::]:7400",
+            "tcp/robot.lan:7400",
+        ] {
+            assert!(!endpoint_is_loopback(e), "{e}");
+        }
+        assert!(
+            check_listen(&["tcp/127.0.0.2:1".into()], false)
+                .unwrap()
+                .is_empty()
+        );
+        let e = check_listen(&["tcp/10.0.0.1:7400".into()], false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("tcp/10.0.0.1:7400") && e.contains("--insecure"),
+            "{e}"
+        );
+        assert_eq!(
+            check_listen(&["tcp/10.0.0.1:7400".into()], true).unwrap(),
+            ["tcp/10.0.0.1:7400"]
+        );
+    }
+
+    /// A `path:` node runs only from an `--allow-exec` folder (after resolving `..` and
+    /// links); the refusal names the node; nodes of other machines are not this daemon's.
+    #[test]
+    fn path_nodes_run_only_from_allowed_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        let tools = dir.path().join("tools");
+        let other = dir.path().join("other");
+        std::fs::create_dir_all(&tools).unwrap();
+        std::fs::create_dir_all(&other).unwrap();
+        std::fs::write(tools.join("ok.sh"), "#!/bin/sh\n").unwrap();
+        std::fs::write(other.join("evil.sh"), "#!/bin/sh\n").unwrap();
+        let flow = |exe: &str| {
+            let src = format!(
+                "nodes:\n  - id: tool\n    path: {exe}\n    outputs: [{{ id: out, type: Counter }}]\n"
+            );
+            Dataflow::parse("f.yaml", &src, dir.path().to_path_buf(), &[]).unwrap()
+        };
+        let allowed = [tools.clone()];
+        let machine = flow("./tools/ok.sh").nodes[0].machine.clone();
+        assert!(check_exec_allowed(&flow("./tools/ok.sh"), &machine, &allowed).is_ok());
+        for exe in [
+            "./other/evil.sh",
+            "./tools/../other/evil.sh",
+            "./tools/missing.sh",
+        ] {
+            let e = check_exec_allowed(&flow(exe), &machine, &allowed).unwrap_err();
+            assert!(
+                e.contains("node `tool`") && e.contains(exe) && e.contains("--allow-exec"),
+                "{e}"
+            );
+        }
+        let e = check_exec_allowed(&flow("./tools/ok.sh"), &machine, &[]).unwrap_err();
+        assert!(e.contains("none given"), "{e}");
+        assert!(check_exec_allowed(&flow("./other/evil.sh"), "elsewhere", &[]).is_ok());
     }
 }
