@@ -146,11 +146,10 @@ fn default_exclusion() -> f64 {
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
     let config: Config = activemap_runtime::catalog::config_from_value(value)?;
     fbe_config(&config).validate().map_err(|e| e.to_string())?;
-    let llm = config.llm_config()?;
+    config.llm_config()?;
     if config.policy == Policy::Fbe && config.llm.is_some() {
         return Err("`llm:` settings need `policy: llm`".into());
     }
-    drop(llm);
     Ok(())
 }
 
@@ -536,10 +535,10 @@ impl LlmPolicy {
             .iter()
             .map(|&i| candidate(&frontiers.regions[i], cell))
             .collect();
-        let empty = Arc::new(Gaussians::new());
         let (version, map) = match self.maps.get(&required_snapshot(k, self.lag)) {
             Some((v, m)) => (*v, m.clone()),
-            None if !self.needs_map => (u64::MAX, empty),
+            // The text prompt (or no provider) draws no BEV: no map is kept.
+            None if !self.needs_map => (u64::MAX, Arc::new(Gaussians::new())),
             None => anyhow::bail!(
                 "planner: the decision of frame {k} needs map snapshot {}, which has not arrived",
                 required_snapshot(k, self.lag)

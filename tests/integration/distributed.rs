@@ -8,7 +8,7 @@ use std::time::Duration;
 use activemap_runtime::record::read_recording;
 use activemap_schemas::{Counter, SmallMessage};
 
-use super::harness::{root, run, spawn, wait};
+use super::harness::{Finished, root, run, spawn, wait};
 
 fn free_port(ip: &str) -> u16 {
     std::net::TcpListener::bind((ip, 0))
@@ -16,6 +16,23 @@ fn free_port(ip: &str) -> u16 {
         .local_addr()
         .unwrap()
         .port()
+}
+
+/// `activemap start FILE --connect CONTROL --timeout 2`, retried (up to 40 times, 250 ms apart)
+/// while `not_up` says from its stderr that the daemon there does not answer yet.
+fn start_when_up(file: &str, control: &str, not_up: impl Fn(&str) -> bool) -> Finished {
+    for _ in 0..40 {
+        let o = run(
+            &["start", file, "--connect", control, "--timeout", "2"],
+            &root(),
+            Duration::from_secs(60),
+        );
+        if !not_up(&o.stderr) {
+            return o;
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    panic!("the daemon at {control} never answered");
 }
 
 /// A two-machine flow: machine a produces counters and frames, machine b doubles and checks them.
@@ -286,30 +303,10 @@ fn start_names_the_machine_whose_daemon_is_missing() {
         ],
         &root(),
     );
-    let mut out = None;
-    for _ in 0..40 {
-        let o = run(
-            &[
-                "start",
-                file.to_str().unwrap(),
-                "--connect",
-                &control_a,
-                "--timeout",
-                "2",
-            ],
-            &root(),
-            Duration::from_secs(60),
-        );
-        // Daemon a may not listen yet (no session at all) or not answer yet: both mean retry.
-        let a_not_up = o.stderr.contains("no daemon reachable")
-            || o.stderr.contains("machine `a`: no daemon answered");
-        if !a_not_up {
-            out = Some(o);
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(250));
-    }
-    let out = out.expect("daemon a never answered");
+    // Daemon a may not listen yet (no session at all) or not answer yet: both mean retry.
+    let out = start_when_up(file.to_str().unwrap(), &control_a, |stderr| {
+        stderr.contains("no daemon reachable") || stderr.contains("machine `a`: no daemon answered")
+    });
     assert!(!out.status.success());
     assert!(
         out.stderr.contains("machine `b`: no daemon answered"),
@@ -379,27 +376,9 @@ fn daemons_refuse_exposed_listening_and_executables_outside_allow_exec() {
         ],
         &root(),
     );
-    let mut out = None;
-    for _ in 0..40 {
-        let o = run(
-            &[
-                "start",
-                file.to_str().unwrap(),
-                "--connect",
-                &control,
-                "--timeout",
-                "2",
-            ],
-            &root(),
-            Duration::from_secs(60),
-        );
-        if !(o.stderr.contains("no daemon reachable") || o.stderr.contains("no daemon answered")) {
-            out = Some(o);
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(250));
-    }
-    let out = out.expect("the daemon never answered");
+    let out = start_when_up(file.to_str().unwrap(), &control, |stderr| {
+        stderr.contains("no daemon reachable") || stderr.contains("no daemon answered")
+    });
     assert!(!out.status.success());
     assert!(
         out.stderr.contains("node `intruder`") && out.stderr.contains("--allow-exec"),

@@ -770,9 +770,9 @@ mod tests {
         assert!(e.to_string().contains("absent"), "{e}");
     }
 
-    #[test]
-    fn replay_feeds_inputs_in_order_and_delivers_stop_last() {
-        let catalog = [OperatorDescriptor {
+    /// The catalog of the test operator `summer` (Counter `in` → Counter `sum`).
+    fn summer_catalog() -> [OperatorDescriptor; 1] {
+        [OperatorDescriptor {
             name: "summer",
             summary: "test",
             inputs: &[PortSpec {
@@ -785,7 +785,12 @@ mod tests {
             }],
             evaluation: false,
             check_config: check_config_as::<SummerConfig>,
-        }];
+        }]
+    }
+
+    #[test]
+    fn replay_feeds_inputs_in_order_and_delivers_stop_last() {
+        let catalog = summer_catalog();
         let src = "nodes:\n  - id: s\n    operator: summer\n    config: { scale: 10 }\n    inputs:\n      in: s/sum\n";
         let flow = Dataflow::parse("t.yaml", src, PathBuf::new(), &catalog).unwrap();
         let spec = flow.node("s").unwrap();
@@ -821,20 +826,7 @@ mod tests {
 
     #[test]
     fn replay_streams_a_recording_and_matches_outputs_by_hash() {
-        let catalog = [OperatorDescriptor {
-            name: "summer",
-            summary: "test",
-            inputs: &[PortSpec {
-                name: "in",
-                kind: MessageKind::Counter,
-            }],
-            outputs: &[PortSpec {
-                name: "sum",
-                kind: MessageKind::Counter,
-            }],
-            evaluation: false,
-            check_config: check_config_as::<SummerConfig>,
-        }];
+        let catalog = summer_catalog();
         let src = "nodes:\n  - id: src\n    operator: summer\n    config: { scale: 1 }\n    inputs:\n      in: s/sum\n  - id: s\n    operator: summer\n    config: { scale: 10 }\n    inputs:\n      in: src/sum\n";
         let flow = Dataflow::parse("t.yaml", src, PathBuf::new(), &catalog).unwrap();
         let spec = flow.node("s").unwrap();
