@@ -7,6 +7,10 @@
 //!
 //! Steps per second are the steps taken over the wall time of the launched run (process start
 //! and shutdown included), on this machine as loaded at the time: quote them with the load.
+//!
+//! A house whose run is invalid (warnings in its `summary.json`: a start that sees nothing, a
+//! robot that cannot move, an empty map…) prints `explore fbe <house> INVALID <code>: <message>`
+//! per reason and is left out of the medians, which count the houses left out.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -24,9 +28,17 @@ pub struct ExploreArgs {
     /// The exploration dataflow (its `sim` and `evaluator` nodes get each house).
     #[arg(long, default_value = "dataflow.yaml")]
     flow: PathBuf,
-    /// Procedural houses (the seeds of `house:<n>` scenes).
-    #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+    /// Procedural houses (the seeds of `house:<n>` scenes); default 1,2,3 unless `--scenes`
+    /// is given.
+    #[arg(long, value_delimiter = ',')]
     houses: Vec<u64>,
+    /// Scene files explored after the houses, e.g.
+    /// `../shared/data/scenes/aws_small_house.glb` (the furnished house).
+    #[arg(long, value_delimiter = ',')]
+    scenes: Vec<String>,
+    /// Simulator noise on every episode: `none` or `realistic` (the `sim` node's `noise` key).
+    #[arg(long)]
+    noise: Option<String>,
     /// Step budget of each episode.
     #[arg(long, default_value_t = 2000)]
     steps: u64,
@@ -100,6 +112,8 @@ pub struct HouseResult {
     pub forwards: (u64, u64),
     /// Busy time per node.
     pub stages: Vec<StageTime>,
+    /// Why the run is invalid (the summary's warnings); empty = valid.
+    pub warnings: Vec<activemap_eval::RunWarning>,
 }
 
 impl HouseResult {
@@ -124,6 +138,12 @@ impl HouseResult {
                 "explore fbe {} stage {stage} share_pct {share:.1} busy_ms_per_step {:.1}",
                 self.scene,
                 per_step(t.seconds)
+            ));
+        }
+        for w in &self.warnings {
+            out.push(format!(
+                "explore fbe {} INVALID {}: {}",
+                self.scene, w.code, w.message
             ));
         }
         out
@@ -165,7 +185,15 @@ pub fn house_flow(
     resolution: u32,
     max_rooms: Option<u32>,
     max_area: Option<f64>,
+    noise: Option<&str>,
 ) -> anyhow::Result<String> {
+    // The size limits shape procedural houses only; a scene file refuses them.
+    let is_house = scene.starts_with("house:");
+    let (max_rooms, max_area) = if is_house {
+        (max_rooms, max_area)
+    } else {
+        (None, None)
+    };
     let mut out = String::new();
     for line in text.lines() {
         let mut line = line.to_string();
@@ -180,6 +208,9 @@ pub fn house_flow(
             if line.contains("width:") {
                 line = set_flow_key(&line, "width", &resolution.to_string());
                 line = set_flow_key(&line, "height", &resolution.to_string());
+                if let Some(n) = noise {
+                    line = set_flow_key(&line, "noise", n);
+                }
             }
         }
         out.push_str(&line);
@@ -217,6 +248,7 @@ fn run_house(
         args.resolution,
         args.max_rooms,
         args.max_area,
+        args.noise.as_deref(),
     )?;
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let flow_path = dir.join("explore_dataflow.yaml");
@@ -256,39 +288,82 @@ fn run_house(
         path_length_m: summary.path_length_m,
         forwards: (summary.forward_actions, summary.blocked_forwards),
         stages: read_timings(&run_dir)?,
+        warnings: summary.warnings,
     })
 }
 
+/// The run folder name of a scene: `house-3` for `house:3`, the file stem for a scene file.
+fn scene_folder(scene: &str) -> String {
+    if scene.starts_with("house:") {
+        return scene.replace(':', "-");
+    }
+    Path::new(scene)
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("scene")
+        .to_string()
+}
+
+/// The houses run when neither `--houses` nor `--scenes` is given.
+const DEFAULT_HOUSES: [u64; 3] = [1, 2, 3];
+
 /// Runs the benchmark and prints its lines.
 pub fn run(args: &ExploreArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        !args.houses.is_empty(),
-        "bench explore: --houses must name at least one house"
-    );
     let exe = std::env::current_exe().context("locating the activemap executable")?;
-    let scenes: Vec<String> = args.houses.iter().map(|h| format!("house:{h}")).collect();
-    let mut coverages = Vec::new();
-    let mut rates = Vec::new();
+    let houses: &[u64] = match (args.houses.is_empty(), args.scenes.is_empty()) {
+        (true, true) => &DEFAULT_HOUSES,
+        _ => &args.houses,
+    };
+    let mut scenes: Vec<String> = houses.iter().map(|h| format!("house:{h}")).collect();
+    scenes.extend(args.scenes.iter().cloned());
+    let mut results = Vec::new();
     for scene in &scenes {
-        let dir = args.out.join(scene.replace(':', "-"));
+        let dir = args.out.join(scene_folder(scene));
         let result = run_house(&exe, args, scene, &dir)?;
         for line in result.lines() {
             println!("{line}");
         }
-        coverages.push(result.coverage_pct);
-        rates.push(result.steps_per_s);
+        results.push(result);
     }
-    let median = |v: &mut Vec<f64>| {
+    println!("{}", median_line(&results));
+    Ok(())
+}
+
+/// The closing line: median coverage and steps per second over the valid houses, naming the
+/// invalid ones left out.
+pub fn median_line(results: &[HouseResult]) -> String {
+    let (valid, invalid): (Vec<&HouseResult>, Vec<&HouseResult>) =
+        results.iter().partition(|r| r.warnings.is_empty());
+    let names = |v: &[&HouseResult]| {
+        v.iter()
+            .map(|r| r.scene.as_str())
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let left_out = if invalid.is_empty() {
+        String::new()
+    } else {
+        format!("{} invalid left out: {}", invalid.len(), names(&invalid))
+    };
+    if valid.is_empty() {
+        return format!("explore fbe median: no valid house ({left_out})");
+    }
+    let median = |pick: fn(&HouseResult) -> f64| {
+        let mut v: Vec<f64> = valid.iter().map(|r| pick(r)).collect();
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    println!(
-        "explore fbe median coverage {:.1} steps_per_s {:.2} (houses {})",
-        median(&mut coverages),
-        median(&mut rates),
-        scenes.join(",")
-    );
-    Ok(())
+    format!(
+        "explore fbe median coverage {:.1} steps_per_s {:.2} (houses {}{})",
+        median(|r| r.coverage_pct),
+        median(|r| r.steps_per_s),
+        names(&valid),
+        if left_out.is_empty() {
+            String::new()
+        } else {
+            format!("; {left_out}")
+        }
+    )
 }
 
 #[cfg(test)]
@@ -337,7 +412,7 @@ mod tests {
     fn house_flow_sets_the_scene_and_resolution() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let text = std::fs::read_to_string(root.join("dataflow.yaml")).unwrap();
-        let out = house_flow(&text, "house:2", 96, Some(2), Some(30.0)).unwrap();
+        let out = house_flow(&text, "house:2", 96, Some(2), Some(30.0), None).unwrap();
         let flow =
             Dataflow::parse("t", &out, PathBuf::new(), &activemap_operators::catalog()).unwrap();
         let config = |id: &str| {
@@ -377,6 +452,7 @@ mod tests {
                 seconds: 100.0,
                 calls: 4000,
             }],
+            warnings: Vec::new(),
         };
         let lines = r.lines();
         assert_eq!(
@@ -390,6 +466,45 @@ mod tests {
         assert_eq!(
             lines[2],
             "explore fbe house:2 stage tracker share_pct 100.0 busy_ms_per_step 50.0"
+        );
+    }
+
+    /// An invalid house prints its reasons and is left out of the medians, which name it.
+    #[test]
+    fn invalid_houses_are_marked_and_left_out_of_the_medians() {
+        let house =
+            |n: u64, coverage_pct: f64, warnings: Vec<activemap_eval::RunWarning>| HouseResult {
+                scene: format!("house:{n}"),
+                coverage_pct,
+                ate_cm: None,
+                steps: 206,
+                steps_per_s: 2.0,
+                path_length_m: 0.0,
+                forwards: (206, 206),
+                stages: Vec::new(),
+                warnings,
+            };
+        let stuck = vec![activemap_eval::RunWarning::new(
+            "robot_cannot_move",
+            "206 of 206 forward moves blocked",
+        )];
+        let results = [
+            house(1, 80.0, Vec::new()),
+            house(2, 100.0, stuck.clone()),
+            house(3, 90.0, Vec::new()),
+        ];
+        assert_eq!(
+            results[1].lines().last().unwrap(),
+            "explore fbe house:2 INVALID robot_cannot_move: 206 of 206 forward moves blocked"
+        );
+        assert!(!results[0].lines().iter().any(|l| l.contains("INVALID")));
+        assert_eq!(
+            median_line(&results),
+            "explore fbe median coverage 90.0 steps_per_s 2.00 (houses house:1,house:3; 1 invalid left out: house:2)"
+        );
+        assert_eq!(
+            median_line(&[house(2, 100.0, stuck)]),
+            "explore fbe median: no valid house (1 invalid left out: house:2)"
         );
     }
 }

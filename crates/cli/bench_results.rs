@@ -33,9 +33,17 @@ pub struct ResultsArgs {
         default_values_t = ["fbe".to_string()]
     )]
     methods: Vec<String>,
-    /// Procedural houses (the seeds of `house:<n>` scenes).
-    #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+    /// Procedural houses (the seeds of `house:<n>` scenes); default 1,2,3 unless `--scenes`
+    /// is given.
+    #[arg(long, value_delimiter = ',')]
     houses: Vec<u64>,
+    /// Scene files run after the houses, e.g. `../shared/data/scenes/aws_small_house.glb` (the
+    /// furnished house); made absolute, since every cell runs in its own folder.
+    #[arg(long, value_delimiter = ',')]
+    scenes: Vec<String>,
+    /// Simulator noise of every cell: `none` or `realistic` (the `sim` node's `noise` key).
+    #[arg(long)]
+    noise: Option<String>,
     /// Seeds per method and house, set on every node whose config declares `seed` (the `sim`
     /// node of dataflow.yaml: a seeded start pose, so each seed is a different episode).
     #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
@@ -66,11 +74,14 @@ pub struct ResultsArgs {
     record: bool,
 }
 
+/// The houses run when neither `--houses` nor `--scenes` is given.
+const DEFAULT_HOUSES: [u64; 3] = [1, 2, 3];
+
 /// Runs the grid, writes the tables and prints the Markdown.
 pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
-        !args.houses.is_empty() && !args.seeds.is_empty() && !args.methods.is_empty(),
-        "bench results: --method, --houses and --seeds must each name at least one"
+        !args.seeds.is_empty() && !args.methods.is_empty(),
+        "bench results: --method and --seeds must each name at least one"
     );
     anyhow::ensure!(args.steps > 0, "bench results: --steps must be > 0");
     anyhow::ensure!(
@@ -91,13 +102,23 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
             Ok(m)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let scenes: Vec<String> = args.houses.iter().map(|h| format!("house:{h}")).collect();
+    let houses: &[u64] = match (args.houses.is_empty(), args.scenes.is_empty()) {
+        (true, true) => &DEFAULT_HOUSES,
+        _ => &args.houses,
+    };
+    let mut scenes: Vec<String> = houses.iter().map(|h| format!("house:{h}")).collect();
+    for file in &args.scenes {
+        let path = std::path::absolute(file).with_context(|| format!("--scenes {file}"))?;
+        anyhow::ensure!(path.is_file(), "--scenes {file}: no such file");
+        scenes.push(path.display().to_string());
+    }
     let settings = GridSettings {
         steps: args.steps,
         resolution: args.resolution,
         max_rooms: args.max_rooms,
         max_area: args.max_area,
         eval_views: args.eval_views,
+        noise: args.noise.clone(),
     };
     let cells = results::cells(&methods, &scenes, &args.seeds, &settings);
     // Every cell's dataflow is checked before the first episode starts.
@@ -121,6 +142,13 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
     let progress = |r: &results::CellResult| {
         let what = match &r.outcome {
             CellOutcome::Reused(_) => "complete from an earlier run, kept".to_string(),
+            CellOutcome::Ran(m) if !m.is_valid() => {
+                let codes: Vec<&str> = m.warnings.iter().map(|w| w.code.as_str()).collect();
+                format!(
+                    "done, INVALID ({}): left out of the means",
+                    codes.join(", ")
+                )
+            }
             CellOutcome::Ran(_) => "done".to_string(),
             CellOutcome::Failed(why) => format!("FAILED: {why}"),
             CellOutcome::Interrupted => "stopped".to_string(),
@@ -234,6 +262,9 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
                 set(config, "width", Some(scalar(s.resolution)));
                 set(config, "height", Some(scalar(s.resolution)));
                 set(config, "max_steps", Some(scalar(s.steps)));
+                if let Some(noise) = &s.noise {
+                    set(config, "noise", Some(scalar(noise)));
+                }
             }
             "evaluator" => {
                 evaluators += 1;
@@ -481,6 +512,7 @@ mod tests {
             max_rooms: Some(2),
             max_area: Some(30.0),
             eval_views: 8,
+            noise: None,
         }
     }
 

@@ -67,6 +67,10 @@ pub struct SlamArgs {
     /// 160 px and mapping above 200 px.
     #[arg(long, default_value = "dataflow.yaml")]
     flow: std::path::PathBuf,
+    /// Simulator noise: `none` or a preset name (`realistic`: RealSense D435 depth noise and
+    /// LoCoBot-derived actuation noise, see `activemap_sim::noise`).
+    #[arg(long, default_value = "none")]
+    noise: String,
 }
 
 /// Runs the SLAM benchmark on scripted loops.
@@ -102,13 +106,20 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
         (t.downscale, m.downscale) = (Some(track), Some(map));
         activemap_operators::mapper::slam_config(&t, &m)
     };
+    let preset = activemap_sim::NoisePreset::from_name(&args.noise)
+        .with_context(|| format!("--noise {}: expected `none` or `realistic`", args.noise))?;
+    let noise = preset.config();
+    let noise_name = noise.is_active().then_some(args.noise.as_str());
     println!(
-        "# SLAM of {}: tracker {:?}, mapper {:?}",
+        "# SLAM of {}: tracker {:?}, mapper {:?}, noise {}",
         args.flow.display(),
         tracker,
-        mapper
+        mapper,
+        args.noise
     );
-    for row in activemap_bench::slam_bench::run(&cases, slam_for).context("SLAM benchmark")? {
+    for row in activemap_bench::slam_bench::run(&cases, &noise, noise_name, slam_for)
+        .context("SLAM benchmark")?
+    {
         println!("{row}");
     }
     Ok(())

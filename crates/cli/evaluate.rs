@@ -17,6 +17,9 @@ pub struct EvalArgs {
     /// Test render height, pixels.
     #[arg(long, default_value_t = 160)]
     pub height: u32,
+    /// Horizontal field of view of the test camera, degrees (the paper: 90).
+    #[arg(long, default_value_t = 90.0)]
+    pub hfov_deg: f64,
     /// Skip LPIPS even when its weights are present.
     #[arg(long)]
     pub no_lpips: bool,
@@ -29,6 +32,7 @@ impl Default for EvalArgs {
             views: d.test_views,
             width: d.width,
             height: d.height,
+            hfov_deg: d.hfov_deg,
             no_lpips: false,
         }
     }
@@ -41,6 +45,7 @@ pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
         test_views: args.views,
         width: args.width,
         height: args.height,
+        hfov_deg: args.hfov_deg,
         lpips: if args.no_lpips {
             LpipsSource::Off
         } else {
@@ -49,6 +54,10 @@ pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
         ..EvalOptions::default()
     };
     let metrics = evaluate_run(run_dir, &options)?;
+    // An invalid run says so on stderr too (issue 16), one line per reason.
+    for w in &metrics.warnings {
+        eprintln!("{}", w.log_line(run_dir));
+    }
     println!("{}", metrics.to_markdown());
     report(run_dir)
 }

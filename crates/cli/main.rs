@@ -581,15 +581,35 @@ fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Resul
         return Ok(());
     }
     match eval {
-        Some(args) => {
+        Some(mut args) => {
+            // The automatic evaluation renders at the run's own camera (800×800 for the paper's
+            // profile), not at `activemap eval`'s 160×160 default.
+            if let Some((width, height, hfov_deg)) = sim_camera(run_dir) {
+                (args.width, args.height, args.hfov_deg) = (width, height, hfov_deg);
+            }
             eprintln!(
-                "activemap: evaluating the run at {} test views (skip with --no-eval)",
-                args.views
+                "activemap: evaluating the run at {} test views of {}×{} (skip with --no-eval)",
+                args.views, args.width, args.height
             );
             evaluate::eval(run_dir, &args)
         }
         None => evaluate::report(run_dir),
     }
+}
+
+/// The `sim` node's camera in a run folder's `dataflow.yaml`: width, height and horizontal FOV
+/// (degrees, 90 when unset); `None` without a readable flow or a `sim` node with a width.
+fn sim_camera(run_dir: &Path) -> Option<(u32, u32, f64)> {
+    let flow = load(&run_dir.join(RunInfo::DATAFLOW), &[]).ok()?;
+    let sim = flow
+        .nodes
+        .iter()
+        .find(|n| matches!(&n.implementation, NodeImpl::Operator(op) if op == "sim"))?;
+    let c = &sim.config;
+    let width = u32::try_from(c.get("width")?.as_u64()?).ok()?;
+    let height = u32::try_from(c.get("height")?.as_u64()?).ok()?;
+    let hfov = c.get("hfov_deg").and_then(|v| v.as_f64()).unwrap_or(90.0);
+    Some((width, height, hfov))
 }
 
 fn run_node(run_dir: &Path, node: &str) -> anyhow::Result<()> {

@@ -19,12 +19,21 @@
 //!
 //! The loop's world is anchored at the robot's start pose; coverage maps each reachable
 //! navigable cell of the scene (ground truth) into that frame with the true start pose.
+//!
+//! No silent nonsense (issue 16, `activemap_eval::validity`): at the end the evaluator checks
+//! that the start pose saw something (the first frame of the optional `rgbd` input has at least
+//! 1 % valid depth), that the robot could move (not ≥ 90 % of ≥ 20 forward moves blocked, not
+//! under one forward step of true path after 200 steps), that the map is not empty (an observed
+//! Gaussian) and that some floor is reachable (≥ 1 m²). Each failed check is a warning in
+//! `summary.json` (`warnings`, `"valid": false`) and a line
+//! `warning: RUN_DIR: invalid run: CODE: MESSAGE` on stderr.
 
 use std::path::PathBuf;
 
 use activemap_eval::run_folder::{
     Bev, BevCell, CoverageRow, FisherRow, LlmRecord, LlmSummary, RunFolder,
 };
+use activemap_eval::validity::{self, RunWarning};
 use activemap_eval::{AteOptions, ate, coverage_2d};
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -38,7 +47,7 @@ use activemap_runtime::{
 };
 use activemap_schemas::{
     Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, LlmExchange, MessageKind as K,
-    PoseEstimate, TruePose,
+    PoseEstimate, RgbdFrameView, TruePose,
 };
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
@@ -46,8 +55,7 @@ use nalgebra::Point2;
 
 use crate::Registered;
 use crate::convert::{pose_from_wire, read_grid, read_map};
-use crate::sim::up_axis_from_name;
-use activemap_sim::{SceneSpec, UpAxis};
+use activemap_sim::{Floor, Placement, SceneSpec, Transform, UpAxis};
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -62,9 +70,15 @@ pub struct Config {
     /// As in `sim`.
     #[serde(default)]
     pub max_area: Option<f64>,
-    /// As in `sim` (`y` or `z`, for scene files).
-    #[serde(default, deserialize_with = "up_axis_from_name")]
+    /// As in `sim` (`x`, `-x`, `y`, `-y`, `z` or `-z`, for scene files).
+    #[serde(default)]
     pub up_axis: Option<UpAxis>,
+    /// As in `sim` (a scene file's scale, rotation and translation).
+    #[serde(default)]
+    pub transform: Option<Transform>,
+    /// As in `sim` (`none`, `auto` or a floor height, for scene files).
+    #[serde(default)]
+    pub floor: Floor,
     /// Output folder; default the run folder (`ACTIVEMAP_RUN_DIR`), else the working directory.
     #[serde(default)]
     pub out: Option<PathBuf>,
@@ -124,6 +138,12 @@ impl CoverageTruth {
         }
         Ok(coverage_2d(&seen, &self.reachable, f.width, f.height)?)
     }
+
+    /// Area of the navigable floor reachable from the start, m².
+    pub fn reachable_area_m2(&self) -> f64 {
+        let cell = self.navigable.frame.cell_size;
+        self.reachable.iter().filter(|&&r| r).count() as f64 * cell * cell
+    }
 }
 
 /// The operator.
@@ -151,6 +171,9 @@ pub struct Evaluator {
     fisher: Vec<FisherRow>,
     /// One record per `LlmExchange` received (appended to `llm.jsonl` as it arrives).
     llm: Vec<LlmRecord>,
+    /// The earliest RGB-D frame received (optional `rgbd` input): its id and the fraction of
+    /// its depth pixels that are valid.
+    start_depth: Option<(u64, f64)>,
 }
 
 /// The `llm.jsonl` record of an exchange whose BEV was written at `bev` (relative path).
@@ -232,6 +255,38 @@ pub fn fisher_row(report: &FisherReport) -> anyhow::Result<FisherRow> {
 }
 
 impl Evaluator {
+    /// Why the run is invalid (`activemap_eval::validity`), from what the evaluator saw: the
+    /// first frame's valid depth (when the `rgbd` input is connected), the motion counts of
+    /// `summary`, the final map's observed Gaussians and the reachable floor.
+    pub fn warnings(&self, summary: &Summary) -> Vec<RunWarning> {
+        let (observed, unknown) = self.map.as_ref().map_or((0, 0), |m| {
+            let unknown = m
+                .flags
+                .iter()
+                .filter(|f| *f & FLAG_UNKNOWN_SPACE != 0)
+                .count();
+            (m.len() - unknown, unknown)
+        });
+        [
+            self.start_depth
+                .and_then(|(frame, valid)| validity::start_view(frame, valid)),
+            validity::motion(
+                summary.steps,
+                summary.path_length_m,
+                summary.forward_actions,
+                summary.blocked_forwards,
+                self.robot.forward_step_m,
+            ),
+            validity::map(observed, unknown),
+            self.truth
+                .as_ref()
+                .and_then(|(truth, _, _)| validity::reachable_floor(truth.reachable_area_m2())),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+
     fn score_pending(&mut self) -> anyhow::Result<()> {
         let Some((truth, start, _)) = &self.truth else {
             return Ok(());
@@ -283,7 +338,7 @@ impl Evaluator {
             &self.true_positions,
             self.robot.forward_step_m,
         );
-        let summary = Summary {
+        let mut summary = Summary {
             steps: self.estimated.len() as u64,
             coverage: Some(self.coverage.last().map_or(0.0, |c| c.coverage)),
             ate_m,
@@ -296,10 +351,14 @@ impl Evaluator {
             scene: Some(self.scene.scene.clone()),
             max_rooms: self.scene.max_rooms,
             max_area: self.scene.max_area,
-            up_axis: self.scene.up_axis.map(|up| up.name().to_string()),
+            up_axis: self.scene.placement.up_axis.map(|up| up.name().to_string()),
+            transform: self.scene.placement.transform,
+            floor: Some(self.scene.placement.floor).filter(|f| !f.is_none()),
             robot: Some(self.robot),
             llm: (!self.llm.is_empty()).then(|| LlmSummary::of(&self.llm)),
+            warnings: Vec::new(),
         };
+        summary.warnings = self.warnings(&summary);
         out.write_summary(&summary)?;
         eprintln!(
             "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m, {} of {} forward moves blocked → {}",
@@ -313,6 +372,9 @@ impl Evaluator {
             summary.forward_actions,
             out.dir().display()
         );
+        for w in &summary.warnings {
+            eprintln!("{}", w.log_line(out.dir()));
+        }
         Ok(summary)
     }
 }
@@ -405,7 +467,11 @@ impl Operator for Evaluator {
                 scene: config.scene,
                 max_rooms: config.max_rooms,
                 max_area: config.max_area,
-                up_axis: config.up_axis,
+                placement: Placement {
+                    up_axis: config.up_axis,
+                    transform: config.transform,
+                    floor: config.floor,
+                },
             },
             scale: config.bev_pixels_per_cell,
             truth: None,
@@ -423,6 +489,7 @@ impl Operator for Evaluator {
             robot: config.robot,
             fisher: Vec::new(),
             llm: Vec::new(),
+            start_depth: None,
         })
     }
 
@@ -461,6 +528,16 @@ impl Operator for Evaluator {
                 "map" => self.map = Some(read_map(input.bytes)?.1),
                 "grid" => self.pending_grids.push(read_grid(input.bytes)?),
                 "regions" => self.regions = Some(input.decode()?),
+                "rgbd" => {
+                    // Only the earliest frame matters (the start view); later ones are skipped
+                    // after reading their header.
+                    let view = RgbdFrameView::parse(input.bytes)?;
+                    let id = view.header.frame_id;
+                    if self.start_depth.is_none_or(|(first, _)| id < first) {
+                        self.start_depth =
+                            Some((id, validity::valid_depth_fraction(&view.depth())));
+                    }
+                }
                 "fisher" => self.fisher.push(fisher_row(&input.decode()?)?),
                 "llm" => {
                     // Written as it arrives: a crash later loses no exchange.
@@ -539,6 +616,12 @@ pub fn registered() -> Registered {
         PortSpec {
             name: "llm",
             kind: K::LlmExchange,
+        },
+        // Optional: the simulator's frames; only the first is read, for the start-view check
+        // (`start_sees_nothing`).
+        PortSpec {
+            name: "rgbd",
+            kind: K::RgbdFrame,
         },
     ];
     Registered {
@@ -648,9 +731,13 @@ mod tests {
             robot: RobotModel::default(),
             fisher: Vec::new(),
             llm: Vec::new(),
+            start_depth: None,
         };
         let summary = ev.write_outputs().unwrap();
         assert_eq!(run.read_summary().unwrap(), summary);
+        // No map arrived: an invalid run, and it says so.
+        assert_eq!(summary.warnings.len(), 1);
+        assert_eq!(summary.warnings[0].code, validity::code::EMPTY_MAP);
         assert_eq!(summary.coverage, Some(0.5));
         assert_eq!(summary.scene.as_deref(), Some("house:7"));
         assert_eq!(run.read_coverage().unwrap().unwrap(), coverage);
@@ -679,6 +766,230 @@ mod tests {
         ev.fisher.push(row);
         ev.write_outputs().unwrap();
         assert_eq!(run.read_fisher().unwrap().unwrap(), [row]);
+        // A placed scene file: the summary records the placement and `activemap eval` rebuilds
+        // the same scene from it.
+        ev.scene = SceneSpec {
+            placement: Placement {
+                up_axis: Some(UpAxis::NegY),
+                transform: Some(Transform {
+                    scale: Some(0.01),
+                    translate: Some([0.5, 0.0, 0.0]),
+                    ..Transform::default()
+                }),
+                floor: Floor::Auto,
+            },
+            ..SceneSpec::new("scans/room.obj")
+        };
+        let summary = ev.write_outputs().unwrap();
+        assert_eq!(summary.floor, Some(Floor::Auto));
+        let back =
+            activemap_eval::run_eval::scene_from_run(dir.path(), &run.read_summary().unwrap());
+        assert_eq!(back.unwrap(), ev.scene);
+    }
+
+    /// A healthy run's state: a 2 m × 2 m reachable floor, 30 forward moves of 5 cm along x
+    /// (frames 0..=30; the move computed on frame k shows in frame k + 1), a first frame with
+    /// 80 % valid depth, a map of one observed and one unknown-space Gaussian.
+    fn healthy(dir: &std::path::Path) -> Evaluator {
+        use activemap_sim::navigation::GridFrame;
+        let frame = GridFrame {
+            origin_x: -1.0,
+            origin_y: -1.0,
+            cell_size: 0.05,
+            width: 40,
+            height: 40,
+        };
+        let nav = NavigableMap {
+            frame,
+            cells: vec![true; 1600],
+        };
+        let truth = CoverageTruth::new(nav, Point2::new(0.0, 0.0));
+        let (mut estimated, mut true_traj) = (Trajectory::default(), Trajectory::default());
+        let mut true_positions = std::collections::BTreeMap::new();
+        for k in 0..=30u64 {
+            let x = 0.05 * k as f64;
+            estimated.push(k as f64, Isometry3::translation(x, 0.0, 0.0));
+            true_traj.push(k as f64, Isometry3::translation(x, 0.0, 0.0));
+            true_positions.insert(k, Point2::new(x, 0.0));
+        }
+        let mut map = Gaussians::<f32>::new();
+        for x in [0.0, 1.0] {
+            map.push(
+                [x, 0.0, 1.0],
+                [0.5; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                0.9,
+                [0.05; 3],
+            );
+        }
+        map.flags[1] = FLAG_UNKNOWN_SPACE;
+        Evaluator {
+            out: RunFolder::new(dir),
+            scene: SceneSpec::new("house:7"),
+            scale: 3,
+            truth: Some((truth, PlanarPose::new(0.0, 0.0, 0.0), Isometry3::identity())),
+            estimated,
+            true_traj,
+            coverage: vec![CoverageRow {
+                step: 30,
+                coverage: 0.5,
+            }],
+            grid: None,
+            regions: None,
+            map: Some(map),
+            episode: "Finished at step 30: test".into(),
+            pending_grids: Vec::new(),
+            written: false,
+            true_positions,
+            forward_steps: (0..30).collect(),
+            robot: RobotModel::default(),
+            fisher: Vec::new(),
+            llm: Vec::new(),
+            start_depth: Some((0, 0.8)),
+        }
+    }
+
+    /// The codes of the warnings in the summary `ev` writes, checking the file says the same.
+    fn codes(ev: &mut Evaluator) -> Vec<String> {
+        let summary = ev.write_outputs().unwrap();
+        let text = std::fs::read_to_string(ev.out.path(RunFolder::SUMMARY)).unwrap();
+        let valid = format!("\"valid\": {}", summary.warnings.is_empty());
+        assert!(text.contains(&valid), "{text}");
+        assert_eq!(ev.out.read_summary().unwrap(), summary);
+        summary.warnings.into_iter().map(|w| w.code).collect()
+    }
+
+    /// A healthy run has no warning; a start that sees nothing, a robot whose forward moves are
+    /// all blocked, a map without observed Gaussians and a patch of reachable floor each make
+    /// the run invalid with their own code and numbers.
+    #[test]
+    fn each_condition_makes_the_summary_invalid_and_a_healthy_run_is_valid() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut ev = healthy(dir.path());
+        assert_eq!(codes(&mut ev), Vec::<String>::new());
+
+        let mut ev = healthy(dir.path());
+        ev.start_depth = Some((0, 0.004));
+        assert_eq!(codes(&mut ev), ["start_sees_nothing"]);
+        let w = &ev.warnings(&ev.out.read_summary().unwrap())[0];
+        assert!(w.message.contains("0.40 % valid depth"), "{w:?}");
+
+        // Boxed in: every position is the start, every forward move blocked.
+        let mut ev = healthy(dir.path());
+        for (k, p) in ev.true_positions.iter_mut() {
+            *p = Point2::new(0.0, 0.0);
+            ev.true_traj.poses[*k as usize] = Isometry3::identity();
+        }
+        assert_eq!(codes(&mut ev), ["robot_cannot_move"]);
+        let summary = ev.out.read_summary().unwrap();
+        assert!(
+            summary.warnings[0]
+                .message
+                .contains("30 of 30 forward moves blocked (100 %), true path 0.00 m over 31 steps"),
+            "{:?}",
+            summary.warnings
+        );
+
+        let mut ev = healthy(dir.path());
+        ev.map.as_mut().unwrap().flags[0] = FLAG_UNKNOWN_SPACE;
+        assert_eq!(codes(&mut ev), ["empty_map"]);
+        let mut ev = healthy(dir.path());
+        ev.map = None;
+        assert_eq!(codes(&mut ev), ["empty_map"]);
+
+        // A 0.6 m × 0.6 m patch of floor (coverage would read 100 % of it).
+        let mut ev = healthy(dir.path());
+        let nav = NavigableMap {
+            frame: activemap_sim::navigation::GridFrame {
+                origin_x: -0.3,
+                origin_y: -0.3,
+                cell_size: 0.05,
+                width: 12,
+                height: 12,
+            },
+            cells: vec![true; 144],
+        };
+        let truth = CoverageTruth::new(nav, Point2::new(0.0, 0.0));
+        assert!((truth.reachable_area_m2() - 0.36).abs() < 1e-9);
+        ev.truth.as_mut().unwrap().0 = truth;
+        assert_eq!(codes(&mut ev), ["no_reachable_floor"]);
+
+        // All at once, in a fixed order.
+        let mut ev = healthy(dir.path());
+        ev.start_depth = Some((0, 0.0));
+        ev.map = None;
+        ev.forward_steps.clear();
+        ev.true_traj
+            .poses
+            .iter_mut()
+            .for_each(|p| *p = Isometry3::identity());
+        for k in 31..260u64 {
+            ev.estimated.push(k as f64, Isometry3::identity());
+        }
+        assert_eq!(
+            codes(&mut ev),
+            ["start_sees_nothing", "robot_cannot_move", "empty_map"]
+        );
+    }
+
+    /// Stands in for the node's outputs (the evaluator has none).
+    struct NoOutputs;
+
+    impl activemap_runtime::OutputSink for NoOutputs {
+        fn send(&mut self, _: usize, _: &[u8]) -> Result<(), activemap_runtime::RuntimeError> {
+            Ok(())
+        }
+        fn loan(
+            &mut self,
+            _: usize,
+            _: usize,
+            _: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
+        ) -> Result<(), activemap_runtime::RuntimeError> {
+            Ok(())
+        }
+    }
+
+    /// The `rgbd` input keeps the earliest frame's valid-depth fraction, whatever the arrival
+    /// order; a later frame that sees more does not hide an empty start.
+    #[test]
+    fn the_rgbd_input_measures_the_earliest_frame() {
+        use activemap_schemas::{RgbdFrame, RgbdFrameHeader};
+        let dir = tempfile::tempdir().unwrap();
+        let mut ev = healthy(dir.path());
+        ev.start_depth = None;
+        let frame = |id: u64, valid: usize| {
+            let mut depth = vec![0.0f32; 100];
+            depth[..valid].fill(1.5);
+            RgbdFrame {
+                header: RgbdFrameHeader::new(id, id as f64, [50.0, 50.0, 5.0, 5.0], 10, 10),
+                rgb: vec![0; 300],
+                depth,
+            }
+            .encode()
+            .unwrap()
+        };
+        let mut sink = NoOutputs;
+        let outputs: Vec<(String, K)> = Vec::new();
+        let mut ctx = Context::new("evaluator", &outputs, &mut sink, None);
+        for (seq, (id, valid)) in [(3, 90), (0, 0), (5, 100)].into_iter().enumerate() {
+            let bytes = frame(id, valid);
+            let input = activemap_runtime::Input {
+                port: "rgbd",
+                kind: K::RgbdFrame,
+                seq: seq as u64 + 1,
+                bytes: &bytes,
+            };
+            ev.on_event(Event::Input(input), &mut ctx).unwrap();
+        }
+        assert_eq!(ev.start_depth, Some((0, 0.0)));
+        assert_eq!(codes(&mut ev), ["start_sees_nothing"]);
+        assert!(
+            registered()
+                .descriptor
+                .inputs
+                .iter()
+                .any(|p| p.name == "rgbd")
+        );
     }
 
     /// A replan that chose its second path (EIG 4, 2, 0.5; C_local −30, +∞, −1) after 812.5 ms.

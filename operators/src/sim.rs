@@ -17,19 +17,43 @@ use activemap_schemas::{
     Action, ActionKind, EpisodeState, EpisodeStatus, MessageKind as K, RgbdFrameHeader,
     RgbdFrameMut, TruePose,
 };
-use activemap_sim::{SceneSpec, SimConfig, Simulator, UpAxis};
+use activemap_sim::{
+    Floor, NoiseConfig, Placement, SceneSpec, SimConfig, Simulator, Transform, UpAxis,
+};
 
 use crate::Registered;
 use crate::convert::pose_to_wire;
 
-/// The simulator of `scene` at `width`×`height` pixels and `hfov_deg` with `robot` (the `sim`
-/// node's camera and robot; the evaluator builds the same scene for its ground truth).
+/// The noise-free simulator of `scene` at `width`×`height` pixels and `hfov_deg` with `robot`
+/// (the `sim` node's camera and robot; the evaluator builds the same scene for its ground truth).
 pub fn simulator(
     scene: &SceneSpec,
     width: u32,
     height: u32,
     hfov_deg: f64,
     robot: &RobotModel,
+) -> anyhow::Result<Simulator> {
+    simulator_with_noise(
+        scene,
+        width,
+        height,
+        hfov_deg,
+        robot,
+        &NoiseConfig::none(),
+        0,
+    )
+}
+
+/// [`simulator`] with sensor and actuation `noise` drawn from streams of `seed` (the `sim`
+/// node passes its config's `noise` and episode `seed`).
+pub fn simulator_with_noise(
+    scene: &SceneSpec,
+    width: u32,
+    height: u32,
+    hfov_deg: f64,
+    robot: &RobotModel,
+    noise: &NoiseConfig,
+    seed: u64,
 ) -> anyhow::Result<Simulator> {
     anyhow::ensure!(
         width > 0 && height > 0 && width <= 4096 && height <= 4096,
@@ -44,6 +68,8 @@ pub fn simulator(
     config.robot = *robot;
     config.intrinsics =
         activemap_geometry::Intrinsics::from_hfov(width, height, hfov_deg.to_radians());
+    config.noise = *noise;
+    config.seed = seed;
     scene
         .simulator(config)
         .map_err(|e| anyhow::anyhow!("sim: scene `{}`: {e}", scene.scene))
@@ -66,9 +92,19 @@ pub struct Config {
     /// Largest floor area of a procedural house, m².
     #[serde(default)]
     pub max_area: Option<f64>,
-    /// Up axis of a scene file: `y` (glTF/OBJ default) or `z` (PLY default; z-up glTF exports).
-    #[serde(default, deserialize_with = "up_axis_from_name")]
+    /// Up axis of a scene file: `x`, `-x`, `y` (glTF/OBJ default), `-y` (a scan in its camera's
+    /// frame, y down), `z` (PLY default; z-up glTF exports) or `-z`.
+    #[serde(default)]
     pub up_axis: Option<UpAxis>,
+    /// Scale, rotation and translation of a scene file after its up axis:
+    /// `{ scale: 0.01, rotate_deg: [roll, pitch, yaw], translate: [x, y, z] }` or
+    /// `{ matrix: [16 numbers, row-major 4×4] }` (see `activemap_sim::load::placement`).
+    #[serde(default)]
+    pub transform: Option<Transform>,
+    /// Floor of a scene file: `none` (default), `auto` (find the floor plane, level the scene
+    /// on it at z = 0; the tilt removed goes to the log) or a known floor height, metres.
+    #[serde(default)]
+    pub floor: Floor,
     /// Image width, pixels.
     #[serde(default = "default_size")]
     pub width: u32,
@@ -94,6 +130,12 @@ pub struct Config {
     /// evaluator) must say the same, which `activemap validate` checks.
     #[serde(default)]
     pub robot: RobotModel,
+    /// Sensor and actuation noise: `none` (default), `realistic` (RealSense D435 depth,
+    /// LoCoBot-derived motion), or a map such as `{ preset: realistic, depth: { sigma_z2:
+    /// 0.003 } }` (see `activemap_sim::noise`). Its streams are seeded by `seed`, so seeds are
+    /// different episodes (seed 0 too is reproducible); ground-truth renders stay noise-free.
+    #[serde(default)]
+    pub noise: NoiseConfig,
 }
 
 impl Config {
@@ -103,23 +145,18 @@ impl Config {
             scene: self.scene.clone(),
             max_rooms: self.max_rooms,
             max_area: self.max_area,
-            up_axis: self.up_axis,
+            placement: self.placement(),
         }
     }
-}
 
-/// Reads `up_axis: y | z`; anything else is a config error naming the accepted values.
-pub(crate) fn up_axis_from_name<'de, D: serde::Deserializer<'de>>(
-    d: D,
-) -> Result<Option<UpAxis>, D::Error> {
-    use serde::Deserialize as _;
-    let name: Option<String> = Option::deserialize(d)?;
-    name.map(|n| {
-        UpAxis::from_name(&n).ok_or_else(|| {
-            serde::de::Error::custom(format!("up_axis must be `y` or `z`, got \"{n}\""))
-        })
-    })
-    .transpose()
+    /// The placement keys of the config (`up_axis`, `transform`, `floor`).
+    pub fn placement(&self) -> Placement {
+        Placement {
+            up_axis: self.up_axis,
+            transform: self.transform,
+            floor: self.floor,
+        }
+    }
 }
 
 fn default_size() -> u32 {
@@ -232,12 +269,14 @@ impl Operator for Sim {
     type Config = Config;
 
     fn new(config: Config, ctx: &mut Context<'_>) -> anyhow::Result<Self> {
-        let mut sim = simulator(
+        let mut sim = simulator_with_noise(
             &config.scene_spec(),
             config.width,
             config.height,
             config.hfov_deg,
             &config.robot,
+            &config.noise,
+            config.seed,
         )?;
         if config.seed != 0 {
             let start = sim
@@ -347,33 +386,146 @@ mod tests {
     }
 
     #[test]
-    fn up_axis_accepts_y_and_z_and_names_bad_values() {
-        check(serde_json::json!({ "scene": "room.glb", "up_axis": "z" })).unwrap();
-        check(serde_json::json!({ "scene": "room.glb", "up_axis": "Y" })).unwrap();
-        let err = check(serde_json::json!({ "scene": "room.glb", "up_axis": "x" })).unwrap_err();
+    fn up_axis_accepts_the_six_axes_and_names_bad_values() {
+        for (name, up) in [
+            ("z", UpAxis::Z),
+            ("Y", UpAxis::Y),
+            ("x", UpAxis::X),
+            ("-x", UpAxis::NegX),
+            ("-y", UpAxis::NegY),
+            ("-Z", UpAxis::NegZ),
+            ("z-up", UpAxis::Z),
+        ] {
+            check(serde_json::json!({ "scene": "room.glb", "up_axis": name })).unwrap();
+            let config: Config =
+                serde_json::from_value(serde_json::json!({ "up_axis": name })).unwrap();
+            assert_eq!(config.up_axis, Some(up), "{name}");
+        }
+        let err = check(serde_json::json!({ "scene": "room.glb", "up_axis": "w" })).unwrap_err();
         assert!(
-            err.contains("up_axis must be `y` or `z`") && err.contains("\"x\""),
+            err.contains("up_axis must be x, -x, y, -y, z or -z") && err.contains("\"w\""),
             "{err}"
         );
-        let config: Config =
-            serde_json::from_value(serde_json::json!({ "up_axis": "z-up" })).unwrap();
-        assert_eq!(config.up_axis, Some(UpAxis::Z));
         let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
-        assert_eq!(config.up_axis, None);
+        assert_eq!(config.placement(), Placement::default());
     }
 
     #[test]
-    fn up_axis_is_refused_for_procedural_houses() {
-        let scene = SceneSpec {
-            up_axis: Some(UpAxis::Z),
-            ..SceneSpec::new("house:1")
-        };
-        let err = simulator(&scene, 8, 8, 90.0, &RobotModel::default())
-            .unwrap_err()
-            .to_string();
+    fn transform_and_floor_read_from_yaml_and_reach_the_scene_spec() {
+        let config = from_yaml(
+            "scene: scans/room.obj\nup_axis: -y\n\
+             transform: { scale: 0.01, rotate_deg: [0, 0, 90], translate: [1, 2, 0] }\n\
+             floor: auto\n",
+        )
+        .unwrap();
+        let spec = config.scene_spec();
+        assert_eq!(spec.placement.up_axis, Some(UpAxis::NegY));
+        assert_eq!(spec.placement.floor, Floor::Auto);
+        let t = spec.placement.transform.unwrap();
+        assert_eq!(
+            (t.scale, t.rotate_deg, t.translate),
+            (Some(0.01), Some([0.0, 0.0, 90.0]), Some([1.0, 2.0, 0.0]))
+        );
+        assert_eq!(from_yaml("floor: 0.25").unwrap().floor, Floor::Height(0.25));
+        let m =
+            from_yaml("transform: { matrix: [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1] }");
+        assert!(m.unwrap().transform.unwrap().matrix.is_some());
+        // The config check refuses what loading would: a shear, an unknown floor mode.
+        let err =
+            from_yaml("transform: { matrix: [1, 0.2, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1] }")
+                .unwrap_err();
         assert!(
-            err.contains("up_axis") && err.contains("applies to scene files"),
+            err.contains("not a rotation times a positive uniform scale"),
             "{err}"
         );
+        let err = check(serde_json::json!({ "floor": "level" })).unwrap_err();
+        assert!(err.contains("floor must be `none`, `auto`"), "{err}");
+    }
+
+    fn from_yaml(source: &str) -> Result<Config, String> {
+        let value = activemap_runtime::yaml::parse(source)
+            .map_err(|e| format!("{}: {}", e.loc, e.message))?
+            .to_json();
+        activemap_runtime::catalog::config_from_value::<Config>(&value)
+    }
+
+    #[test]
+    fn noise_defaults_to_none_and_reads_presets_and_overrides() {
+        assert_eq!(
+            from_yaml("scene: house:1").unwrap().noise,
+            NoiseConfig::none()
+        );
+        assert_eq!(from_yaml("noise: none").unwrap().noise, NoiseConfig::none());
+        assert_eq!(
+            from_yaml("noise: realistic").unwrap().noise,
+            NoiseConfig::realistic()
+        );
+        let config =
+            from_yaml("noise:\n  preset: realistic\n  depth: { sigma_z2: 0.003 }\n").unwrap();
+        let mut expected = NoiseConfig::realistic();
+        expected.depth.sigma_z2 = 0.003;
+        assert_eq!(config.noise, expected);
+        let config = from_yaml("noise: { rgb: { sigma: 4 }, actuation: realistic }").unwrap();
+        assert_eq!(config.noise.rgb.sigma, 4.0);
+        assert_eq!(config.noise.depth, NoiseConfig::none().depth);
+        assert_eq!(config.noise.actuation, NoiseConfig::realistic().actuation);
+        // Bad values and keys are refused naming the field.
+        let err = from_yaml("noise: { depth: { dropout: 2 } }").unwrap_err();
+        assert!(err.contains("noise.depth.dropout"), "{err}");
+        let err = check(serde_json::json!({ "noise": { "depth": { "sigma": 0.1 } } })).unwrap_err();
+        assert!(
+            err.contains("noise.depth") && err.contains("sigma"),
+            "{err}"
+        );
+        let err = check(serde_json::json!({ "noise": "loud" })).unwrap_err();
+        assert!(err.contains("realistic"), "{err}");
+    }
+
+    #[test]
+    fn the_node_seeds_its_noise_and_the_ground_truth_copy_stays_noise_free() {
+        let scene = SceneSpec::new("house:1");
+        let robot = RobotModel::default();
+        let noisy = |seed| {
+            let noise = NoiseConfig::realistic();
+            simulator_with_noise(&scene, 24, 24, 90.0, &robot, &noise, seed).unwrap()
+        };
+        let (mut a, mut b, mut c) = (noisy(0), noisy(0), noisy(3));
+        assert_eq!(a.render(), b.render());
+        assert_ne!(a.render(), c.render());
+        let truth = simulator(&scene, 24, 24, 90.0, &robot).unwrap();
+        assert_eq!(truth.config().noise, NoiseConfig::none());
+        assert_eq!(a.config().noise, NoiseConfig::realistic());
+    }
+
+    #[test]
+    fn placement_keys_are_refused_for_procedural_houses() {
+        for (placement, key) in [
+            (
+                Placement {
+                    up_axis: Some(UpAxis::Z),
+                    ..Placement::default()
+                },
+                "up_axis",
+            ),
+            (
+                Placement {
+                    floor: Floor::Auto,
+                    ..Placement::default()
+                },
+                "floor",
+            ),
+        ] {
+            let scene = SceneSpec {
+                placement,
+                ..SceneSpec::new("house:1")
+            };
+            let err = simulator(&scene, 8, 8, 90.0, &RobotModel::default())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains(key) && err.contains("applies to scene files"),
+                "{err}"
+            );
+        }
     }
 }

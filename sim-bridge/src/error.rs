@@ -52,6 +52,15 @@ pub enum SimError {
         /// The constraint it breaks.
         reason: &'static str,
     },
+    /// A scene file cannot be placed in the world: a transform that is not a rotation times a
+    /// uniform scale, or `floor: auto` finding no floor.
+    #[error("cannot place scene {scene}: {reason}")]
+    Placement {
+        /// The scene (file path).
+        scene: String,
+        /// What went wrong, and what to try.
+        reason: String,
+    },
     /// No navigable position exists in the scene for the agent.
     #[error("scene {0} has no navigable floor for the agent (check floor height and agent radius)")]
     NoNavigableArea(String),

@@ -6,8 +6,8 @@
 //! - Scenes: [`Scene::load`] / [`load::load_scene`] read glTF/GLB, OBJ+MTL and PLY (converted
 //!   to the z-up world frame; glTF is y-up); [`house::generate`] builds seeded multi-room houses
 //!   and [`export::write_glb`] saves any scene as GLB. [`SceneSpec`] names either (a
-//!   `house:<seed>` or a file, with its size limits or up axis), so that every consumer builds the
-//!   same scene.
+//!   `house:<seed>` or a file, with its size limits or its [`Placement`]: up axis, transform and
+//!   floor levelling), so that every consumer builds the same scene.
 //! - Rendering: [`render::Renderer`] rasterises RGB8 colour and z-depth (metres, f32, 0 = no
 //!   reading) for any [`Intrinsics`] and pose `T_world_camera` (OpenCV optical frame);
 //!   [`Simulator::render_into`] / [`Renderer::render_into`] write straight into caller buffers
@@ -15,6 +15,10 @@
 //! - Motion: [`Simulator::step`] applies [`Action::Forward`] (0.05 m), [`Action::TurnLeft`] /
 //!   [`Action::TurnRight`] (5°); a cylinder agent (radius 0.1 m, camera 0.88 m above the floor)
 //!   stops at or slides along obstacles ([`navigation`]).
+//! - Noise, off by default ([`noise`]): structured-light depth noise σ = σ0 + c2·z² with range,
+//!   edge and random dropouts, colour noise, and Habitat-style actuation noise, each from its
+//!   own seeded stream; [`NoiseConfig`] reads `none`, `realistic` (RealSense D435 depth,
+//!   LoCoBot-derived motion) or a preset with overrides.
 //! - Ground truth, for evaluation only: [`Simulator::true_pose`], [`ground_truth`]
 //!   (surface samples, test poses, navigable map).
 //! - [`bench::run`]: frames per second (`activemap bench sim`).
@@ -49,9 +53,9 @@ pub mod simulator;
 
 pub use activemap_geometry::{Intrinsics, PlanarPose};
 pub use error::{Result, SimError};
-pub use load::UpAxis;
+pub use load::{Floor, Placement, PlacementReport, Transform, UpAxis};
 pub use navigation::{AgentShape, NavigableMap, Navigation};
-pub use noise::SensorNoise;
+pub use noise::{ActuationNoise, ColourNoise, DepthNoise, NoiseConfig, NoisePreset};
 pub use render::{DepthRange, Renderer, RgbdFrame};
 pub use scene::{Material, Scene, Texture, Triangle, Vertex, Wrap};
 pub use scene_spec::SceneSpec;

@@ -1,11 +1,12 @@
 //! Which scene a run simulates, as the `sim` node's configuration names it: a procedural house
-//! (`house:<seed>`, optionally smaller) or a scene file (optionally with its up axis). The `sim`
+//! (`house:<seed>`, optionally smaller) or a scene file (optionally with its [`Placement`]: up
+//! axis, transform, floor levelling). The `sim`
 //! operator, the evaluator and `activemap eval` all build their simulator from this one
 //! description, so the ground truth is always computed on the scene the robot explored.
 
 use crate::error::{Result, SimError};
 use crate::house::{self, HouseConfig};
-use crate::load::{LoadOptions, Loaded, UpAxis, load_scene};
+use crate::load::{LoadOptions, Loaded, Placement, load_scene};
 use crate::simulator::{SimConfig, Simulator};
 use std::path::Path;
 
@@ -18,18 +19,19 @@ pub struct SceneSpec {
     pub max_rooms: Option<u32>,
     /// Largest floor area of a procedural house, m².
     pub max_area: Option<f64>,
-    /// Up axis of a scene file; `None` = the format's default (y for glTF and OBJ, z for PLY).
-    pub up_axis: Option<UpAxis>,
+    /// Where a scene file goes in the world (up axis, transform, floor); the default keeps the
+    /// format's up axis and nothing else. Procedural houses refuse every placement key.
+    pub placement: Placement,
 }
 
 impl SceneSpec {
-    /// `scene` with the generator defaults and the file format's up axis.
+    /// `scene` with the generator defaults and the default placement (the format's up axis).
     pub fn new(scene: impl Into<String>) -> Self {
         Self {
             scene: scene.into(),
             max_rooms: None,
             max_area: None,
-            up_axis: None,
+            placement: Placement::default(),
         }
     }
 
@@ -76,36 +78,42 @@ impl SceneSpec {
         Ok(config)
     }
 
-    /// Builds the scene: generates the house, or loads the file (with any loader warnings).
+    /// Builds the scene: generates the house, or loads and places the file (with any loader
+    /// warnings and the placement report).
     pub fn load(&self) -> Result<Loaded> {
         match self.house_seed()? {
             Some(seed) => {
-                if let Some(up) = self.up_axis {
+                if let Some((field, value)) = self.placement.keys().into_iter().next() {
                     return Err(SimError::InvalidConfig {
-                        field: "up_axis",
-                        value: up.name().to_string(),
+                        field,
+                        value,
                         reason: "applies to scene files, not to procedural houses",
                     });
                 }
                 Ok(Loaded {
                     scene: house::generate(seed, &self.house_config()?)?.scene,
                     warnings: Vec::new(),
+                    placement: None,
                 })
             }
             None => load_scene(
                 Path::new(&self.scene),
                 &LoadOptions {
-                    up_axis: self.up_axis,
+                    placement: self.placement,
                 },
             ),
         }
     }
 
-    /// The simulator of this scene with `config`; loader warnings go to stderr.
+    /// The simulator of this scene with `config`; loader warnings and the placement report
+    /// (e.g. the tilt `floor: auto` removed) go to stderr.
     pub fn simulator(&self, config: SimConfig) -> Result<Simulator> {
         let loaded = self.load()?;
         for warning in &loaded.warnings {
             eprintln!("{warning}");
+        }
+        if let Some(report) = &loaded.placement {
+            eprintln!("{report}");
         }
         Simulator::new(loaded.scene, config)
     }
@@ -114,6 +122,7 @@ impl SceneSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::load::UpAxis;
 
     #[test]
     fn houses_take_their_seed_and_size_limits() {
@@ -141,8 +150,21 @@ mod tests {
         area.max_area = Some(f64::NAN);
         assert!(message(area).contains("max_area = NaN"));
         let mut up = SceneSpec::new("house:1");
-        up.up_axis = Some(UpAxis::Z);
+        up.placement.up_axis = Some(UpAxis::Z);
         assert!(message(up).contains("up_axis"));
+        let mut floor = SceneSpec::new("house:1");
+        floor.placement.floor = crate::Floor::Auto;
+        assert!(message(floor).contains("floor = auto"));
+        let mut transform = SceneSpec::new("house:1");
+        transform.placement.transform = Some(crate::Transform {
+            scale: Some(2.0),
+            ..Default::default()
+        });
+        let m = message(transform);
+        assert!(
+            m.contains("transform = scale 2") && m.contains("scene files"),
+            "{m}"
+        );
         let missing = message(SceneSpec::new("/nonexistent/room.glb"));
         assert!(missing.contains("/nonexistent/room.glb"), "{missing}");
     }
@@ -158,7 +180,7 @@ mod tests {
         std::fs::write(&path, ply).unwrap();
         let as_z = SceneSpec::new(path.to_str().unwrap());
         let mut as_y = as_z.clone();
-        as_y.up_axis = Some(UpAxis::Y);
+        as_y.placement.up_axis = Some(UpAxis::Y);
         let bz = as_z.load().unwrap().scene.bounds().unwrap();
         let by = as_y.load().unwrap().scene.bounds().unwrap();
         assert_eq!((bz.min.z, bz.max.z), (0.0, 2.0));

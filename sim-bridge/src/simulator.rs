@@ -2,12 +2,10 @@
 
 use crate::error::{Result, SimError};
 use crate::navigation::{AgentShape, Navigation, estimate_floor_z};
-use crate::noise::SensorNoise;
+use crate::noise::{ActuationNoiseSampler, NoiseConfig, SensorNoiseSampler};
 use crate::render::{DepthRange, Renderer, RgbdFrame};
 use crate::scene::Scene;
 use activemap_geometry::{Intrinsics, Isometry3, PlanarPose, RobotModel, camera_pose_from_planar};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
 /// A discrete action, as in Habitat: the project's one robot action
 /// ([`activemap_geometry::robot::Action`]); sizes from [`SimConfig::robot`].
@@ -37,9 +35,11 @@ pub struct SimConfig {
     pub allow_sliding: bool,
     /// Navigable-map cell size, metres (0.05).
     pub nav_cell_size: f64,
-    /// Sensor noise (none by default).
-    pub noise: SensorNoise,
-    /// Seed of the sensor noise.
+    /// Sensor and actuation noise (none by default). Renders of [`Simulator::render_at`] stay
+    /// noise-free; the true pose follows the noisy motion.
+    pub noise: NoiseConfig,
+    /// Seed of the noise: sensor and actuation draw from separate ChaCha8 streams of it
+    /// ([`crate::noise::SENSOR_STREAM`], [`crate::noise::ACTUATION_STREAM`]).
     pub seed: u64,
     /// Floor height; `None` = the scene's own, else estimated from the mesh.
     pub floor_z: Option<f64>,
@@ -56,7 +56,7 @@ impl Default for SimConfig {
             agent: AgentShape::default(),
             allow_sliding: true,
             nav_cell_size: 0.05,
-            noise: SensorNoise::default(),
+            noise: NoiseConfig::none(),
             seed: 0,
             floor_z: None,
             start: None,
@@ -123,7 +123,8 @@ pub struct Simulator {
     navigation: Navigation,
     pose: PlanarPose,
     renderer: Renderer,
-    noise_rng: ChaCha8Rng,
+    sensor_noise: SensorNoiseSampler,
+    actuation_noise: ActuationNoiseSampler,
     steps: u64,
 }
 
@@ -156,7 +157,8 @@ impl Simulator {
             });
         }
         Ok(Self {
-            noise_rng: ChaCha8Rng::seed_from_u64(config.seed),
+            sensor_noise: SensorNoiseSampler::new(&config.noise, config.seed),
+            actuation_noise: ActuationNoiseSampler::new(&config.noise, config.seed),
             scene,
             config,
             navigation,
@@ -166,17 +168,29 @@ impl Simulator {
         })
     }
 
-    /// Applies one action.
+    /// Applies one action, with actuation noise if configured: the noisy motion goes through
+    /// the collision model (stop or slide), and the true pose follows it.
     pub fn step(&mut self, action: Action) -> StepResult {
         self.steps += 1;
         match action {
             Action::Forward => {
-                let (pose, collided) = self.navigation.try_forward(
-                    &self.pose,
-                    self.config.robot.forward_step_m,
-                    self.config.allow_sliding,
-                );
-                self.pose = pose;
+                let (distance, dyaw) = self
+                    .actuation_noise
+                    .forward(self.config.robot.forward_step_m);
+                // Travel along the chord of the arc: the old heading plus half the change.
+                let along = PlanarPose {
+                    yaw: self.pose.yaw + 0.5 * dyaw,
+                    ..self.pose
+                };
+                let (pose, collided) =
+                    self.navigation
+                        .try_forward(&along, distance, self.config.allow_sliding);
+                let yaw = if dyaw == 0.0 {
+                    self.pose.yaw
+                } else {
+                    wrap_yaw(self.pose.yaw + dyaw)
+                };
+                self.pose = PlanarPose { yaw, ..pose };
                 StepResult { collided }
             }
             Action::TurnLeft | Action::TurnRight => {
@@ -185,10 +199,8 @@ impl Simulator {
                 } else {
                     -1.0
                 };
-                let yaw = self.pose.yaw + sign * self.config.robot.turn_angle_rad;
-                // Keep yaw in (−π, π].
-                self.pose.yaw = (yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                    - std::f64::consts::PI;
+                let angle = self.actuation_noise.turn(self.config.robot.turn_angle_rad);
+                self.pose.yaw = wrap_yaw(self.pose.yaw + sign * angle);
                 StepResult { collided: false }
             }
         }
@@ -198,7 +210,7 @@ impl Simulator {
     pub fn render(&mut self) -> RgbdFrame {
         let pose = self.true_pose();
         let mut frame = self.render_at(&pose);
-        self.config.noise.apply(&mut frame, &mut self.noise_rng);
+        self.sensor_noise.apply(&mut frame);
         frame
     }
 
@@ -215,7 +227,8 @@ impl Simulator {
             rgb,
             depth,
         )?;
-        self.config.noise.apply_to(rgb, depth, &mut self.noise_rng);
+        self.sensor_noise
+            .apply_to(rgb, depth, self.config.intrinsics.width as usize);
         Ok(())
     }
 
@@ -274,4 +287,9 @@ impl Simulator {
     pub fn navigation(&self) -> &Navigation {
         &self.navigation
     }
+}
+
+/// Keeps a yaw in [−π, π).
+fn wrap_yaw(yaw: f64) -> f64 {
+    (yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }

@@ -65,6 +65,18 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
     assert_eq!(summary.scene.as_deref(), Some("house:3"));
     let metrics = RunFolder::new(&out).read_metrics().unwrap().unwrap();
     assert!(metrics.test_views == 20, "metrics.json: {metrics:?}");
+    // A healthy episode raises no validity warning (issue 16): the start sees the house, the
+    // robot moves, the map is not empty, no test view is empty.
+    assert!(
+        summary.is_valid(),
+        "summary warnings: {:?}",
+        summary.warnings
+    );
+    assert!(
+        metrics.is_valid(),
+        "metrics warnings: {:?}",
+        metrics.warnings
+    );
 }
 
 /// Issue 6's target: a short episode on a small house at 64×64 reaches 80 % coverage and ends

@@ -3,6 +3,7 @@
 //! `mapper` nodes (the caller builds them, see `activemap bench slam --flow`).
 
 use crate::slam_loop::{LoopConfig, LoopResult, run_loop};
+use activemap_sim::NoiseConfig;
 use activemap_slam::SlamConfig;
 
 /// One benchmark case and its metrics.
@@ -21,7 +22,7 @@ impl std::fmt::Display for BenchRow {
         let r = &self.result;
         write!(
             f,
-            "slam {} ate_cm {:.3} psnr_train {:.2} psnr_test {:.2} track_fps {:.2} map_s_per_kf {:.3} gaussians {} keyframes {} lost {}",
+            "slam {} ate_cm {:.3} psnr_train {:.2} psnr_test {:.2} track_fps {:.2} map_s_per_kf {:.3} gaussians {} keyframes {} lost {} lost_unrecovered {}",
             self.case,
             r.ate_cm,
             r.psnr_train,
@@ -30,23 +31,30 @@ impl std::fmt::Display for BenchRow {
             r.map_seconds_per_keyframe,
             r.gaussians,
             r.keyframes,
-            r.lost
+            r.lost,
+            r.lost_unrecovered
         )
     }
 }
 
 /// Runs the loop for each `(resolution, frames)` case (issue 5: `[(200, 500), (400, 500)]`)
-/// with the SLAM settings `slam_for(resolution)` gives.
+/// with the SLAM settings `slam_for(resolution)` gives, under the simulator noise `noise`
+/// (`noise_name` names it in the case, e.g. `loop500_200_realistic`; `None` for no noise).
 pub fn run(
     cases: &[(u32, usize)],
+    noise: &NoiseConfig,
+    noise_name: Option<&str>,
     slam_for: impl Fn(u32) -> anyhow::Result<SlamConfig>,
 ) -> anyhow::Result<Vec<BenchRow>> {
     cases
         .iter()
         .map(|&(resolution, frames)| {
-            let result = run_loop(&LoopConfig::new(resolution, frames, slam_for(resolution)?))?;
+            let mut config = LoopConfig::new(resolution, frames, slam_for(resolution)?);
+            config.noise = *noise;
+            let result = run_loop(&config)?;
+            let suffix = noise_name.map(|n| format!("_{n}")).unwrap_or_default();
             Ok(BenchRow {
-                case: format!("loop{frames}_{resolution}"),
+                case: format!("loop{frames}_{resolution}{suffix}"),
                 result,
             })
         })

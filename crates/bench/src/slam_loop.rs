@@ -21,7 +21,7 @@ use activemap_eval::{AteOptions, ImageView};
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_sim::house::{HouseConfig, generate};
-use activemap_sim::{Action, SimConfig, Simulator};
+use activemap_sim::{Action, NoiseConfig, SimConfig, Simulator};
 use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig, TrackingStatus};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use anyhow::Context as _;
@@ -44,6 +44,13 @@ pub struct LoopConfig {
     /// Keep every frame, action and estimate in the result's [`LoopTrace`] (for the
     /// equivalence test against the operators; costs memory).
     pub keep_trace: bool,
+    /// Sensor and actuation noise of the simulator (none by default; `activemap bench slam
+    /// --noise realistic` sets the `realistic` preset). The tracker's motion prior stays the
+    /// commanded action, so actuation noise is error it must correct; the held-out views are
+    /// rendered noise-free.
+    pub noise: NoiseConfig,
+    /// Seed of the noise streams.
+    pub noise_seed: u64,
     /// Print one line per frame to stderr (status, iterations, keyframe, pose error against the
     /// truth in the shared start-anchored frame), for diagnosis.
     pub trace: bool,
@@ -60,6 +67,8 @@ impl LoopConfig {
             held_out_every: 10,
             slam,
             keep_trace: false,
+            noise: NoiseConfig::none(),
+            noise_seed: 1,
             trace: false,
         }
     }
@@ -100,6 +109,9 @@ pub struct LoopResult {
     pub keyframes: usize,
     /// Frames reported lost.
     pub lost: usize,
+    /// Lost frames at the end of the loop that no tracked frame followed (0: every loss was
+    /// recovered).
+    pub lost_unrecovered: usize,
 }
 
 /// What SLAM saw and estimated, frame by frame (with [`LoopConfig::keep_trace`]).
@@ -190,6 +202,8 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
     let (start, actions) = rectangle_loop(room.min, room.max, config.margin, config.frames);
     let sim_config = SimConfig {
         start: Some(start),
+        noise: config.noise,
+        seed: config.noise_seed,
         ..SimConfig::with_resolution(config.resolution, config.resolution)
     };
     let robot = sim_config.robot;
@@ -200,6 +214,7 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
     let mut trace = LoopTrace::default();
     let (mut truth, mut estimate) = (Trajectory::default(), Trajectory::default());
     let (mut track_seconds, mut tracked, mut lost) = (0.0, 0usize, 0usize);
+    let mut lost_in_row = 0usize;
     let mut held_out = Vec::new();
     for i in 0..config.frames {
         let motion = if i == 0 {
@@ -226,6 +241,9 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
         }
         if out.status == TrackingStatus::Lost {
             lost += 1;
+            lost_in_row += 1;
+        } else {
+            lost_in_row = 0;
         }
         if config.trace {
             let true_here = slam_from_true * sim.true_pose();
@@ -291,6 +309,7 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
         gaussians: map.len(),
         keyframes: keyframes.len(),
         lost,
+        lost_unrecovered: lost_in_row,
     };
     Ok((result, trace))
 }

@@ -14,7 +14,9 @@
 //! - [`run_folder`]: the run folder as one typed contract ([`RunFolder`]: every file's name
 //!   and format, [`Summary`], the CSV rows, the bird's-eye PNG);
 //! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder;
-//! - [`html`]: the self-contained `report.html` of a run ([`html::write_report`]).
+//! - [`html`]: the self-contained `report.html` of a run ([`html::write_report`]);
+//! - [`validity`]: the checks that mark a run invalid ([`RunWarning`]: a start that sees nothing,
+//!   a robot that cannot move, an empty map, metrics on empty views).
 //!
 //! Images are [`ImageView`]s: borrowed row-major `f32` buffers, RGB in [0, 1], depth in metres.
 //! No transport. I/O only in `lpips` (weights), `run_folder`, `run_eval` and `html`.
@@ -34,6 +36,7 @@ pub mod run_eval;
 pub mod run_folder;
 pub mod ssim;
 pub mod test_poses;
+pub mod validity;
 pub mod views;
 
 #[cfg(test)]
@@ -51,4 +54,5 @@ pub use report::MetricsReport;
 pub use run_folder::{RunError, RunFolder, Summary};
 pub use ssim::ssim;
 pub use test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
+pub use validity::RunWarning;
 pub use views::{ViewMeans, ViewMetrics, evaluate_view};

@@ -2,8 +2,10 @@
 //! `activemap eval`. A metric that could not be computed is `None` (JSON `null`) and
 //! [`MetricsReport::missing`] says why (e.g. the command that fetches the LPIPS weights).
 //! PSNR can be +∞ (identical images): JSON has no infinity, so ±∞ are written as the strings
-//! `"inf"` / `"-inf"` and read back from them.
+//! `"inf"` / `"-inf"` and read back from them. A run whose figures mean nothing (issue 16) carries
+//! its [`RunWarning`]s: `"valid": false` in the JSON, INVALID and struck figures in Markdown.
 
+use crate::validity::RunWarning;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::collections::BTreeMap;
 
@@ -25,10 +27,25 @@ pub struct MetricsReport {
     pub completeness: Option<f64>,
     /// Seen / navigable floor area, fraction in [0, 1].
     pub coverage_2d: Option<f64>,
-    /// Number of test views the image metrics average over.
+    /// Number of test views drawn; the image metrics average over those with a non-empty ground
+    /// truth (`test_views − empty_truth_views`).
     pub test_views: usize,
     /// Metric name → why it is missing.
     pub missing: BTreeMap<String, String>,
+    /// Test views whose ground truth was empty (less than
+    /// [`crate::validity::VIEW_MIN_VALID_DEPTH`] valid depth), left out of the image metrics
+    /// (`test_views` counts them; absent in older files: 0).
+    #[serde(default)]
+    pub empty_truth_views: usize,
+    /// Test views where the map rendered nothing (no Gaussian hit a pixel's ray); they stay in
+    /// the means (an unmapped room scores as such); absent in older files: 0.
+    #[serde(default)]
+    pub empty_render_views: usize,
+    /// Why the run is invalid ([`crate::validity`]): the run's `summary.json` warnings and those
+    /// of the evaluation; empty = valid (absent in older files: valid). `metrics.json` also says
+    /// `"valid": true|false`.
+    #[serde(default)]
+    pub warnings: Vec<RunWarning>,
 }
 
 impl MetricsReport {
@@ -37,22 +54,59 @@ impl MetricsReport {
         self.missing.insert(metric.to_string(), reason.into());
     }
 
-    /// Pretty JSON text (what `metrics.json` holds).
+    /// Whether the run is valid: no [`MetricsReport::warnings`].
+    pub fn is_valid(&self) -> bool {
+        self.warnings.is_empty()
+    }
+
+    /// Pretty JSON text (what `metrics.json` holds), with `"valid"` first ([`Self::is_valid`];
+    /// derived from the warnings, ignored when read back).
     pub fn to_json(&self) -> String {
+        #[derive(Serialize)]
+        struct Written<'a> {
+            valid: bool,
+            #[serde(flatten)]
+            report: &'a MetricsReport,
+        }
+        let written = Written {
+            valid: self.is_valid(),
+            report: self,
+        };
         // Serialising plain numbers, strings and maps cannot fail.
-        serde_json::to_string_pretty(self).unwrap_or_default()
+        serde_json::to_string_pretty(&written).unwrap_or_default()
     }
 
     /// A two-row Markdown table in the column order of the paper's Table 1 (PSNR ↑, SSIM ↑,
     /// LPIPS ↓, depth MAE ↓ m, ATE ↓ m, completeness ↑ %) plus 2-D coverage %; a missing value
-    /// prints as `—`, +∞ as `∞`.
+    /// prints as `—`, +∞ as `∞`. An invalid run ([`Self::is_valid`]) is headed by
+    /// `**INVALID RUN**` and its reasons, and every figure is struck (`~~24.00~~`); test views
+    /// left out for an empty ground truth are noted under the table.
     pub fn to_markdown(&self) -> String {
-        let cell = |v: Option<f64>, digits: usize, scale: f64| match v {
-            None => "—".to_string(),
-            Some(x) if x == f64::INFINITY => "∞".to_string(),
-            Some(x) => format!("{:.*}", digits, x * scale),
+        let valid = self.is_valid();
+        let cell = |v: Option<f64>, digits: usize, scale: f64| {
+            let text = match v {
+                None => return "—".to_string(),
+                Some(x) if x == f64::INFINITY => "∞".to_string(),
+                Some(x) => format!("{:.*}", digits, x * scale),
+            };
+            if valid { text } else { format!("~~{text}~~") }
         };
-        format!(
+        let mut head = String::new();
+        if !valid {
+            head += "**INVALID RUN**: these figures are not valid results.\n\n";
+            for w in &self.warnings {
+                head += &format!("- `{}`: {}\n", w.code, w.message);
+            }
+            head += "\n";
+        }
+        let mut foot = String::new();
+        if self.empty_truth_views > 0 {
+            foot += &format!(
+                "\n{} of {} test views had an empty ground truth and are left out of the image metrics.\n",
+                self.empty_truth_views, self.test_views
+            );
+        }
+        head + &format!(
             "| PSNR ↑ | SSIM ↑ | LPIPS ↓ | Depth MAE ↓ (m) | ATE ↓ (m) | Completeness ↑ (%) | 2D coverage (%) |\n\
              |---|---|---|---|---|---|---|\n\
              | {} | {} | {} | {} | {} | {} | {} |\n",
@@ -63,7 +117,7 @@ impl MetricsReport {
             cell(self.ate_rmse_m, 4, 1.0),
             cell(self.completeness, 2, 100.0),
             cell(self.coverage_2d, 2, 100.0),
-        )
+        ) + &foot
     }
 
     /// Parses the JSON written by [`MetricsReport::to_json`].
@@ -148,6 +202,7 @@ mod tests {
         assert!(
             paper.to_markdown().contains("| 23.28 |") && paper.to_markdown().contains("| 84.38 |")
         );
+        assert!(text.contains("\"valid\": true"), "{text}");
         let bad = text.replace("\"inf\"", "\"lots\"");
         assert!(
             MetricsReport::from_json(&bad)
@@ -155,5 +210,55 @@ mod tests {
                 .to_string()
                 .contains("lots")
         );
+    }
+
+    /// An invalid run says so in JSON (`"valid": false`, the warnings) and in Markdown (INVALID,
+    /// the reasons, every figure struck); a metrics.json of an older `activemap eval` (no
+    /// `warnings`, no view counts) reads as valid.
+    #[test]
+    fn invalid_runs_are_marked_and_old_files_read_as_valid() {
+        use crate::validity::code;
+        let mut r = MetricsReport {
+            psnr_db: Some(f64::INFINITY),
+            ssim: Some(1.0),
+            completeness: Some(0.0),
+            coverage_2d: Some(1.0),
+            test_views: 20,
+            empty_truth_views: 20,
+            empty_render_views: 20,
+            ..Default::default()
+        };
+        r.mark_missing("lpips", "disabled");
+        r.warnings = vec![
+            RunWarning::new(code::EMPTY_MAP, "the final map holds 0 observed Gaussians"),
+            RunWarning::new(code::INFINITE_PSNR, "mean PSNR is +∞"),
+        ];
+        assert!(!r.is_valid());
+        let text = r.to_json();
+        assert!(text.contains("\"valid\": false"), "{text}");
+        assert!(text.contains("\"code\": \"empty_map\""), "{text}");
+        assert_eq!(MetricsReport::from_json(&text).unwrap(), r);
+        let md = r.to_markdown();
+        assert!(md.starts_with("**INVALID RUN**"), "{md}");
+        assert!(
+            md.contains("- `empty_map`: the final map holds 0 observed Gaussians\n")
+                && md.contains("- `infinite_psnr`: mean PSNR is +∞\n"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| ~~∞~~ | ~~1.0000~~ | — | — | — | ~~0.00~~ | ~~100.00~~ |"),
+            "{md}"
+        );
+        assert!(!md.contains("| ∞ |") && !md.contains("| 100.00 |"), "{md}");
+        assert!(
+            md.contains("20 of 20 test views had an empty ground truth"),
+            "{md}"
+        );
+        let old = MetricsReport::from_json(
+            "{\"psnr_db\": 21.5, \"ssim\": null, \"lpips\": null, \"depth_mae_m\": null, \"ate_rmse_m\": null, \"completeness\": null, \"coverage_2d\": null, \"test_views\": 3, \"missing\": {}}",
+        )
+        .unwrap();
+        assert!(old.is_valid() && old.warnings.is_empty() && old.empty_truth_views == 0);
+        assert!(!old.to_markdown().contains("INVALID") && old.to_markdown().contains("| 21.50 |"));
     }
 }

@@ -1,8 +1,8 @@
 //! `activemap eval RUN_DIR` as a library (SPEC §8): the metrics of one finished run.
 //!
 //! 1. Regenerates the scene of the run ([`scene_from_run`]: `summary.json`'s `scene`,
-//!    `max_rooms`, `max_area` and `up_axis`, else the same keys in the run's `dataflow.yaml`;
-//!    [`EvalOptions::scene`] overrides both).
+//!    `max_rooms`, `max_area` and placement (`up_axis`, `transform`, `floor`), else the same
+//!    keys in the run's `dataflow.yaml`; [`EvalOptions::scene`] overrides both).
 //! 2. Draws the seeded test poses uniformly on the navigable floor reachable from the robot's
 //!    true start (the floor the run could map; [`crate::sample_test_poses`]), random yaw.
 //! 3. Renders the final map (`map.ply`, without Gaussians flagged as unknown space) and the
@@ -19,19 +19,29 @@
 //! 6. 2D coverage: the last row of `coverage.csv` (the evaluator's seen / reachable navigable
 //!    floor), else `summary.json`'s `coverage`.
 //!
-//! Writes `metrics.json`, `metrics.md`, `eval/views.csv` (per-view metrics) and PNGs of the
-//! first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`, `eval/view_NN_truth.png`).
+//! 7. Validity ([`crate::validity`]): a test view whose ground truth is empty (less than
+//!    [`validity::VIEW_MIN_VALID_DEPTH`] valid depth: it shows nothing, and an empty map renders
+//!    it exactly, PSNR +∞) is left out of the image metrics and counted
+//!    ([`MetricsReport::empty_truth_views`]; views where the map renders nothing are counted too
+//!    but kept). The report's warnings are `summary.json`'s, plus `robot_cannot_move` (from the
+//!    summary's counts), `empty_map` (`map.ply`), `empty_test_views` and `infinite_psnr`: any
+//!    warning marks the run invalid.
+//!
+//! Writes `metrics.json`, `metrics.md`, `eval/views.csv` (per-view metrics, every view) and PNGs
+//! of the first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`,
+//! `eval/view_NN_truth.png`).
 
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
 use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
+use crate::validity::{self, RunWarning};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
 use crate::{AteOptions, EvalError, ImageView, MetricsReport, ate, completeness};
 use activemap_geometry::RobotModel;
 use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
 };
-use activemap_sim::{Renderer, SimConfig, Simulator, UpAxis};
+use activemap_sim::{Floor, Placement, Renderer, SimConfig, Simulator, Transform, UpAxis};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use nalgebra::Point3;
 use rayon::prelude::*;
@@ -60,8 +70,9 @@ pub fn scene_simulator(
         .map_err(|e| RunError::Scene(format!("`{}`: {e}", spec.scene)))
 }
 
-/// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area`,
-/// `up_axis`), else one consistent value of each key in `dataflow.yaml`.
+/// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area` and the
+/// placement: `up_axis`, `transform`, `floor`), else one consistent value of each key in
+/// `dataflow.yaml` (`transform` there only on one line, `transform: { ... }`).
 pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunError> {
     let run = RunFolder::new(dir);
     let up_axis = |value: Option<String>, source: &Path| -> Result<Option<UpAxis>, RunError> {
@@ -69,7 +80,7 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
             .map(|v| {
                 UpAxis::from_name(&v).ok_or_else(|| RunError::Malformed {
                     path: source.to_path_buf(),
-                    detail: format!("`up_axis: {v}`: expected `y` or `z`"),
+                    detail: format!("`up_axis: {v}`: expected {}", UpAxis::NAMES),
                 })
             })
             .transpose()
@@ -79,7 +90,11 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
             scene: scene.clone(),
             max_rooms: summary.max_rooms,
             max_area: summary.max_area,
-            up_axis: up_axis(summary.up_axis.clone(), &run.path(RunFolder::SUMMARY))?,
+            placement: Placement {
+                up_axis: up_axis(summary.up_axis.clone(), &run.path(RunFolder::SUMMARY))?,
+                transform: summary.transform,
+                floor: summary.floor.unwrap_or_default(),
+            },
         });
     }
     let path = run.path(RunFolder::DATAFLOW);
@@ -111,8 +126,91 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
         scene,
         max_rooms: parse_num("max_rooms")?.map(|v| v.clamp(0.0, u32::MAX as f64) as u32),
         max_area: parse_num("max_area")?,
-        up_axis: up_axis(yaml_scalar(&text, "up_axis", &path)?, &path)?,
+        placement: Placement {
+            up_axis: up_axis(yaml_scalar(&text, "up_axis", &path)?, &path)?,
+            transform: yaml_transform(&text, &path)?,
+            floor: yaml_scalar(&text, "floor", &path)?
+                .map(|v| {
+                    let value = v
+                        .parse::<f64>()
+                        .map_or_else(|_| serde_json::json!(v), |h| serde_json::json!(h));
+                    serde_json::from_value::<Floor>(value).map_err(|e| RunError::Malformed {
+                        path: path.clone(),
+                        detail: format!("`floor: {v}`: {e}"),
+                    })
+                })
+                .transpose()?
+                .unwrap_or_default(),
+        },
     })
+}
+
+/// The `transform:` of a YAML text, written on one line as a flow mapping of numbers
+/// (`transform: { scale: 0.01, rotate_deg: [0, 0, 90] }`); `None` when absent, an error when
+/// lines disagree, when one is malformed or when it is a block mapping (which this line reader
+/// cannot follow).
+fn yaml_transform(text: &str, path: &Path) -> Result<Option<Transform>, RunError> {
+    let mut found: Option<Transform> = None;
+    for line in text.lines() {
+        let line = line.split(" #").next().unwrap_or("").trim();
+        let line = line.strip_prefix("- ").unwrap_or(line);
+        let Some(value) = line.strip_prefix("transform:") else {
+            continue;
+        };
+        let value = value.trim();
+        let malformed = |detail: String| RunError::Malformed {
+            path: path.to_path_buf(),
+            detail,
+        };
+        if !value.starts_with('{') {
+            return Err(malformed(format!(
+                "`transform:` must be written on one line as `transform: {{ ... }}` for \
+                 `activemap eval` to read it here, got `{value}` (or pass the scene explicitly)"
+            )));
+        }
+        // Numbers and lists of numbers only: quoting the keys makes the flow mapping JSON.
+        let t: Transform = serde_json::from_str(&quote_keys(value))
+            .map_err(|e| malformed(format!("`transform: {value}`: {e}")))?;
+        match found {
+            Some(f) if f != t => {
+                return Err(malformed(format!(
+                    "`transform` is set to both `{f}` and `{t}`"
+                )));
+            }
+            _ => found = Some(t),
+        }
+    }
+    Ok(found)
+}
+
+/// `text` with every bare key (an identifier followed by `:`) in double quotes.
+fn quote_keys(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 16);
+    let mut chars = text.char_indices().peekable();
+    while let Some((i, c)) = chars.next() {
+        if c.is_ascii_alphabetic() || c == '_' {
+            let mut end = i + c.len_utf8();
+            while let Some(&(j, d)) = chars.peek() {
+                if d.is_ascii_alphanumeric() || d == '_' {
+                    end = j + d.len_utf8();
+                    chars.next();
+                } else {
+                    break;
+                }
+            }
+            let word = &text[i..end];
+            if text[end..].trim_start().starts_with(':') {
+                out.push('"');
+                out.push_str(word);
+                out.push('"');
+            } else {
+                out.push_str(word);
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// The value of `key:` lines of a YAML text (any indentation, quotes and trailing comments
@@ -260,7 +358,8 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         path: eval_dir.clone(),
         source,
     })?;
-    let views: Vec<ViewMetrics> = poses
+    // Each view with whether its ground truth and its render are empty.
+    let views: Vec<(ViewMetrics, bool, bool)> = poses
         .par_iter()
         .enumerate()
         .map_init(Renderer::new, |renderer, (i, t_world_camera)| {
@@ -279,13 +378,37 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
                 save_png(&run.view_image(i, ViewImage::Map), &map_rgb, w, h)?;
                 save_png(&run.view_image(i, ViewImage::Truth), &truth_rgb, w, h)?;
             }
-            Ok(view)
+            let empty = |depth: &[f32]| {
+                validity::valid_depth_fraction(depth) < validity::VIEW_MIN_VALID_DEPTH
+            };
+            Ok((view, empty(&frame.depth), empty(&map_depth)))
         })
         .collect::<Result<_, RunError>>()?;
     let mut means = ViewMeans::default();
-    views.iter().for_each(|v| means.push(v));
+    let mut infinite_psnr = 0;
+    for (v, truth_empty, render_empty) in &views {
+        report.empty_render_views += usize::from(*render_empty);
+        if *truth_empty {
+            report.empty_truth_views += 1;
+            continue;
+        }
+        infinite_psnr += usize::from(v.psnr_db == f64::INFINITY);
+        means.push(v);
+    }
     let lpips_reason = report.missing.get("lpips").cloned();
     means.fill(&mut report);
+    report.test_views = views.len();
+    if means.views() == 0 && !views.is_empty() {
+        for m in ["psnr_db", "ssim", "lpips", "depth_mae_m"] {
+            report.mark_missing(
+                m,
+                format!(
+                    "every test view's ground truth is empty (< {:.0} % valid depth)",
+                    validity::VIEW_MIN_VALID_DEPTH * 100.0
+                ),
+            );
+        }
+    }
     if let Some(reason) = lpips_reason {
         report.mark_missing("lpips", reason);
     } else if !lpips_usable {
@@ -297,7 +420,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let rows: Vec<ViewRow> = views
         .iter()
         .enumerate()
-        .map(|(view, v)| ViewRow {
+        .map(|(view, (v, _, _))| ViewRow {
             view,
             psnr_db: v.psnr_db,
             ssim: v.ssim,
@@ -347,6 +470,13 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         );
     }
 
+    report.warnings = run_warnings(
+        &summary,
+        &map,
+        &report,
+        infinite_psnr,
+        views.len() - report.empty_truth_views,
+    );
     let markdown = format!(
         "# Metrics of {}\n\nScene `{}`, {} test views at {}×{} px, {}° FOV, seed {}.\n\n{}",
         dir.display(),
@@ -360,6 +490,44 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     );
     run.write_metrics(&report, &markdown)?;
     Ok(report)
+}
+
+/// The warnings of an evaluated run ([`crate::validity`]): those `summary.json` recorded, then
+/// `robot_cannot_move` from the summary's counts and robot, `empty_map` from the final `map`,
+/// and from `report` (its view counts already filled) `empty_test_views` and `infinite_psnr`
+/// (`infinite` of the `averaged` views had PSNR +∞). One warning per code.
+pub fn run_warnings(
+    summary: &Summary,
+    map: &Gaussians<f32>,
+    report: &MetricsReport,
+    infinite: usize,
+    averaged: usize,
+) -> Vec<RunWarning> {
+    let mut warnings = summary.warnings.clone();
+    let step = summary.robot.unwrap_or_default().forward_step_m;
+    let unknown = map
+        .flags
+        .iter()
+        .filter(|f| *f & FLAG_UNKNOWN_SPACE != 0)
+        .count();
+    validity::merge(
+        &mut warnings,
+        [
+            validity::motion(
+                summary.steps,
+                summary.path_length_m,
+                summary.forward_actions,
+                summary.blocked_forwards,
+                step,
+            ),
+            validity::map(map.len() - unknown, unknown),
+            validity::test_views(report.empty_truth_views, report.test_views),
+            validity::psnr(report.psnr_db, infinite, averaged),
+        ]
+        .into_iter()
+        .flatten(),
+    );
+    warnings
 }
 
 /// Loads the LPIPS network, or records why it is missing in `report`.
@@ -513,8 +681,23 @@ mod tests {
         assert!(report.lpips.is_none() && report.missing["lpips"].contains("disabled"));
         let json = std::fs::read_to_string(dir.path().join(RunFolder::METRICS_JSON)).unwrap();
         assert_eq!(MetricsReport::from_json(&json).unwrap(), report);
+        // The figures are computed, but an empty map makes the run invalid: flagged, struck.
+        assert_eq!(
+            (report.empty_truth_views, report.empty_render_views),
+            (0, 6)
+        );
+        let codes: Vec<&str> = report.warnings.iter().map(|w| w.code.as_str()).collect();
+        assert_eq!(codes, ["empty_map"], "{report:?}");
+        assert!(json.contains("\"valid\": false"), "{json}");
         let md = std::fs::read_to_string(dir.path().join(RunFolder::METRICS_MD)).unwrap();
-        assert!(md.contains("house:3") && md.contains("| 42.00 |"), "{md}");
+        assert!(
+            md.contains("house:3") && md.contains("| ~~42.00~~ |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("**INVALID RUN**") && md.contains("`empty_map`: the final map holds 0"),
+            "{md}"
+        );
         for name in ["view_00_map.png", "view_01_truth.png", "views.csv"] {
             assert!(dir.path().join("eval").join(name).exists(), "{name}");
         }
@@ -534,11 +717,104 @@ mod tests {
         // Depth is Σ z α T (un-normalised) over 3 cm Gaussians: a few cm off, not more.
         assert!(good.depth_mae_m.unwrap() < 0.15, "{good:?}");
         assert!(good.psnr_db.unwrap().is_finite());
+        assert!(good.is_valid(), "{:?}", good.warnings);
+        assert_eq!((good.empty_truth_views, good.empty_render_views), (0, 0));
         assert!(bad.completeness.unwrap() < 0.5, "{bad:?}");
         assert!(
             bad.depth_mae_m.unwrap() > 5.0 * good.depth_mae_m.unwrap(),
             "{good:?} vs {bad:?}"
         );
+    }
+
+    /// A scene placed wrongly (here: a camera 50 m above the floor, as a summary with a wrong
+    /// robot says) renders nothing at any test pose: no image metric is averaged over empty
+    /// views (no PSNR +∞), the run is invalid and says why; the summary's own warnings and a
+    /// robot that never moved are carried into the report.
+    #[test]
+    fn empty_ground_truth_views_are_left_out_and_mark_the_run_invalid() {
+        use crate::validity::code;
+        let dir = tempfile::tempdir().unwrap();
+        write_run(dir.path(), MapKind::Empty);
+        let run = RunFolder::new(dir.path());
+        let mut summary = run.read_summary().unwrap();
+        summary.robot = Some(RobotModel {
+            camera_height_m: 50.0,
+            ..RobotModel::default()
+        });
+        summary.steps = 412;
+        summary.forward_actions = 206;
+        summary.blocked_forwards = 206;
+        summary.path_length_m = 0.0;
+        summary.warnings = vec![RunWarning::new(
+            code::START_SEES_NOTHING,
+            "the first frame (0) has 0.00 % valid depth pixels",
+        )];
+        run.write_summary(&summary).unwrap();
+        let report = evaluate_run(dir.path(), &options()).unwrap();
+        assert_eq!(
+            (report.test_views, report.empty_truth_views),
+            (6, 6),
+            "{report:?}"
+        );
+        assert!(
+            report.psnr_db.is_none() && report.ssim.is_none(),
+            "{report:?}"
+        );
+        assert!(
+            report.missing["psnr_db"].contains("every test view's ground truth is empty"),
+            "{report:?}"
+        );
+        let codes: Vec<&str> = report.warnings.iter().map(|w| w.code.as_str()).collect();
+        assert_eq!(
+            codes,
+            [
+                code::START_SEES_NOTHING,
+                code::ROBOT_CANNOT_MOVE,
+                code::EMPTY_MAP,
+                code::EMPTY_TEST_VIEWS
+            ]
+        );
+        assert!(
+            report.warnings[3].message.contains("6 of 6 test views"),
+            "{:?}",
+            report.warnings
+        );
+        let md = std::fs::read_to_string(run.path(RunFolder::METRICS_MD)).unwrap();
+        assert!(md.contains("**INVALID RUN**") && md.contains("`robot_cannot_move`: 206 of 206"));
+        assert!(
+            md.contains("6 of 6 test views had an empty ground truth"),
+            "{md}"
+        );
+        assert!(!md.contains("| ∞ |"), "{md}");
+        // The helper on its own: a PSNR +∞ mean over non-empty views is flagged as well.
+        let flagged = MetricsReport {
+            psnr_db: Some(f64::INFINITY),
+            test_views: 4,
+            ..MetricsReport::default()
+        };
+        let mut one = Gaussians::<f32>::new();
+        one.push(
+            [0.0, 0.0, 1.0],
+            [0.5; 3],
+            [1.0, 0.0, 0.0, 0.0],
+            0.9,
+            [0.05; 3],
+        );
+        let healthy = Summary {
+            steps: 300,
+            path_length_m: 7.0,
+            forward_actions: 140,
+            blocked_forwards: 3,
+            ..Summary::default()
+        };
+        let w = run_warnings(&healthy, &one, &flagged, 4, 4);
+        assert_eq!(w.len(), 1);
+        assert_eq!(w[0].code, code::INFINITE_PSNR);
+        let finite = MetricsReport {
+            psnr_db: Some(24.0),
+            ..flagged
+        };
+        assert!(run_warnings(&healthy, &one, &finite, 0, 4).is_empty());
     }
 
     #[test]
@@ -604,38 +880,105 @@ mod tests {
     }
 
     #[test]
-    fn the_up_axis_of_a_scene_file_comes_from_the_run() {
+    fn the_placement_of_a_scene_file_comes_from_the_run() {
         let dir = tempfile::tempdir().unwrap();
+        let transform = Transform {
+            scale: Some(0.01),
+            rotate_deg: Some([0.0, 0.0, 90.0]),
+            translate: Some([1.0, 2.0, 0.0]),
+            matrix: None,
+        };
         let summary = Summary {
             scene: Some("room.glb".into()),
-            up_axis: Some("z".into()),
+            up_axis: Some("-y".into()),
+            transform: Some(transform),
+            floor: Some(Floor::Auto),
             ..Summary::default()
         };
         let spec = scene_from_run(dir.path(), &summary).unwrap();
+        assert_eq!(spec.scene, "room.glb");
         assert_eq!(
-            (spec.scene.as_str(), spec.up_axis),
-            ("room.glb", Some(UpAxis::Z))
+            spec.placement,
+            Placement {
+                up_axis: Some(UpAxis::NegY),
+                transform: Some(transform),
+                floor: Floor::Auto,
+            }
         );
+        // An older summary: the format's up axis, no transform, floor as is.
+        let old = Summary {
+            scene: Some("room.glb".into()),
+            ..Summary::default()
+        };
+        let spec = scene_from_run(dir.path(), &old).unwrap();
+        assert_eq!(spec.placement, Placement::default());
+        // No scene in the summary: the same keys from dataflow.yaml, in both nodes.
         let summary = Summary {
             steps: 1,
             ..Summary::default()
         };
-        let flow = |up: &str| {
+        let flow = |extra: &str| {
             format!(
-                "nodes:\n  - id: sim\n    config:\n      scene: room.glb\n      up_axis: {up}\n"
+                "nodes:\n  - id: sim\n    config:\n      scene: room.glb\n{extra}\
+                 \n  - id: evaluator\n    config:\n      scene: room.glb\n{extra}\n"
             )
         };
-        std::fs::write(dir.path().join(RunFolder::DATAFLOW), flow("y")).unwrap();
+        let write = |extra: &str| {
+            std::fs::write(dir.path().join(RunFolder::DATAFLOW), flow(extra)).unwrap()
+        };
+        write("      up_axis: y");
         let spec = scene_from_run(dir.path(), &summary).unwrap();
-        assert_eq!(spec.up_axis, Some(UpAxis::Y));
-        std::fs::write(dir.path().join(RunFolder::DATAFLOW), flow("x")).unwrap();
+        assert_eq!(spec.placement.up_axis, Some(UpAxis::Y));
+        write(
+            "      up_axis: -Y\n      floor: 0.5  # known\n      \
+             transform: { scale: 0.01, rotate_deg: [0, 0, 90], translate: [1, 2, 0] }",
+        );
+        let spec = scene_from_run(dir.path(), &summary).unwrap();
+        assert_eq!(
+            spec.placement,
+            Placement {
+                up_axis: Some(UpAxis::NegY),
+                transform: Some(transform),
+                floor: Floor::Height(0.5),
+            }
+        );
+        write("      floor: auto");
+        assert_eq!(
+            scene_from_run(dir.path(), &summary)
+                .unwrap()
+                .placement
+                .floor,
+            Floor::Auto
+        );
+        for (extra, needle) in [
+            ("      up_axis: w", "up_axis: w"),
+            ("      floor: flat", "floor: flat"),
+            ("      transform:\n        scale: 0.01", "on one line"),
+            (
+                "      transform: { matrix: [1, 0, 0] }",
+                "transform: { matrix",
+            ),
+            (
+                "      transform: { matrix: [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1] }",
+                "not a rotation",
+            ),
+        ] {
+            write(extra);
+            let e = scene_from_run(dir.path(), &summary)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("dataflow.yaml") && e.contains(needle), "{e}");
+        }
+        // The two nodes disagreeing is an error naming both values.
+        std::fs::write(
+            dir.path().join(RunFolder::DATAFLOW),
+            "a:\n  scene: room.glb\n  transform: { scale: 2 }\nb:\n  transform: { scale: 3 }\n",
+        )
+        .unwrap();
         let e = scene_from_run(dir.path(), &summary)
             .unwrap_err()
             .to_string();
-        assert!(
-            e.contains("dataflow.yaml") && e.contains("up_axis: x"),
-            "{e}"
-        );
+        assert!(e.contains("scale 2") && e.contains("scale 3"), "{e}");
     }
 
     #[test]

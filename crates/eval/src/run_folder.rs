@@ -22,6 +22,7 @@
 //! for a CSV row, its line.
 
 use crate::MetricsReport;
+use crate::validity::RunWarning;
 use activemap_geometry::RobotModel;
 use activemap_geometry::tum::Trajectory;
 use serde::de::DeserializeOwned;
@@ -141,9 +142,20 @@ impl RunFolder {
         })
     }
 
-    /// Writes `summary.json` (pretty JSON).
+    /// Writes `summary.json` (pretty JSON), with `"valid"` first ([`Summary::is_valid`]; derived
+    /// from the warnings, ignored when read back).
     pub fn write_summary(&self, summary: &Summary) -> Result<(), RunError> {
-        let text = serde_json::to_string_pretty(summary).map_err(|e| RunError::Malformed {
+        #[derive(Serialize)]
+        struct Written<'a> {
+            valid: bool,
+            #[serde(flatten)]
+            summary: &'a Summary,
+        }
+        let written = Written {
+            valid: summary.is_valid(),
+            summary,
+        };
+        let text = serde_json::to_string_pretty(&written).map_err(|e| RunError::Malformed {
             path: self.path(Self::SUMMARY),
             detail: e.to_string(),
         })?;
@@ -441,13 +453,24 @@ pub struct Summary {
     pub max_rooms: Option<u32>,
     /// As in the `sim` config.
     pub max_area: Option<f64>,
-    /// As in the `sim` config: `y` or `z` (absent = the scene format's default).
+    /// As in the `sim` config: `x`, `-x`, `y`, `-y`, `z` or `-z` (absent = the scene format's
+    /// default).
     pub up_axis: Option<String>,
+    /// As in the `sim` config: the scene file's scale, rotation and translation after its up
+    /// axis (absent = none, as in older summaries).
+    pub transform: Option<activemap_sim::Transform>,
+    /// As in the `sim` config: the floor setting of a scene file, `auto` or a height (absent =
+    /// `none`, as in older summaries).
+    pub floor: Option<activemap_sim::Floor>,
     /// The robot the run used (camera height, radius, step and turn sizes), as the `sim` and
     /// `evaluator` nodes' `robot` config; `None` (older runs): the default robot.
     pub robot: Option<RobotModel>,
     /// The LLM planner's totals over the recorded exchanges; `None`: the run made none.
     pub llm: Option<LlmSummary>,
+    /// Why the run is invalid ([`crate::validity`]: a start that sees nothing, a robot that
+    /// cannot move, an empty map, no reachable floor); empty = valid. Absent in older summaries
+    /// (read as empty). `summary.json` also says `"valid": true|false`.
+    pub warnings: Vec<RunWarning>,
 }
 
 /// The LLM planner's totals in `summary.json` (SPEC §7), over its recorded exchanges.
@@ -513,6 +536,11 @@ impl LlmSummary {
 }
 
 impl Summary {
+    /// Whether the run is valid: no [`Summary::warnings`].
+    pub fn is_valid(&self) -> bool {
+        self.warnings.is_empty()
+    }
+
     /// `(field, value)` for display (the report's summary table): numbers with 4 decimals,
     /// absent values as `—`.
     pub fn rows(&self) -> Vec<(&'static str, String)> {
@@ -533,6 +561,8 @@ impl Summary {
             ("max_rooms", opt(self.max_rooms.map(|v| v.to_string()))),
             ("max_area", opt_real(self.max_area)),
             ("up_axis", opt(self.up_axis.clone())),
+            ("transform", opt(self.transform.map(|t| t.to_string()))),
+            ("floor", opt(self.floor.map(|f| f.to_string()))),
             (
                 "robot",
                 opt(self.robot.map(|r| {
@@ -546,6 +576,15 @@ impl Summary {
                 })),
             ),
             ("llm", opt(self.llm.as_ref().map(LlmSummary::line))),
+            (
+                "valid",
+                if self.is_valid() {
+                    "yes".to_string()
+                } else {
+                    let codes: Vec<&str> = self.warnings.iter().map(|w| w.code.as_str()).collect();
+                    format!("NO: {}", codes.join(", "))
+                },
+            ),
         ]
     }
 }
@@ -1129,6 +1168,12 @@ mod tests {
             max_rooms: Some(3),
             max_area: None,
             up_axis: Some("z".into()),
+            transform: Some(activemap_sim::Transform {
+                scale: Some(0.01),
+                rotate_deg: Some([0.0, 0.0, 90.0]),
+                ..Default::default()
+            }),
+            floor: Some(activemap_sim::Floor::Auto),
             robot: Some(RobotModel {
                 camera_height_m: 1.25,
                 ..RobotModel::default()
@@ -1142,6 +1187,7 @@ mod tests {
                 completion_tokens: 90,
                 latency_s: 7.5,
             }),
+            warnings: Vec::new(),
         }
     }
 
@@ -1164,6 +1210,8 @@ mod tests {
             "\"scene\": \"house:7\"",
             "\"max_area\": null",
             "\"blocked_forwards\": 2",
+            "\"floor\": \"auto\"",
+            "\"scale\": 0.01",
         ] {
             assert!(text.contains(key), "{key} in {text}");
         }
@@ -1173,6 +1221,8 @@ mod tests {
             (partial.steps, partial.scene, partial.coverage),
             (3, None, None)
         );
+        // Summaries from before the placement keys: no transform, floor `none`.
+        assert_eq!((partial.transform, partial.floor), (None, None));
         std::fs::write(run.path(RunFolder::SUMMARY), "{\"steps\": \"many\"}").unwrap();
         let e = run.read_summary().unwrap_err().to_string();
         assert!(e.contains("summary.json: malformed"), "{e}");
@@ -1182,6 +1232,54 @@ mod tests {
         let rows = summary().rows();
         assert!(rows.contains(&("coverage", "0.8750".into())), "{rows:?}");
         assert!(rows.contains(&("max_area", "—".into())), "{rows:?}");
+        assert!(rows.contains(&("floor", "auto".into())), "{rows:?}");
+        assert!(rows.contains(&("valid", "yes".into())), "{rows:?}");
+    }
+
+    /// A summary with warnings says `"valid": false` and lists them (code and message); it reads
+    /// back the same; an older summary without `warnings` (or `valid`) reads as valid.
+    #[test]
+    fn summary_warnings_round_trip_and_old_summaries_read_as_valid() {
+        use crate::validity::{RunWarning, code};
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        run.write_summary(&summary()).unwrap();
+        let text = std::fs::read_to_string(run.path(RunFolder::SUMMARY)).unwrap();
+        assert!(
+            text.contains("\"valid\": true") && text.contains("\"warnings\": []"),
+            "{text}"
+        );
+        let invalid = Summary {
+            warnings: vec![
+                RunWarning::new(code::ROBOT_CANNOT_MOVE, "206 of 206 forward moves blocked"),
+                RunWarning::new(code::EMPTY_MAP, "0 observed Gaussians"),
+            ],
+            ..summary()
+        };
+        assert!(summary().is_valid() && !invalid.is_valid());
+        run.write_summary(&invalid).unwrap();
+        let text = std::fs::read_to_string(run.path(RunFolder::SUMMARY)).unwrap();
+        assert!(text.contains("\"valid\": false"), "{text}");
+        assert!(text.contains("\"code\": \"robot_cannot_move\""), "{text}");
+        assert!(
+            text.contains("\"message\": \"206 of 206 forward moves blocked\""),
+            "{text}"
+        );
+        assert_eq!(run.read_summary().unwrap(), invalid);
+        let rows = invalid.rows();
+        assert!(
+            rows.contains(&("valid", "NO: robot_cannot_move, empty_map".into())),
+            "{rows:?}"
+        );
+        // A summary.json of an older evaluator: no `warnings`, no `valid`.
+        std::fs::write(
+            run.path(RunFolder::SUMMARY),
+            "{\"steps\": 301, \"coverage\": 0.875, \"path_length_m\": 7.25, \"map_gaussians\": 77000}",
+        )
+        .unwrap();
+        let old = run.read_summary().unwrap();
+        assert!(old.warnings.is_empty() && old.is_valid(), "{old:?}");
+        assert_eq!(old.steps, 301);
     }
 
     /// Each CSV is written with its header and 6-decimal numbers and reads back the same rows.

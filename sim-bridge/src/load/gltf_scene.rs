@@ -102,7 +102,7 @@ fn load_checked(
         path: path.to_path_buf(),
         reason,
     };
-    let up = options.up_axis.unwrap_or(UpAxis::Y);
+    let up = options.placement.up_axis.unwrap_or(UpAxis::Y);
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
     let base = path.parent().unwrap_or_else(|| Path::new("."));
     let document = gltf.document;

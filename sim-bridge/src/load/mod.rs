@@ -4,7 +4,9 @@
 //! specification, so glTF positions are rotated by +90° about x: `(x, y, z)_gltf →
 //! (x, −z, y)_world`. OBJ files carry no up axis; most exporters (and Habitat's assets) write
 //! y-up, which is the default, while PLY scans (Replica, ScanNet, Matterport) are z-up by
-//! default. [`LoadOptions::up_axis`] overrides both.
+//! default. [`LoadOptions::placement`] overrides both with any of ±x, ±y, ±z ([`UpAxis`]), and
+//! then places the scene: a rotation, translation and uniform scale ([`Transform`]) and, with
+//! [`Floor::Auto`], levelling on the floor plane found in the mesh (see [`placement`]).
 //!
 //! Unreadable or malformed files are errors naming the file. A texture that is missing or
 //! cannot be decoded is not: the material falls back to its flat colour and the loader
@@ -12,61 +14,175 @@
 
 mod gltf_scene;
 mod obj_scene;
+pub mod placement;
 mod ply_scene;
+
+pub use placement::{Floor, Levelling, Placement, PlacementReport, Transform};
 
 use crate::error::{Result, SimError};
 use crate::scene::Scene;
 use std::path::{Path, PathBuf};
 
-/// Which axis of a file points up.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Which axis of a file points up: one of ±x, ±y, ±z.
+///
+/// Each maps the file's frame to the z-up world by a proper rotation (determinant +1, so
+/// triangle winding and hence [`Scene::scaled_normal`] directions are kept), chosen as the
+/// quarter or half turn about a file axis that takes the up axis to world +z:
+///
+/// | up axis | rotation     | file `(x, y, z)` → world |
+/// |---------|--------------|--------------------------|
+/// | `x`     | −90° about y | `(−z, y, x)`             |
+/// | `-x`    | +90° about y | `(z, y, −x)`             |
+/// | `y`     | +90° about x | `(x, −z, y)`             |
+/// | `-y`    | −90° about x | `(x, z, −y)`             |
+/// | `z`     | none         | `(x, y, z)`              |
+/// | `-z`    | 180° about x | `(x, −y, −z)`            |
+///
+/// `-y` reads a mesh in an OpenCV camera frame (x right, y down, z forward, e.g. an RGB-D
+/// reconstruction in its first camera's frame) as x right, y forward, z up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum UpAxis {
-    /// +y is up (glTF, most OBJ exporters): rotated to z-up on load.
+    /// +x is up.
+    X,
+    /// −x is up.
+    NegX,
+    /// +y is up (glTF, most OBJ exporters).
     Y,
-    /// +z is up (the world convention): kept as is.
+    /// −y is up (camera-frame scans: y points down).
+    NegY,
+    /// +z is up (the world convention; PLY scans): kept as is.
     Z,
+    /// −z is up.
+    NegZ,
 }
 
 impl UpAxis {
-    /// Parses `"y"` / `"z"` (case-insensitive), e.g. from a node's configuration.
+    /// Every up axis, in the order x, −x, y, −y, z, −z.
+    pub const ALL: [UpAxis; 6] = [
+        UpAxis::X,
+        UpAxis::NegX,
+        UpAxis::Y,
+        UpAxis::NegY,
+        UpAxis::Z,
+        UpAxis::NegZ,
+    ];
+
+    /// Parses an axis name, case-insensitive, e.g. from a node's configuration: `x`, `+x`, `-x`
+    /// (likewise y, z), optionally with an `-up` suffix (`y-up`, `-z-up`).
     pub fn from_name(name: &str) -> Option<UpAxis> {
-        match name.trim().to_ascii_lowercase().as_str() {
-            "y" | "+y" | "y-up" => Some(UpAxis::Y),
-            "z" | "+z" | "z-up" => Some(UpAxis::Z),
-            _ => None,
-        }
+        let name = name.trim().to_ascii_lowercase();
+        let name = name.strip_suffix("-up").unwrap_or(&name);
+        let (negative, axis) = match name.strip_prefix('-') {
+            Some(rest) => (true, rest),
+            None => (false, name.strip_prefix('+').unwrap_or(name)),
+        };
+        Some(match (axis, negative) {
+            ("x", false) => UpAxis::X,
+            ("x", true) => UpAxis::NegX,
+            ("y", false) => UpAxis::Y,
+            ("y", true) => UpAxis::NegY,
+            ("z", false) => UpAxis::Z,
+            ("z", true) => UpAxis::NegZ,
+            _ => return None,
+        })
     }
 
-    /// The name [`UpAxis::from_name`] reads back: `"y"` or `"z"`.
+    /// The name [`UpAxis::from_name`] reads back: `x`, `-x`, `y`, `-y`, `z` or `-z`.
     pub fn name(self) -> &'static str {
         match self {
+            UpAxis::X => "x",
+            UpAxis::NegX => "-x",
             UpAxis::Y => "y",
+            UpAxis::NegY => "-y",
             UpAxis::Z => "z",
+            UpAxis::NegZ => "-z",
         }
     }
 
-    /// Maps a point of a file with this up axis to the z-up world frame.
+    /// The accepted names, for error messages.
+    pub const NAMES: &'static str =
+        "x, -x, y, -y, z or -z (case-insensitive, `+` and `-up` allowed)";
+
+    /// Maps a point of a file with this up axis to the z-up world frame (see the type's table;
+    /// exact: coordinates are only permuted and negated).
     pub fn to_world(self, p: [f32; 3]) -> [f32; 3] {
         match self {
+            UpAxis::X => [-p[2], p[1], p[0]],
+            UpAxis::NegX => [p[2], p[1], -p[0]],
             UpAxis::Y => [p[0], -p[2], p[1]],
+            UpAxis::NegY => [p[0], p[2], -p[1]],
             UpAxis::Z => p,
+            UpAxis::NegZ => [p[0], -p[1], -p[2]],
         }
     }
 
     /// Maps a z-up world point to a file with this up axis (inverse of [`UpAxis::to_world`]).
     pub fn from_world(self, p: [f32; 3]) -> [f32; 3] {
         match self {
+            UpAxis::X => [p[2], p[1], -p[0]],
+            UpAxis::NegX => [-p[2], p[1], p[0]],
             UpAxis::Y => [p[0], p[2], -p[1]],
+            UpAxis::NegY => [p[0], -p[2], p[1]],
             UpAxis::Z => p,
+            UpAxis::NegZ => [p[0], -p[1], -p[2]],
         }
+    }
+
+    /// The rotation of [`UpAxis::to_world`] as a matrix (file → world).
+    pub fn rotation(self) -> nalgebra::Rotation3<f64> {
+        let column = |p: [f32; 3]| {
+            let w = self.to_world(p);
+            nalgebra::Vector3::new(w[0] as f64, w[1] as f64, w[2] as f64)
+        };
+        nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[
+            column([1.0, 0.0, 0.0]),
+            column([0.0, 1.0, 0.0]),
+            column([0.0, 0.0, 1.0]),
+        ]))
+    }
+}
+
+impl std::fmt::Display for UpAxis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Written as its [`UpAxis::name`], so configs and `summary.json` hold `up_axis: -y`.
+impl serde::Serialize for UpAxis {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+/// Read with [`UpAxis::from_name`]; anything else is an error naming the accepted values.
+impl<'de> serde::Deserialize<'de> for UpAxis {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        UpAxis::from_name(&name).ok_or_else(|| {
+            serde::de::Error::custom(format!("up_axis must be {}, got \"{name}\"", UpAxis::NAMES))
+        })
     }
 }
 
 /// Options for [`load_scene`].
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct LoadOptions {
-    /// Up axis of the file; `None` = the format's default (glTF and OBJ: y, PLY: z).
-    pub up_axis: Option<UpAxis>,
+    /// Where the scene goes in the world: up axis (`None` = the format's default: glTF and OBJ
+    /// y, PLY z), then transform and floor levelling ([`Placement`]).
+    pub placement: Placement,
+}
+
+impl LoadOptions {
+    /// Options that only set the file's up axis.
+    pub fn up_axis(up: UpAxis) -> Self {
+        Self {
+            placement: Placement {
+                up_axis: Some(up),
+                ..Placement::default()
+            },
+        }
+    }
 }
 
 /// Something the loader worked around (a missing texture, an unsupported primitive).
@@ -91,6 +207,9 @@ pub struct Loaded {
     pub scene: Scene,
     /// Non-fatal problems (the scene is still usable).
     pub warnings: Vec<LoadWarning>,
+    /// What the placement did (up axis, transform, tilt removed, floor height), for the caller
+    /// to print; `None` when no placement key was set (the format's default up axis only).
+    pub placement: Option<PlacementReport>,
 }
 
 /// Loads a scene file, choosing the format by extension (case-insensitive).
@@ -110,13 +229,27 @@ pub fn load_scene(path: &Path, options: &LoadOptions) -> Result<Loaded> {
         source,
     })?;
     let mut warnings = Vec::new();
-    let scene = match ext.as_str() {
-        "glb" | "gltf" => gltf_scene::load(path, &bytes, options, &mut warnings)?,
-        "obj" => obj_scene::load(path, options, &mut warnings)?,
-        _ => ply_scene::load(path, &bytes, options)?,
+    let (mut scene, default_up) = match ext.as_str() {
+        "glb" | "gltf" => (
+            gltf_scene::load(path, &bytes, options, &mut warnings)?,
+            UpAxis::Y,
+        ),
+        "obj" => (obj_scene::load(path, options, &mut warnings)?, UpAxis::Y),
+        _ => (ply_scene::load(path, &bytes, options)?, UpAxis::Z),
     };
     scene.validate()?;
-    Ok(Loaded { scene, warnings })
+    // The loader applied the up axis to every vertex; the rest of the placement follows.
+    let placement = &options.placement;
+    let up = placement.up_axis.unwrap_or(default_up);
+    let (report, placement_warnings) =
+        placement.finish(&mut scene, up, &nalgebra::Similarity3::identity())?;
+    warnings.extend(placement_warnings);
+    scene.validate()?;
+    Ok(Loaded {
+        scene,
+        warnings,
+        placement: (*placement != Placement::default()).then_some(report),
+    })
 }
 
 impl Scene {

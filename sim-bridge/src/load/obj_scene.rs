@@ -14,7 +14,7 @@ pub(super) fn load(
     options: &LoadOptions,
     warnings: &mut Vec<LoadWarning>,
 ) -> Result<Scene> {
-    let up = options.up_axis.unwrap_or(UpAxis::Y);
+    let up = options.placement.up_axis.unwrap_or(UpAxis::Y);
     let opts = tobj::LoadOptions {
         single_index: true,
         triangulate: true,

@@ -49,7 +49,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<S
         path: path.to_path_buf(),
         reason,
     };
-    let up = options.up_axis.unwrap_or(UpAxis::Z);
+    let up = options.placement.up_axis.unwrap_or(UpAxis::Z);
     let parser = ply_rs::parser::Parser::<ply_rs::ply::DefaultElement>::new();
     let mut reader = std::io::Cursor::new(bytes);
     let ply = parser

@@ -70,9 +70,7 @@ fn save_rendered_frames() {
     let data =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/scenes/simple_room.glb");
     if data.exists() {
-        let opts = crate::load::LoadOptions {
-            up_axis: Some(crate::load::UpAxis::Z),
-        };
+        let opts = crate::load::LoadOptions::up_axis(crate::load::UpAxis::Z);
         let scene = crate::load::load_scene(&data, &opts).unwrap().scene;
         let mut sim = Simulator::new(scene, SimConfig::with_resolution(400, 400)).unwrap();
         sim.set_planar_pose(activemap_geometry::PlanarPose::new(-3.0, -2.0, 0.6))

@@ -35,13 +35,7 @@ fn simple_room_glb_loads_and_renders() {
     let as_y_up = load_scene(&path, &LoadOptions::default()).unwrap().scene;
     let e = as_y_up.bounds().unwrap();
     assert!(e.max.z - e.min.z > 10.0, "default glTF y-up reading");
-    let loaded = load_scene(
-        &path,
-        &LoadOptions {
-            up_axis: Some(UpAxis::Z),
-        },
-    )
-    .unwrap();
+    let loaded = load_scene(&path, &LoadOptions::up_axis(UpAxis::Z)).unwrap();
     let scene = loaded.scene;
     // 7 box meshes of 12 triangles each.
     assert_eq!(scene.triangles.len(), 84);
@@ -292,14 +286,9 @@ fn ply_with_vertex_colours_loads_z_up() {
     assert_eq!(s.vertices[2].position, [1.0, 1.0, 0.0]);
     assert_eq!(s.vertices[1].color, [0.0, 1.0, 0.0]);
     // Same file read as y-up: (1, 1, 0) → (1, 0, 1).
-    let y = load_scene(
-        &p,
-        &LoadOptions {
-            up_axis: UpAxis::from_name("Y"),
-        },
-    )
-    .unwrap()
-    .scene;
+    let y = load_scene(&p, &LoadOptions::up_axis(UpAxis::from_name("Y").unwrap()))
+        .unwrap()
+        .scene;
     assert_eq!(y.vertices[2].position, [1.0, 0.0, 1.0]);
 
     for (name, text) in [
@@ -321,4 +310,49 @@ fn scene_load_convenience_reads_default_options() {
     let p = obj_quad(dir.path(), None);
     let s = Scene::load(&p).unwrap();
     assert_eq!(s.materials[0].base_color, [0.5, 0.5, 0.5]);
+}
+
+/// The furnished AWS RoboMaker Small House (`../shared/data/scenes/aws_small_house.glb`, see the
+/// data README: 19 × 11.4 m, 3.0 m walls, floor at glTF y = 0, 65 embedded textures) loads with
+/// its textures, level, with a navigable floor of a furnished house's size, and a derived start
+/// clear of the furniture that sees the room.
+#[test]
+fn the_furnished_house_loads_with_its_textures_and_a_sane_floor() {
+    let Some(data) = data_dir() else { return };
+    let path = data.join("scenes/aws_small_house.glb");
+    if !path.is_file() {
+        eprintln!("skipping: {} is absent", path.display());
+        return;
+    }
+    let loaded = load_scene(&path, &LoadOptions::default()).unwrap();
+    let scene = loaded.scene;
+    assert_eq!(scene.textures.len(), 65, "embedded textures");
+    assert_eq!(scene.triangles.len(), 147_872);
+    let b = scene.bounds().unwrap();
+    let ext = b.max - b.min;
+    assert!(
+        (ext.x - 19.0).abs() < 0.1 && (ext.y - 11.4).abs() < 0.1 && (ext.z - 3.0).abs() < 0.05,
+        "extent {ext:?}"
+    );
+    let mut sim = Simulator::new(scene, SimConfig::with_resolution(64, 64)).unwrap();
+    let nav = sim.navigation();
+    // The floor at z = 0 (carpets lie 1–3 mm above it).
+    assert!(nav.floor_z().abs() < 0.005, "floor at {}", nav.floor_z());
+    // The house is 216 m² inside its walls; furniture and the robot's radius take a share.
+    let area = nav.map().area();
+    assert!((100.0..200.0).contains(&area), "navigable {area} m²");
+    let start = sim.true_planar_pose();
+    let map = nav.map();
+    let (i, j) = map.frame.cell_of(start.x, start.y).unwrap();
+    let clearance = map.clearance()[j * map.frame.width + i];
+    assert!(
+        clearance >= crate::navigation::START_CLEARANCE_M,
+        "start {start:?} has {clearance} m of free floor"
+    );
+    let frame = sim.render();
+    let valid = frame.depth.iter().filter(|d| **d > 0.0).count();
+    assert!(
+        valid > frame.depth.len() / 2,
+        "the start sees {valid} pixels"
+    );
 }

@@ -6,5 +6,7 @@ mod fixtures;
 mod house_tests;
 mod load_tests;
 mod motion_tests;
+mod noise_tests;
+mod placement_tests;
 mod render_tests;
 mod truth_tests;

@@ -240,3 +240,58 @@ fn seeded_starts_are_uniform_on_the_floor_reachable_from_the_anchor() {
     );
     assert_eq!(nav.random_start(&PlanarPose::new(4.5, 1.0, 0.0), 3), None);
 }
+
+/// A derived start keeps clear of furniture: in a 6 × 4 m room with a sofa-sized box whose
+/// edge passes 5 cm from the floor's centroid, the start lies at least
+/// [`START_CLEARANCE_M`] (minus the chamfer's error) from every cell the robot may not stand
+/// on, and still near the middle of the room; the clearance transform is checked against the
+/// exact distances in the empty part of the room.
+#[test]
+fn a_derived_start_keeps_clear_of_furniture() {
+    use crate::navigation::START_CLEARANCE_M;
+    let mut scene = box_room([0.0, 0.0, 0.0], [6.0, 4.0, 2.5]);
+    let m = flat(&mut scene, [0.3, 0.3, 0.3]);
+    // The box spans x ∈ [1, 2.9], y ∈ [1.2, 2.05]: its +x face is 10 cm from the centre (3, 2),
+    // i.e. the robot's radius: the room's centroid cell is navigable but grazes it.
+    add_box_faces(
+        &mut scene,
+        [1.0, 1.2, 0.0],
+        [2.9, 2.05, 0.6],
+        &[m, m, m, m, m, m],
+    );
+    let sim = Simulator::new(scene, SimConfig::with_resolution(32, 32)).unwrap();
+    let nav = sim.navigation();
+    let start = sim.true_planar_pose();
+    let map = nav.map();
+    let clearance = map.clearance();
+    let (i, j) = map.frame.cell_of(start.x, start.y).unwrap();
+    let at_start = clearance[j * map.frame.width + i];
+    assert!(
+        at_start >= START_CLEARANCE_M - 1e-9,
+        "start clearance {at_start} at {start:?}"
+    );
+    // Exact check of the free-space distance at the start: the nearest non-navigable cell
+    // centre by brute force, against the chamfer value (within its 8 %).
+    let exact = (0..map.cells.len())
+        .filter(|&c| !map.cells[c])
+        .map(|c| {
+            let (x, y) = map.frame.centre(c % map.frame.width, c / map.frame.width);
+            ((x - start.x).powi(2) + (y - start.y).powi(2)).sqrt()
+        })
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        at_start >= exact - 1e-9 && at_start <= exact * 1.09,
+        "chamfer {at_start} vs exact {exact}"
+    );
+    // Not pushed into a corner: within 1.5 m of the room's centre.
+    let off_centre = ((start.x - 3.0).powi(2) + (start.y - 2.0).powi(2)).sqrt();
+    assert!(off_centre < 1.5, "start {start:?}");
+    // Clear of the box by the clearance plus the robot's radius (less one cell of grid error).
+    let to_box_x = (start.x - 2.9).max(1.0 - start.x).max(0.0);
+    let to_box_y = (start.y - 2.05).max(1.2 - start.y).max(0.0);
+    let to_box = (to_box_x.powi(2) + to_box_y.powi(2)).sqrt();
+    assert!(
+        to_box >= START_CLEARANCE_M + 0.1 - 0.05,
+        "{to_box} m from the box"
+    );
+}

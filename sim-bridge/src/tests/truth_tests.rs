@@ -1,7 +1,7 @@
 use super::fixtures::*;
 use crate::ground_truth::{surface_samples, test_poses};
 use crate::navigation::{AgentShape, Navigation};
-use crate::noise::SensorNoise;
+use crate::noise::{DepthNoise, NoiseConfig};
 use crate::simulator::{SimConfig, Simulator};
 use activemap_geometry::PlanarPose;
 
@@ -52,10 +52,14 @@ fn test_poses_are_navigable_seeded_and_spread() {
 #[test]
 fn sensor_noise_is_seeded_and_has_the_configured_spread() {
     let scene = box_room([-1.0, -5.0, 0.0], [2.0, 5.0, 2.5]);
-    let noise = SensorNoise {
-        depth_sigma_per_metre: 0.01,
-        rgb_sigma: 3.0,
-        depth_dropout: 0.0,
+    let noise = NoiseConfig {
+        depth: DepthNoise {
+            sigma_0: 0.002,
+            sigma_z2: 0.004,
+            ..DepthNoise::default()
+        },
+        rgb: crate::noise::ColourNoise { sigma: 3.0 },
+        ..NoiseConfig::none()
     };
     let make = |seed| {
         let config = SimConfig {
@@ -71,13 +75,13 @@ fn sensor_noise_is_seeded_and_has_the_configured_spread() {
     assert_eq!(fa, fb);
     assert_ne!(fa.depth, fc.depth);
     let clean = a.render_at(&a.true_pose());
-    // Relative depth error has std ≈ 0.01.
+    // The depth error divided by σ(z) = σ0 + c2·z² of the clean depth has unit std.
     let rel: Vec<f64> = fa
         .depth
         .iter()
         .zip(&clean.depth)
-        .map(|(n, c)| (*n as f64 - *c as f64) / *c as f64)
+        .map(|(n, c)| (*n as f64 - *c as f64) / noise.depth.sigma_at(*c as f64))
         .collect();
     let std = (rel.iter().map(|r| r * r).sum::<f64>() / rel.len() as f64).sqrt();
-    assert!((std - 0.01).abs() < 0.001, "relative depth std {std}");
+    assert!((std - 1.0).abs() < 0.05, "normalised depth std {std}");
 }

@@ -120,6 +120,10 @@ pub struct GridSettings {
     pub max_area: Option<f64>,
     /// Test views of the evaluation (SPEC §8: 2000).
     pub eval_views: usize,
+    /// Simulator noise preset set on the `sim` node (`none`, `realistic`); `None` keeps the
+    /// method's own (absent from older `cell.json` files).
+    #[serde(default)]
+    pub noise: Option<String>,
 }
 
 /// One cell of the grid: a method on a scene with a seed, under the grid's settings.
@@ -304,6 +308,7 @@ mod tests {
             max_rooms: Some(2),
             max_area: Some(30.0),
             eval_views: 10,
+            noise: None,
         }
     }
 

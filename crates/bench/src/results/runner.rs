@@ -180,6 +180,7 @@ mod tests {
             max_rooms: None,
             max_area: None,
             eval_views: 4,
+            noise: None,
         };
         cells(
             &[Method::parse("fbe=x.yaml").unwrap()],

@@ -8,6 +8,12 @@
 //! scene of it is complete with that metric, so a failed run never biases the mean (the `runs`
 //! column shows how many cells are complete). A per-scene table gives mean ± spread over seeds.
 //!
+//! An **invalid** run (its `metrics.json` carries warnings, `activemap_eval::validity`: a start
+//! that sees nothing, a robot that cannot move, an empty map, empty test views…) counts like an
+//! unfinished one: it is left out of every mean, the `runs` column counts it
+//! (`2/4 (1 invalid)`), the notes list it with its reasons, and `results.csv` has an `invalid`
+//! column.
+//!
 //! When two or more of the named policies of the paper's ablation ([`KNOWN_METHODS`]: `fbe`,
 //! `fisher_eig_only` = "w/o LLM & localisation", `fisher` = "w/o LLM") are among the methods,
 //! an ablation table lists their all-scene rows in that order, each with the paper's name.
@@ -135,12 +141,26 @@ pub struct TableRow {
     pub method: String,
     /// The scene, or `None` for the all-scene row.
     pub scene: Option<String>,
-    /// Complete cells.
+    /// Complete and valid cells (the ones the means use).
     pub complete: usize,
+    /// Complete cells whose run is invalid (left out of the means).
+    pub invalid: usize,
     /// Cells of the row.
     pub cells: usize,
     /// One entry per [`COLUMNS`] entry; `None` = no usable value.
     pub values: Vec<Option<Stat>>,
+}
+
+/// The metrics of a cell when it is complete and its run valid (what the means use).
+fn valid_metrics(r: &CellResult) -> Option<&MetricsReport> {
+    r.outcome.metrics().filter(|m| m.is_valid())
+}
+
+/// Cells of `rows` that are complete but invalid.
+fn invalid_count(rows: &[&CellResult]) -> usize {
+    rows.iter()
+        .filter(|r| r.outcome.metrics().is_some_and(|m| !m.is_valid()))
+        .count()
 }
 
 fn ordered<T: Ord + Clone>(items: impl Iterator<Item = T>) -> Vec<T> {
@@ -168,7 +188,7 @@ pub fn method_rows(results: &[CellResult]) -> Vec<TableRow> {
                             let cells: Vec<Option<f64>> = rows
                                 .iter()
                                 .filter(|r| r.cell.seed == seed)
-                                .map(|r| r.outcome.metrics().and_then(col.get))
+                                .map(|r| valid_metrics(r).and_then(col.get))
                                 .collect();
                             let all: Option<Vec<f64>> = cells.into_iter().collect();
                             all.filter(|v| !v.is_empty())
@@ -179,10 +199,8 @@ pub fn method_rows(results: &[CellResult]) -> Vec<TableRow> {
                 })
                 .collect();
             TableRow {
-                complete: rows
-                    .iter()
-                    .filter(|r| r.outcome.metrics().is_some())
-                    .count(),
+                complete: rows.iter().filter(|r| valid_metrics(r).is_some()).count(),
+                invalid: invalid_count(&rows),
                 cells: rows.len(),
                 method,
                 scene: None,
@@ -210,17 +228,15 @@ pub fn scene_rows(results: &[CellResult]) -> Vec<TableRow> {
                 .map(|col| {
                     let v: Vec<f64> = rows
                         .iter()
-                        .filter_map(|r| r.outcome.metrics().and_then(col.get))
+                        .filter_map(|r| valid_metrics(r).and_then(col.get))
                         .map(|x| x * col.scale)
                         .collect();
                     Stat::of(&v)
                 })
                 .collect();
             TableRow {
-                complete: rows
-                    .iter()
-                    .filter(|r| r.outcome.metrics().is_some())
-                    .count(),
+                complete: rows.iter().filter(|r| valid_metrics(r).is_some()).count(),
+                invalid: invalid_count(&rows),
                 cells: rows.len(),
                 method,
                 scene: Some(scene),
@@ -277,18 +293,35 @@ fn markdown_table(rows: &[TableRow], second: Option<(&str, Vec<String>)>) -> Str
                 v.map_or("—".to_string(), |v| v.markdown(c.digits))
             );
         }
-        let _ = writeln!(s, " {}/{} |", row.complete, row.cells);
+        let _ = write!(s, " {}/{}", row.complete, row.cells);
+        if row.invalid > 0 {
+            let _ = write!(s, " ({} invalid)", row.invalid);
+        }
+        s += " |\n";
     }
     s
 }
 
-/// Why values are missing and which cells did not finish, as Markdown bullet lines.
+/// Why values are missing, which cells did not finish and which runs are invalid (with their
+/// reasons), as Markdown bullet lines.
 fn notes(results: &[CellResult]) -> String {
     let mut reasons: BTreeMap<(String, String), Vec<String>> = BTreeMap::new();
     let mut unfinished = Vec::new();
     for r in results {
         match &r.outcome {
             CellOutcome::Reused(m) | CellOutcome::Ran(m) => {
+                if !m.is_valid() {
+                    let why: Vec<String> = m
+                        .warnings
+                        .iter()
+                        .map(|w| format!("`{}`: {}", w.code, w.message))
+                        .collect();
+                    unfinished.push(format!(
+                        "{}: INVALID, left out of the means: {}",
+                        r.cell.label(),
+                        why.join("; ")
+                    ));
+                }
                 for (metric, why) in &m.missing {
                     reasons
                         .entry((metric.clone(), why.clone()))
@@ -325,7 +358,8 @@ pub fn markdown(heading: &str, results: &[CellResult]) -> String {
     let mut s = format!("# Results\n\n{heading}\n\n");
     s += "## Methods over all scenes (Table 1 layout)\n\n";
     s += "Mean ± sample standard deviation over seeds of the per-seed mean over scenes; \
-          a seed counts for a metric only when all its scenes have it. Runs = complete / cells.\n\n";
+          a seed counts for a metric only when all its scenes have it. Runs = complete / cells; \
+          invalid runs (see the notes) are left out of every mean and counted apart.\n\n";
     s += &markdown_table(&method_rows(results), None);
     let ablation = ablation_rows(results);
     if !ablation.is_empty() {
@@ -351,13 +385,14 @@ pub fn markdown(heading: &str, results: &[CellResult]) -> String {
 
 /// The whole `results.csv`: one row per method over all scenes (`scene` = `all`) then per
 /// method and scene; `<metric>` is the mean, `<metric>_std` the spread, `<metric>_n` the number
-/// of seeds; empty = not available. Percentages are ×100.
+/// of seeds; empty = not available. Percentages are ×100. `complete` counts the complete valid
+/// cells, the last column `invalid` the complete cells left out as invalid.
 pub fn csv(results: &[CellResult]) -> String {
     let mut s = String::from("method,scene,complete,cells");
     for c in &COLUMNS {
         let _ = write!(s, ",{0},{0}_std,{0}_n", c.key);
     }
-    s.push('\n');
+    s.push_str(",invalid\n");
     for row in method_rows(results).iter().chain(&scene_rows(results)) {
         let _ = write!(
             s,
@@ -385,7 +420,7 @@ pub fn csv(results: &[CellResult]) -> String {
                 None => s.push_str(",,,0"),
             }
         }
-        s.push('\n');
+        let _ = writeln!(s, ",{}", row.invalid);
     }
     s
 }
@@ -421,6 +456,7 @@ mod tests {
             max_rooms: None,
             max_area: None,
             eval_views: 4,
+            noise: None,
         };
         let grid = cells(
             &[Method::parse("fbe=x.yaml").unwrap()],
@@ -511,6 +547,58 @@ mod tests {
         assert!(Stat::of(&[]).is_none());
     }
 
+    /// An invalid run (warnings in its metrics) is left out of the means like a failed one,
+    /// counted in the runs column and the CSV, and listed with its reasons in the notes; its
+    /// PSNR +∞ never reaches the table.
+    #[test]
+    fn invalid_runs_are_marked_and_left_out_of_the_means() {
+        use activemap_eval::RunWarning;
+        let mut r = results();
+        // House 2, seed 2: the user's run (a robot boxed in, an empty map, PSNR ∞).
+        if let CellOutcome::Ran(m) = &mut r[3].outcome {
+            m.psnr_db = Some(f64::INFINITY);
+            m.warnings = vec![
+                RunWarning::new("robot_cannot_move", "206 of 206 forward moves blocked"),
+                RunWarning::new("empty_map", "the final map holds 0 observed Gaussians"),
+            ];
+        }
+        let rows = method_rows(&r);
+        assert_eq!(
+            (rows[0].complete, rows[0].invalid, rows[0].cells),
+            (3, 1, 4)
+        );
+        // Only seed 1 is whole and valid: (20 + 24) / 2, finite.
+        assert_eq!(rows[0].values[0].unwrap().mean, 22.0);
+        let scenes = scene_rows(&r);
+        assert_eq!((scenes[1].complete, scenes[1].invalid), (1, 1));
+        assert_eq!(scenes[1].values[0].unwrap().mean, 24.0);
+        assert_eq!((scenes[0].complete, scenes[0].invalid), (2, 0));
+        let md = markdown("", &r);
+        assert!(md.contains("| 3/4 (1 invalid) |"), "{md}");
+        assert!(md.contains("| house:2 | 24.00 |"), "{md}");
+        assert!(!md.contains('∞'), "{md}");
+        assert!(
+            md.contains(
+                "- fbe house:2 seed 2: INVALID, left out of the means: `robot_cannot_move`: 206 of 206 forward moves blocked; `empty_map`: the final map holds 0 observed Gaussians"
+            ),
+            "{md}"
+        );
+        let csv = csv(&r);
+        let lines: Vec<&str> = csv.lines().collect();
+        assert!(lines[0].ends_with(",coverage_2d_pct_n,invalid"), "{csv}");
+        let all: Vec<&str> = lines[1].split(',').collect();
+        assert_eq!((all[2], all[3], *all.last().unwrap()), ("3", "4", "1"));
+        assert_eq!(all[4], "22");
+        let house1: Vec<&str> = lines[2].split(',').collect();
+        assert_eq!(*house1.last().unwrap(), "0");
+        // Every row has as many fields as the header.
+        let fields = lines[0].split(',').count();
+        assert!(
+            lines.iter().all(|l| l.split(',').count() == fields),
+            "{csv}"
+        );
+    }
+
     /// Methods × one house × two seeds; PSNR `base + seed` for each method.
     fn ablation_results(methods: &[(&str, f64)]) -> Vec<CellResult> {
         let settings = GridSettings {
@@ -519,6 +607,7 @@ mod tests {
             max_rooms: None,
             max_area: None,
             eval_views: 4,
+            noise: None,
         };
         let parsed: Vec<Method> = methods
             .iter()

@@ -1,6 +1,9 @@
 //! `report.html` of a run folder: one self-contained page (inline CSS, PNGs as base64 data URIs,
 //! plots as inline SVG, no script) that opens offline and reads at a glance:
 //!
+//! - for an invalid run (issue 16: warnings in `summary.json` or `metrics.json`,
+//!   [`crate::validity`]), an `INVALID RUN` banner (`id="invalid"`) with every reason, and the
+//!   metrics table's figures struck through;
 //! - the summary and the metrics table (`summary.json`, `metrics.json` of `activemap eval`);
 //! - the bird's-eye map (`bev.png`: grid, true path blue, estimated green, frontiers red) and a
 //!   top-down plot of both trajectories after the ATE alignment;
@@ -21,6 +24,7 @@ mod svg;
 use crate::run_folder::{
     CoverageRow, FisherRow, RunError, RunFolder, StageTime, Summary, ViewImage,
 };
+use crate::validity::RunWarning;
 use crate::{AteOptions, MetricsReport, ate};
 use activemap_geometry::tum::Trajectory;
 use base64::Engine as _;
@@ -52,7 +56,9 @@ th{background:#f2f2f2}td.k{text-align:left;font-family:monospace}.missing{color:
 .row{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}figure{margin:0}figcaption{font-size:.85em;color:#555}\
 img.px{image-rendering:pixelated}svg.plot text{font-size:11px;fill:#333}svg.plot .title{font-size:13px;font-weight:600}\
 svg.plot .grid{stroke:#e4e4e4}svg.plot .frame{fill:none;stroke:#888}details{margin:6px 0}\
-pre{white-space:pre-wrap;background:#f7f7f7;padding:8px;font-size:.85em}";
+pre{white-space:pre-wrap;background:#f7f7f7;padding:8px;font-size:.85em}\
+div.invalid{border:3px solid #c00;background:#fff0f0;padding:4px 14px;margin:12px 0}div.invalid h2{color:#c00;border:none;margin-top:8px}\
+td.invalid{color:#a00;background:#fff0f0}";
 
 /// Writes `report.html` into the run folder `dir`; returns its path. Needs `summary.json` and
 /// the two trajectories; every other input is optional and shown as missing when absent.
@@ -80,7 +86,9 @@ pub fn render_report(dir: &Path) -> Result<String, RunError> {
          <h1>activemap run <code>{n}</code></h1>",
         n = escape(&name)
     );
-    page += &summary_section(&summary, metrics.as_ref());
+    let warnings = report_warnings(&summary, metrics.as_ref());
+    page += &invalid_section(&warnings);
+    page += &summary_section(&summary, metrics.as_ref(), warnings.is_empty());
     page += &map_section(&run, &truth, &estimate)?;
     page += &progress_section(coverage.as_deref(), &truth, &estimate);
     page += &fisher_section(run.read_fisher()?.as_deref());
@@ -91,7 +99,37 @@ pub fn render_report(dir: &Path) -> Result<String, RunError> {
     Ok(page)
 }
 
-fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>) -> String {
+/// Why the run is invalid: the warnings of `summary.json`, then those `metrics.json` adds (one
+/// per code); empty for a valid run.
+pub fn report_warnings(summary: &Summary, metrics: Option<&MetricsReport>) -> Vec<RunWarning> {
+    let mut warnings = summary.warnings.clone();
+    if let Some(m) = metrics {
+        crate::validity::merge(&mut warnings, m.warnings.iter().cloned());
+    }
+    warnings
+}
+
+/// The `INVALID RUN` banner listing `warnings` (code and message); empty when there is none.
+fn invalid_section(warnings: &[RunWarning]) -> String {
+    if warnings.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "<div class=\"invalid\" id=\"invalid\"><h2>INVALID RUN</h2><p>This run's figures are not valid results:</p><ul>",
+    );
+    for w in warnings {
+        let _ = write!(
+            s,
+            "<li><code>{}</code>: {}</li>",
+            escape(&w.code),
+            escape(&w.message)
+        );
+    }
+    s + "</ul></div>"
+}
+
+/// The summary table and the metrics table; with `valid` false the metrics are struck through.
+fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>, valid: bool) -> String {
     let mut s = String::from("<h2>Summary</h2><table id=\"summary\">");
     for (k, v) in summary.rows() {
         let _ = write!(
@@ -107,15 +145,23 @@ fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>) -> String
             s += "<p class=\"missing\" id=\"metrics\">Not computed yet: run <code>activemap eval RUN_DIR</code>.</p>"
         }
         Some(m) => {
-            let cell = |v: Option<f64>, digits: usize, scale: f64| match v {
-                None => "—".to_string(),
-                Some(x) if x == f64::INFINITY => "∞".into(),
-                Some(x) => format!("{:.*}", digits, x * scale),
+            let cell = |v: Option<f64>, digits: usize, scale: f64| {
+                let text = match v {
+                    None => return "<td>—</td>".to_string(),
+                    Some(x) if x == f64::INFINITY => "∞".to_string(),
+                    Some(x) => format!("{:.*}", digits, x * scale),
+                };
+                if valid {
+                    format!("<td>{text}</td>")
+                } else {
+                    format!("<td class=\"invalid\" title=\"invalid run\"><s>{text}</s></td>")
+                }
             };
             let _ = write!(
                 s,
-                "<table id=\"metrics\"><tr><th>PSNR ↑</th><th>SSIM ↑</th><th>LPIPS ↓</th><th>Depth MAE ↓ (m)</th><th>ATE ↓ (m)</th><th>Completeness ↑ (%)</th><th>2D coverage (%)</th><th>test views</th></tr>\
-                 <tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr></table>",
+                "<table id=\"metrics\"{}><tr><th>PSNR ↑</th><th>SSIM ↑</th><th>LPIPS ↓</th><th>Depth MAE ↓ (m)</th><th>ATE ↓ (m)</th><th>Completeness ↑ (%)</th><th>2D coverage (%)</th><th>test views</th></tr>\
+                 <tr>{}{}{}{}{}{}{}<td>{}</td></tr></table>",
+                if valid { "" } else { " class=\"invalid\"" },
                 cell(m.psnr_db, 2, 1.0),
                 cell(m.ssim, 4, 1.0),
                 cell(m.lpips, 4, 1.0),
@@ -125,6 +171,16 @@ fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>) -> String
                 cell(m.coverage_2d, 2, 100.0),
                 m.test_views
             );
+            if !valid {
+                s += "<p class=\"missing\">Struck through: the run is INVALID (see above).</p>";
+            }
+            if m.empty_truth_views > 0 {
+                let _ = write!(
+                    s,
+                    "<p class=\"missing\">{} of {} test views had an empty ground truth and are left out of the image metrics.</p>",
+                    m.empty_truth_views, m.test_views
+                );
+            }
             for (k, why) in &m.missing {
                 let _ = write!(s, "<p class=\"missing\">{}: {}</p>", escape(k), escape(why));
             }
@@ -727,6 +783,75 @@ mod tests {
         std::fs::remove_file(dir.path().join(RunFolder::TRAJECTORY_EST)).unwrap();
         let e = render_report(dir.path()).unwrap_err().to_string();
         assert!(e.contains("trajectory_est.tum: missing"), "{e}");
+    }
+
+    /// An invalid run's page opens with the INVALID banner listing every reason (the summary's
+    /// and the evaluation's, once each) and strikes its figures instead of printing them as
+    /// results; a valid run has neither.
+    #[test]
+    fn an_invalid_run_is_marked_and_its_figures_struck() {
+        use crate::validity::code;
+        let dir = tempfile::tempdir().unwrap();
+        write_run(dir.path(), MapKind::Empty);
+        let run = RunFolder::new(dir.path());
+        let mut summary = run.read_summary().unwrap();
+        summary.warnings = vec![RunWarning::new(
+            code::START_SEES_NOTHING,
+            "the first frame (0) has 0.00 % valid depth <pixels>",
+        )];
+        run.write_summary(&summary).unwrap();
+        // Before `activemap eval`: the summary's warning alone.
+        let html = render_report(dir.path()).unwrap();
+        assert!(html.contains("id=\"invalid\"") && html.contains("INVALID RUN"));
+        assert!(
+            html.contains("<code>start_sees_nothing</code>: the first frame (0) has 0.00 % valid depth &lt;pixels&gt;"),
+            "{html}"
+        );
+        let options = EvalOptions {
+            test_views: 3,
+            width: 48,
+            height: 48,
+            lpips: LpipsSource::Off,
+            completeness_samples: 2_000,
+            saved_views: 0,
+            ..EvalOptions::default()
+        };
+        let metrics = evaluate_run(dir.path(), &options).unwrap();
+        assert!(!metrics.is_valid());
+        let html = render_report(dir.path()).unwrap();
+        let banner = &html[html.find("id=\"invalid\"").unwrap()..];
+        let banner = &banner[..banner.find("</div>").unwrap()];
+        assert!(
+            banner.contains("<code>start_sees_nothing</code>"),
+            "{banner}"
+        );
+        assert!(banner.contains("<code>empty_map</code>"), "{banner}");
+        assert_eq!(html.matches("<code>start_sees_nothing</code>").count(), 1);
+        // Coverage 42 %, completeness 0 %: struck, never a plain cell.
+        assert!(
+            html.contains("<table id=\"metrics\" class=\"invalid\">"),
+            "{html}"
+        );
+        assert!(
+            html.contains("<s>42.00</s>") && html.contains("<s>0.00</s>"),
+            "{html}"
+        );
+        assert!(!html.contains("<td>42.00</td>") && !html.contains("<td>0.00</td>"));
+        assert!(
+            html.contains("<tr><td class=\"k\">valid</td><td>NO: start_sees_nothing</td></tr>")
+        );
+        // The same folder once valid.
+        let summary = Summary {
+            warnings: Vec::new(),
+            ..summary
+        };
+        run.write_summary(&summary).unwrap();
+        let mut m = metrics;
+        m.warnings.clear();
+        run.write_metrics(&m, "").unwrap();
+        let html = render_report(dir.path()).unwrap();
+        assert!(!html.contains("id=\"invalid\"") && !html.contains("<s>"));
+        assert!(html.contains("<td>42.00</td>"));
     }
 
     #[test]
