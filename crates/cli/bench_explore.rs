@@ -292,33 +292,30 @@ fn run_house(
     })
 }
 
-/// The run folder name of a scene: `house-3` for `house:3`, the file stem for a scene file.
-fn scene_folder(scene: &str) -> String {
-    if scene.starts_with("house:") {
-        return scene.replace(':', "-");
-    }
-    Path::new(scene)
-        .file_stem()
-        .and_then(|s| s.to_str())
-        .unwrap_or("scene")
-        .to_string()
-}
-
 /// The houses run when neither `--houses` nor `--scenes` is given.
 const DEFAULT_HOUSES: [u64; 3] = [1, 2, 3];
+
+/// The `house:<n>` scenes of `--houses`, or of [`DEFAULT_HOUSES`] when neither `--houses` nor
+/// `--scenes` names a scene (`bench explore` and `bench results` alike).
+pub fn house_scenes(houses: &[u64], files: &[String]) -> Vec<String> {
+    let houses = if houses.is_empty() && files.is_empty() {
+        &DEFAULT_HOUSES[..]
+    } else {
+        houses
+    };
+    houses.iter().map(|h| format!("house:{h}")).collect()
+}
 
 /// Runs the benchmark and prints its lines.
 pub fn run(args: &ExploreArgs) -> anyhow::Result<()> {
     let exe = std::env::current_exe().context("locating the activemap executable")?;
-    let houses: &[u64] = match (args.houses.is_empty(), args.scenes.is_empty()) {
-        (true, true) => &DEFAULT_HOUSES,
-        _ => &args.houses,
-    };
-    let mut scenes: Vec<String> = houses.iter().map(|h| format!("house:{h}")).collect();
+    let mut scenes = house_scenes(&args.houses, &args.scenes);
     scenes.extend(args.scenes.iter().cloned());
     let mut results = Vec::new();
     for scene in &scenes {
-        let dir = args.out.join(scene_folder(scene));
+        let dir = args
+            .out
+            .join(activemap_bench::results::grid::scene_folder(scene));
         let result = run_house(&exe, args, scene, &dir)?;
         for line in result.lines() {
             println!("{line}");

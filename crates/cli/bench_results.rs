@@ -74,9 +74,6 @@ pub struct ResultsArgs {
     record: bool,
 }
 
-/// The houses run when neither `--houses` nor `--scenes` is given.
-const DEFAULT_HOUSES: [u64; 3] = [1, 2, 3];
-
 /// Runs the grid, writes the tables and prints the Markdown.
 pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
@@ -102,11 +99,7 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
             Ok(m)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let houses: &[u64] = match (args.houses.is_empty(), args.scenes.is_empty()) {
-        (true, true) => &DEFAULT_HOUSES,
-        _ => &args.houses,
-    };
-    let mut scenes: Vec<String> = houses.iter().map(|h| format!("house:{h}")).collect();
+    let mut scenes = crate::bench_explore::house_scenes(&args.houses, &args.scenes);
     for file in &args.scenes {
         let path = std::path::absolute(file).with_context(|| format!("--scenes {file}"))?;
         anyhow::ensure!(path.is_file(), "--scenes {file}: no such file");
