@@ -147,7 +147,7 @@ impl Mapper {
     }
 
     /// The snapshots finished so far (see [`BackgroundMapper::process_ready`]); logs each
-    /// keyframe.
+    /// keyframe, and the Gaussians it dropped for non-finite parameters.
     pub fn process_ready(&mut self, drain: bool) -> anyhow::Result<Vec<Snapshot>> {
         let snapshots = self.session.process_ready(drain)?;
         for s in &snapshots {
@@ -164,6 +164,12 @@ impl Mapper {
                     r.densified,
                     r.pruned
                 );
+                if r.dropped_non_finite > 0 {
+                    eprintln!(
+                        "mapper: dropped {} Gaussians with non-finite parameters at frame {}",
+                        r.dropped_non_finite, s.frame_id
+                    );
+                }
             }
         }
         Ok(snapshots)

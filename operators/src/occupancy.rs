@@ -155,7 +155,13 @@ impl Occupancy {
             let (means, opacities) = &self.maps[&needed];
             let fingerprint = (means.len(), points_fingerprint(means, opacities));
             if self.loaded != Some(fingerprint) {
-                self.mapper.set_map_points(means, opacities)?;
+                let ignored = self.mapper.set_map_points(means, opacities)?;
+                if ignored > 0 {
+                    eprintln!(
+                        "occupancy: ignored {ignored} map points with a non-finite mean or \
+                         opacity in the map of frame {needed}"
+                    );
+                }
                 self.loaded = Some(fingerprint);
             }
             if status == TrackingStatus::Lost {

@@ -127,9 +127,17 @@ impl Tracker {
         })
     }
 
-    /// Stores a map snapshot (of frame `frame_id`).
-    pub fn set_map(&mut self, frame_id: u64, map: Gaussians<f32>) {
-        self.session.add_map(frame_id, Arc::new(map));
+    /// Stores a map snapshot (of frame `frame_id`) without its Gaussians that have a NaN or
+    /// infinite parameter; logs and returns how many were dropped.
+    pub fn set_map(&mut self, frame_id: u64, map: Gaussians<f32>) -> usize {
+        let dropped = self.session.add_map(frame_id, Arc::new(map));
+        if dropped > 0 {
+            eprintln!(
+                "tracker: dropped {dropped} Gaussians with non-finite parameters from the map \
+                 of frame {frame_id}"
+            );
+        }
+        dropped
     }
 
     /// Stores an RGB-D frame to track.
@@ -254,5 +262,40 @@ mod tests {
         );
         let r = action_motion(ActionKind::TurnRight, &RobotModel::default());
         assert!((r * l).rotation.angle() < 1e-12);
+    }
+    /// Bad numbers (issue 18): a map message whose Gaussians carry NaN / inf parameters
+    /// reaches the tracking session without them; `set_map` counts them (and logs).
+    #[test]
+    fn a_map_message_with_non_finite_parameters_loses_those_gaussians() {
+        use crate::convert::{map_header, write_map};
+        let mut g = Gaussians::<f32>::new();
+        for i in 0..5 {
+            let y = 0.1 * i as f64;
+            g.push(
+                [1.0, y, 0.5],
+                [0.5; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                0.9,
+                [0.05; 3],
+            );
+        }
+        g.means[1][0] = f32::NAN;
+        g.opacity_logits[2] = f32::INFINITY;
+        g.sh_dc[3][1] = f32::NEG_INFINITY;
+        let header = map_header(&g, 0, 0.0, None);
+        let mut storage = vec![0u64; header.payload_len().unwrap() / 8];
+        let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut storage);
+        write_map(buf, header, &g, &[0, 1, 2, 3, 4]).unwrap();
+        let (h, map) = read_map(buf).unwrap();
+        let mut tracker = Tracker::from_config(Config {
+            robot: RobotModel::default(),
+            motion_prior: Prior::Action,
+            downscale: None,
+            max_iterations: None,
+            rereference_below: default_rereference(),
+            map_lag: 0,
+        })
+        .unwrap();
+        assert_eq!(tracker.set_map(h.frame_id, map), 3);
     }
 }

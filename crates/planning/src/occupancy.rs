@@ -249,12 +249,14 @@ impl OccupancyMapper {
     }
 
     /// Replaces the map-point layer with the given Gaussian means and opacities (post-sigmoid,
-    /// in [0, 1]), e.g. the whole current 3DGS map. Fails when the slices differ in length.
+    /// in [0, 1]), e.g. the whole current 3DGS map. Points with a NaN or infinite mean or
+    /// opacity are ignored; returns how many (for the caller to report). Fails when the slices
+    /// differ in length.
     pub fn set_map_points(
         &mut self,
         means: &[[f32; 3]],
         opacities: &[f32],
-    ) -> Result<(), PlanningError> {
+    ) -> Result<usize, PlanningError> {
         if means.len() != opacities.len() {
             return Err(PlanningError::SizeMismatch {
                 what: "map point opacities",
@@ -267,7 +269,8 @@ impl OccupancyMapper {
         let floor_lo = cfg.floor_z - cfg.floor_tolerance;
         let keep = move |m: &[f32; 3], o: f32| {
             let z = m[2] as f64;
-            o >= cfg.min_opacity
+            o.is_finite()
+                && o >= cfg.min_opacity
                 && m.iter().all(|v| v.is_finite())
                 && (m[0] as f64).abs() <= cfg.world_limit
                 && (m[1] as f64).abs() <= cfg.world_limit
@@ -303,7 +306,12 @@ impl OccupancyMapper {
                 self.floor_points.data[i] += 1;
             }
         }
-        Ok(())
+        let non_finite = means
+            .iter()
+            .zip(opacities)
+            .filter(|(m, o)| !(o.is_finite() && m.iter().all(|v| v.is_finite())))
+            .count();
+        Ok(non_finite)
     }
 
     /// Reduces the ray to pixel `(u, v)` at z-depth `d` to the motion plane.
@@ -896,6 +904,88 @@ mod tests {
                 Point2::new(1.0, 1.0)
             )
             .is_err()
+        );
+    }
+    /// Bad numbers (issue 18): NaN / ±inf depth pixels cast no ray (a frame of them leaves the
+    /// grid as it was; a fraction of them gives exactly the grid of the same pixels without a
+    /// reading), a NaN pose or disc is refused with the grid untouched, and map points with a
+    /// NaN / inf mean or opacity occupy nothing and are counted.
+    #[test]
+    fn non_finite_depth_points_and_poses_never_mark_a_cell() {
+        use rand::{Rng, SeedableRng};
+        let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
+        let cam = camera_pose_from_planar(&PlanarPose::new(0.0, 0.0, 0.0), 0.0, 0.88);
+        let clean = wall_depth(&k, &cam, 2.025);
+        let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+        for b in bad {
+            let mut m = mapper();
+            let before = m.raw_grid();
+            let stats = m.integrate_depth(&vec![b; clean.len()], &k, &cam).unwrap();
+            assert_eq!(stats, DepthUpdateStats::default(), "depth {b}");
+            assert_eq!(m.raw_grid(), before, "depth {b}");
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(18);
+        let (mut holes, mut zeros) = (clean.clone(), clean.clone());
+        for i in 0..clean.len() {
+            if rng.random_bool(0.3) {
+                holes[i] = bad[rng.random_range(0..3)];
+                zeros[i] = 0.0;
+            }
+        }
+        let (mut a, mut b) = (mapper(), mapper());
+        let stats = a.integrate_depth(&holes, &k, &cam).unwrap();
+        assert_eq!(stats, b.integrate_depth(&zeros, &k, &cam).unwrap());
+        assert!(stats.hits > 0 && stats.rays < clean.len());
+        assert_eq!(a.raw_grid(), b.raw_grid());
+        // A NaN pose (translation or rotation) or disc: refused, nothing changes.
+        let before = a.raw_grid();
+        let mut nan_t = cam;
+        nan_t.translation.vector.y = f64::NAN;
+        let mut nan_q = cam;
+        nan_q.rotation = nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
+            f64::NAN,
+            0.0,
+            0.0,
+            0.0,
+        ));
+        for pose in [nan_t, nan_q] {
+            let e = a.integrate_depth(&clean, &k, &pose).unwrap_err();
+            assert_eq!(
+                e,
+                PlanningError::NonFinite {
+                    what: "camera pose"
+                }
+            );
+        }
+        assert!(a.mark_free_disc(Point2::new(f64::NAN, 0.0), 0.2).is_err());
+        assert!(
+            a.mark_occupied_disc(Point2::new(0.0, 0.0), f64::INFINITY)
+                .is_err()
+        );
+        assert_eq!(a.raw_grid(), before);
+        // Map points: 30 good ones occupy their cell; 30 per kind of bad value elsewhere
+        // occupy nothing and do not grow the grid.
+        let mut m = mapper();
+        let geometry = *m.geometry();
+        let mut means = vec![[0.525f32, 0.525, 0.5]; 30];
+        let mut opacities = vec![0.9f32; 30];
+        for (mean, o) in [
+            ([f32::NAN, 1.025, 0.5], 0.9),
+            ([1.025, f32::INFINITY, 0.5], 0.9),
+            ([1.025, 1.025, f32::NAN], 0.9),
+            ([1.025, 1.025, 0.5], f32::NAN),
+            ([1.525, 1.025, 0.5], f32::INFINITY),
+        ] {
+            means.extend(std::iter::repeat_n(mean, 30));
+            opacities.extend(std::iter::repeat_n(o, 30));
+        }
+        assert_eq!(m.set_map_points(&means, &opacities).unwrap(), 150);
+        assert_eq!(*m.geometry(), geometry);
+        let raw = m.raw_grid();
+        assert_eq!(raw.count(CellState::Occupied), 1);
+        assert_eq!(
+            raw.get(geometry.cell_of(Point2::new(0.525, 0.525))),
+            Some(&CellState::Occupied)
         );
     }
 }

@@ -25,7 +25,8 @@ pub struct PlannedPath {
 
 /// The shortest collision-free path from `robot` to cell `goal` on `grid` (clearance
 /// `clearance`, search `astar`), shortcut, as waypoints; the last waypoint's yaw faces
-/// `look_at`. `None` when A* finds none. Fails when the robot is off the grid.
+/// `look_at`. `None` when A* finds none. Fails when the robot is off the grid or the robot or
+/// `look_at` is not finite (a NaN look-at point would give the last waypoint a NaN yaw).
 pub fn shortest_path(
     grid: &OccupancyGrid,
     robot: Point2<f64>,
@@ -34,6 +35,11 @@ pub fn shortest_path(
     clearance: &ClearanceConfig,
     astar: &AstarConfig,
 ) -> Result<Option<PlannedPath>, PlanningError> {
+    if !(look_at.x.is_finite() && look_at.y.is_finite()) {
+        return Err(PlanningError::NonFinite {
+            what: "look-at point of the path",
+        });
+    }
     let map = ClearanceMap::new(grid, clearance)?;
     let start = grid.geometry.require_cell(robot, "robot position")?;
     let Some(path) = plan(&map, start, goal, astar)? else {
@@ -95,5 +101,49 @@ mod tests {
             previous = Point2::new(w.x, w.y);
         }
         assert!(p.cost.is_finite() && p.cost > 0.0);
+    }
+    /// Bad numbers (issue 18): a NaN / inf robot position, goal or look-at point is refused
+    /// by the frontier extraction, A* and the path maker, never turned into a NaN waypoint;
+    /// the paths they do make are finite.
+    #[test]
+    fn non_finite_points_are_refused_and_waypoints_are_finite() {
+        use crate::astar::plan_world;
+        use crate::frontier::{FrontierConfig, reachable_regions};
+        let geometry = crate::GridGeometry::new(0.0, 0.0, 0.05, 60, 60).unwrap();
+        let mut grid = OccupancyGrid::filled(geometry, CellState::Free);
+        for y in 0..60 {
+            for x in 45..60 {
+                grid.data[y * 60 + x] = CellState::Unknown;
+            }
+        }
+        let (clearance, astar) = (ClearanceConfig::default(), AstarConfig::default());
+        let map = ClearanceMap::new(&grid, &clearance).unwrap();
+        let good = Point2::new(0.5, 0.5);
+        let regions = reachable_regions(&grid, good, &clearance, &FrontierConfig::default());
+        let regions = regions.unwrap();
+        assert!(!regions.is_empty());
+        let goal = regions[0].approach.unwrap().cell;
+        let look_at = regions[0].centroid;
+        assert!(look_at.x.is_finite() && look_at.y.is_finite());
+        for bad in [Point2::new(f64::NAN, 0.5), Point2::new(0.5, f64::INFINITY)] {
+            let non_finite = |e: PlanningError| matches!(e, PlanningError::NonFinite { .. });
+            let frontier = reachable_regions(&grid, bad, &clearance, &FrontierConfig::default());
+            assert!(non_finite(frontier.unwrap_err()));
+            assert!(non_finite(plan_world(&map, bad, good, &astar).unwrap_err()));
+            assert!(non_finite(plan_world(&map, good, bad, &astar).unwrap_err()));
+            let robot = shortest_path(&grid, bad, goal, look_at, &clearance, &astar);
+            assert!(non_finite(robot.unwrap_err()));
+            let look = shortest_path(&grid, good, goal, bad, &clearance, &astar);
+            assert!(non_finite(look.unwrap_err()));
+        }
+        let path = shortest_path(&grid, good, goal, look_at, &clearance, &astar)
+            .unwrap()
+            .unwrap();
+        assert!(!path.waypoints.is_empty());
+        assert!(
+            path.waypoints
+                .iter()
+                .all(|w| w.x.is_finite() && w.y.is_finite() && w.yaw.is_finite())
+        );
     }
 }

@@ -582,7 +582,7 @@ pub fn align_many(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use activemap_geometry::se3::pose_error;
     use nalgebra::{Translation3, UnitQuaternion};
@@ -590,7 +590,7 @@ mod tests {
     /// A frame of a textured box room seen from `pose` (`T_world_camera`), ray-cast exactly:
     /// walls at x = ±2, y = ±2, z = 0 and z = 3 (world), a grey level that varies smoothly
     /// and differently on each face, so both ICP and colour constrain all six directions.
-    fn box_frame(k: Intrinsics, pose: &Isometry3<f64>) -> Frame {
+    pub(crate) fn box_frame(k: Intrinsics, pose: &Isometry3<f64>) -> Frame {
         let (w, h) = (k.width as usize, k.height as usize);
         let mut rgb = vec![[0f32; 3]; w * h];
         let mut depth = vec![0f32; w * h];
@@ -625,7 +625,7 @@ mod tests {
         Frame::new(k, rgb, depth, 0.0).unwrap()
     }
 
-    fn camera_at(x: f64, y: f64, yaw: f64) -> Isometry3<f64> {
+    pub(crate) fn camera_at(x: f64, y: f64, yaw: f64) -> Isometry3<f64> {
         // Optical frame: z forward (world heading yaw), y down (world −z).
         let base = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
         let optical = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix(

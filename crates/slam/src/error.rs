@@ -3,7 +3,7 @@
 use activemap_splat::SplatError;
 
 /// Why a SLAM call failed (bad input or a renderer error). Frames that are merely unusable
-/// (black, no depth, NaNs) are not errors: they give a `Skipped` status.
+/// (black, saturated, no depth, NaN colour) are not errors: they give a `Skipped` status.
 #[derive(Debug, thiserror::Error)]
 pub enum SlamError {
     /// An image buffer does not match the intrinsics' size.

@@ -2,9 +2,11 @@
 //! reading, SPEC §2), its pinhole [`Intrinsics`] (OpenCV optical frame) and a time stamp.
 //!
 //! [`Frame::new`] checks sizes and sanitises values: non-finite or negative depth becomes 0
-//! (no reading), non-finite colour becomes 0 and is counted. [`Frame::usability`] then decides
-//! whether the frame can be tracked at all (enough depth, not black, not mostly NaN); unusable
-//! frames give a `Skipped` tracking status instead of an error or a NaN pose.
+//! (no reading; depth drivers commonly mark missing returns NaN or ±inf), non-finite colour
+//! becomes 0, both are counted, and colour is clamped to [0, 1]. [`Frame::usability`] then
+//! decides whether the frame can be tracked at all (enough depth, neither black nor saturated,
+//! colour not mostly NaN); unusable frames give a `Skipped` tracking status instead of an
+//! error or a NaN pose.
 
 use crate::error::SlamError;
 use activemap_geometry::Intrinsics;
@@ -13,7 +15,10 @@ use activemap_geometry::Intrinsics;
 pub const MIN_VALID_DEPTH_FRACTION: f64 = 0.05;
 /// A frame whose mean `R + G + B` is below this is "black" and skipped.
 pub const BLACK_MEAN_RGB_SUM: f64 = 0.01;
-/// Largest fraction of non-finite samples (colour or depth) before a frame is skipped.
+/// A frame whose mean `R + G + B` is above this is "saturated" (blown-out white) and skipped.
+pub const SATURATED_MEAN_RGB_SUM: f64 = 3.0 - BLACK_MEAN_RGB_SUM;
+/// Largest fraction of non-finite colour samples before a frame is skipped. Non-finite depth
+/// only means "no reading": depth is judged by [`MIN_VALID_DEPTH_FRACTION`].
 pub const MAX_NON_FINITE_FRACTION: f64 = 0.05;
 
 /// One RGB-D frame, row-major, `width × height` pixels.
@@ -29,6 +34,8 @@ pub struct Frame {
     pub stamp: f64,
     /// Number of non-finite samples (colour channels and depth) replaced on construction.
     pub non_finite_samples: usize,
+    /// How many of `non_finite_samples` were depth readings (now 0, no reading).
+    pub non_finite_depth: usize,
 }
 
 /// Why a frame cannot be tracked.
@@ -38,7 +45,9 @@ pub enum SkipReason {
     NoDepth,
     /// The colour image is (nearly) black.
     Black,
-    /// Too many samples were NaN or infinite.
+    /// The colour image is (nearly) all white: blown out, it carries no texture.
+    Saturated,
+    /// Too many colour samples were NaN or infinite.
     NonFinite,
 }
 
@@ -47,7 +56,8 @@ impl std::fmt::Display for SkipReason {
         let text = match self {
             SkipReason::NoDepth => "too few valid depth pixels",
             SkipReason::Black => "black colour image",
-            SkipReason::NonFinite => "too many NaN/inf samples",
+            SkipReason::Saturated => "saturated (all-white) colour image",
+            SkipReason::NonFinite => "too many NaN/inf colour samples",
         };
         f.write_str(text)
     }
@@ -93,16 +103,19 @@ impl Frame {
         if depth.len() != expected {
             return Err(size_error("depth", depth.len()));
         }
-        let mut non_finite = 0;
+        let mut non_finite_rgb = 0;
         for c in rgb.iter_mut().flat_map(|p| p.iter_mut()) {
-            if !c.is_finite() {
+            if c.is_finite() {
+                *c = c.clamp(0.0, 1.0);
+            } else {
                 *c = 0.0;
-                non_finite += 1;
+                non_finite_rgb += 1;
             }
         }
+        let mut non_finite_depth = 0;
         for d in depth.iter_mut() {
             if !d.is_finite() {
-                non_finite += 1;
+                non_finite_depth += 1;
                 *d = 0.0;
             } else if *d < 0.0 {
                 *d = 0.0;
@@ -113,7 +126,8 @@ impl Frame {
             rgb,
             depth,
             stamp: if stamp.is_finite() { stamp } else { 0.0 },
-            non_finite_samples: non_finite,
+            non_finite_samples: non_finite_rgb + non_finite_depth,
+            non_finite_depth,
         })
     }
 
@@ -154,7 +168,10 @@ impl Frame {
     /// Whether the frame can be tracked; `Err(reason)` means it must be skipped.
     pub fn usability(&self) -> Result<(), SkipReason> {
         let n = self.depth.len().max(1) as f64;
-        if self.non_finite_samples as f64 > MAX_NON_FINITE_FRACTION * 4.0 * n {
+        let non_finite_rgb = self
+            .non_finite_samples
+            .saturating_sub(self.non_finite_depth);
+        if non_finite_rgb as f64 > MAX_NON_FINITE_FRACTION * 3.0 * n {
             return Err(SkipReason::NonFinite);
         }
         let valid = self.depth.iter().filter(|&&d| d > 0.0).count() as f64;
@@ -169,6 +186,9 @@ impl Frame {
             / n;
         if mean_sum < BLACK_MEAN_RGB_SUM {
             return Err(SkipReason::Black);
+        }
+        if mean_sum > SATURATED_MEAN_RGB_SUM {
+            return Err(SkipReason::Saturated);
         }
         Ok(())
     }
@@ -225,6 +245,7 @@ impl Frame {
             depth,
             stamp: self.stamp,
             non_finite_samples: self.non_finite_samples,
+            non_finite_depth: self.non_finite_depth,
         }
     }
 
@@ -277,6 +298,38 @@ mod tests {
             nan.depth.iter().all(|d| *d == 0.0)
                 && nan.rgb.iter().all(|c| c.iter().all(|v| *v == 0.0))
         );
+    }
+
+    /// Bad numbers: all-NaN or all-±inf depth is "no depth", all-white colour is saturated;
+    /// a minority of NaN/inf depth pixels is only missing readings (the frame stays usable),
+    /// and out-of-range colour is clamped to [0, 1].
+    #[test]
+    fn non_finite_depth_is_no_reading_and_white_frames_are_saturated() {
+        let rgb = || vec![[0.4f32; 3]; 64];
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let f = Frame::new(k(8, 8), rgb(), vec![bad; 64], 0.0).unwrap();
+            assert_eq!(f.usability(), Err(SkipReason::NoDepth), "depth {bad}");
+            assert_eq!((f.non_finite_samples, f.non_finite_depth), (64, 64));
+            assert!(f.depth.iter().all(|d| *d == 0.0) && f.median_depth().is_none());
+        }
+        let white = Frame::from_rgb8(k(8, 8), &[255; 192], vec![2.0; 64], 0.0).unwrap();
+        assert_eq!(white.usability(), Err(SkipReason::Saturated));
+        // 40 % of the depth pixels NaN or inf: usable, those pixels carry no reading.
+        let depth: Vec<f32> = (0..64)
+            .map(|i| match i % 5 {
+                0 => f32::NAN,
+                1 => f32::INFINITY,
+                _ => 2.0,
+            })
+            .collect();
+        let holes = Frame::new(k(8, 8), rgb(), depth, 0.0).unwrap();
+        assert_eq!(holes.usability(), Ok(()));
+        assert_eq!(holes.depth.iter().filter(|d| **d == 0.0).count(), 26);
+        assert_eq!(holes.median_depth(), Some(2.0));
+        assert_eq!(holes.downscale(2).non_finite_depth, 26);
+        let loud = Frame::new(k(2, 1), vec![[7.0, -1.0, 0.5]; 2], vec![1.0; 2], f64::NAN).unwrap();
+        assert_eq!(loud.rgb[0], [1.0, 0.0, 0.5]);
+        assert_eq!(loud.stamp, 0.0);
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //! operators wrap this library.
 //!
 //! - [`frame`]: the RGB-D [`Frame`] (RGB f32 in [0, 1], depth metres, 0 = none) and its
-//!   usability check (black / no depth / NaN frames are skipped, never a NaN pose);
+//!   usability check (black / saturated / no depth / NaN frames are skipped, never a NaN
+//!   pose);
 //! - [`loss`]: tracking and mapping losses of SPEC §4 and the residuals behind "lost";
 //! - [`tracker`]: Adam on the pose τ = [ρ, θ] and the exposure;
 //! - [`keyframe`]: co-visibility / translation keyframe rule;

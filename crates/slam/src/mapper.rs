@@ -23,7 +23,10 @@
 //! pixel gradient × width/2) exceeds `densify_grad` (6e-4) are cloned when small
 //! (max scale ≤ `densify_split_scale`) and split in two (scales / 1.6, means sampled from the
 //! Gaussian) when large.
-//! Keyframe poses are the tracker's (they are not refined here).
+//! Keyframe poses are the tracker's (they are not refined here); a non-finite pose is an input
+//! error. Gaussians with a NaN or infinite parameter are dropped before and after every
+//! optimisation and counted ([`MappingReport::dropped_non_finite`]), so a snapshot of the map
+//! never carries them.
 
 use crate::error::SlamError;
 use crate::frame::Frame;
@@ -207,6 +210,45 @@ pub struct MappingReport {
     pub final_loss: f64,
     /// Map size afterwards.
     pub gaussians: usize,
+    /// Gaussians dropped because a parameter (mean, colour, rotation, opacity or scale) was
+    /// NaN or infinite.
+    pub dropped_non_finite: usize,
+}
+
+/// Whether every parameter of Gaussian `i` of `map` (mean, colour, rotation, opacity,
+/// log-scales) is finite.
+pub fn is_finite_gaussian(map: &Gaussians<f32>, i: usize) -> bool {
+    map.params(i).iter().all(|v| v.is_finite())
+}
+
+/// Per Gaussian of `map`: true when all its parameters are finite ([`is_finite_gaussian`]).
+pub fn finite_mask(map: &Gaussians<f32>) -> Vec<bool> {
+    (0..map.len()).map(|i| is_finite_gaussian(map, i)).collect()
+}
+
+/// Removes the Gaussians of `map` that have a NaN or infinite parameter; returns how many.
+pub fn drop_non_finite(map: &mut Gaussians<f32>) -> Result<usize, SlamError> {
+    let keep = finite_mask(map);
+    let dropped = keep.iter().filter(|k| !**k).count();
+    if dropped > 0 {
+        map.retain(&keep)?;
+    }
+    Ok(dropped)
+}
+
+/// Refuses a non-finite keyframe pose, naming it.
+fn require_finite_pose(pose: &Isometry3<f64>) -> Result<(), SlamError> {
+    if crate::session::finite_pose(pose) {
+        return Ok(());
+    }
+    Err(SlamError::Input {
+        what: "keyframe pose",
+        reason: format!(
+            "not finite (translation {:?}, rotation {:?}); the frame cannot be mapped",
+            pose.translation.vector.as_slice(),
+            pose.rotation.coords.as_slice()
+        ),
+    })
 }
 
 /// The mapper: the Gaussian map, its optimiser state and the keyframes.
@@ -277,12 +319,24 @@ impl Mapper {
         Ok(before - self.map.len())
     }
 
-    /// Inserts Gaussians from `frame` at `pose` where the map does not explain the depth.
+    /// Removes the Gaussians with a NaN or infinite parameter (with their ids and optimiser
+    /// state); returns how many.
+    fn drop_non_finite(&mut self) -> Result<usize, SlamError> {
+        let keep = finite_mask(&self.map);
+        if keep.iter().all(|k| *k) {
+            return Ok(0);
+        }
+        self.retain(&keep)
+    }
+
+    /// Inserts Gaussians from `frame` at `pose` where the map does not explain the depth;
+    /// fails on a non-finite pose.
     pub fn insert_from(
         &mut self,
         frame: &Frame,
         pose: &Isometry3<f64>,
     ) -> Result<usize, SlamError> {
+        require_finite_pose(pose)?;
         let camera = Camera::from_world_pose(frame.intrinsics, pose).with_far(far_plane(frame));
         let options = RenderOptions {
             exposure: [0.0, 0.0],
@@ -305,13 +359,21 @@ impl Mapper {
         Ok(new.len())
     }
 
-    /// Processes a keyframe: insertion, window optimisation, pruning, densification.
+    /// Processes a keyframe: insertion, window optimisation, pruning, densification. Fails on
+    /// a non-finite pose or exposure (the map is then unchanged).
     pub fn add_keyframe(
         &mut self,
         frame: Frame,
         pose: Isometry3<f64>,
         exposure: [f64; 2],
     ) -> Result<MappingReport, SlamError> {
+        require_finite_pose(&pose)?;
+        if !exposure.iter().all(|v| v.is_finite()) {
+            return Err(SlamError::Input {
+                what: "keyframe exposure",
+                reason: format!("not finite: {exposure:?}"),
+            });
+        }
         let mut report = MappingReport {
             inserted: self.insert_from(&frame, &pose)?,
             ..Default::default()
@@ -335,15 +397,21 @@ impl Mapper {
         report.final_loss = refined.final_loss;
         report.pruned = refined.pruned;
         report.densified = refined.densified;
+        report.dropped_non_finite = refined.dropped_non_finite;
         report.gaussians = self.map.len();
         Ok(report)
     }
 
     /// Runs `iterations` optimisation steps over the current window (the most recent
     /// keyframes plus random older ones), then prunes and densifies. `add_keyframe` calls it;
-    /// callers may also call it to refine the map between keyframes.
+    /// callers may also call it to refine the map between keyframes. Gaussians with a
+    /// non-finite parameter are dropped first (one would spread NaN through the renders) and
+    /// again at the end; the report counts them.
     pub fn optimise(&mut self, iterations: usize) -> Result<MappingReport, SlamError> {
-        let mut report = MappingReport::default();
+        let mut report = MappingReport {
+            dropped_non_finite: self.drop_non_finite()?,
+            ..Default::default()
+        };
         if self.keyframes.is_empty() {
             report.gaussians = self.map.len();
             return Ok(report);
@@ -369,6 +437,7 @@ impl Mapper {
             report.pruned = pruned;
             report.densified = densified;
         }
+        report.dropped_non_finite += self.drop_non_finite()?;
         report.gaussians = self.map.len();
         Ok(report)
     }
@@ -561,7 +630,7 @@ fn max_scale(map: &Gaussians<f32>, i: usize) -> f64 {
 }
 
 /// Appends a copy of Gaussian `i` of `src` (raw parameters) to `dst`.
-fn copy_gaussian(src: &Gaussians<f32>, i: usize, dst: &mut Gaussians<f32>) {
+pub(crate) fn copy_gaussian(src: &Gaussians<f32>, i: usize, dst: &mut Gaussians<f32>) {
     dst.means.push(src.means[i]);
     dst.sh_dc.push(src.sh_dc[i]);
     dst.rotations.push(src.rotations[i]);
@@ -707,5 +776,90 @@ mod tests {
             .filter(|&i| mapper2.map().opacity(i) >= 0.1)
             .count();
         assert_eq!(above_threshold, mapper2.map().len());
+    }
+    /// Bad numbers (issue 18): Gaussians whose mean, colour, rotation, opacity or scale is NaN
+    /// or infinite are dropped (with their ids) before they can spread NaN through a render,
+    /// and counted in the report; the rest of the map stays finite and keeps optimising.
+    #[test]
+    fn non_finite_gaussians_are_dropped_and_counted() {
+        let config = MapperConfig {
+            iterations: 2,
+            coarse_iterations: 1,
+            ..dense_config()
+        };
+        let mut mapper = Mapper::new(config).unwrap();
+        mapper
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        let n = mapper.map().len();
+        // (Gaussian, parameter in the layout order, value): mean x, mean z, colour, rotation,
+        // opacity, log-scale.
+        let bad = [
+            (3, 0, f32::NAN),
+            (10, 2, f32::NEG_INFINITY),
+            (20, 4, f32::NAN),
+            (30, 7, f32::INFINITY),
+            (40, 10, f32::NAN),
+            (50, 12, f32::INFINITY),
+        ];
+        let bad_ids: Vec<u64> = bad.iter().map(|(i, _, _)| mapper.ids()[*i]).collect();
+        for (i, k, v) in bad {
+            *mapper.map.param_mut(i, k) = v;
+        }
+        assert_eq!(finite_mask(mapper.map()).iter().filter(|f| !**f).count(), 6);
+        let report = mapper.optimise(2).unwrap();
+        assert_eq!(report.dropped_non_finite, bad.len(), "{report:?}");
+        assert!(report.final_loss.is_finite(), "{report:?}");
+        assert!(bad_ids.iter().all(|id| !mapper.ids().contains(id)));
+        assert_eq!(mapper.ids().len(), mapper.map().len());
+        assert!(finite_mask(mapper.map()).iter().all(|f| *f));
+        assert!(mapper.map().len() >= n - bad.len() - report.pruned);
+        // Through a keyframe: the count reaches the keyframe's report.
+        *mapper.map.param_mut(0, 1) = f32::NAN;
+        let report = mapper
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        assert_eq!(report.dropped_non_finite, 1);
+        assert!(finite_mask(mapper.map()).iter().all(|f| *f));
+        // The free function does the same on a bare map.
+        let mut map = mapper.map().clone();
+        map.log_scales[2][0] = f32::NAN;
+        assert_eq!(drop_non_finite(&mut map).unwrap(), 1);
+        assert_eq!(map.len(), mapper.map().len() - 1);
+    }
+
+    /// A non-finite keyframe pose or exposure is an input error naming it, and the map is left
+    /// as it was (no Gaussian inserted at NaN).
+    #[test]
+    fn a_non_finite_keyframe_pose_is_refused() {
+        let mut mapper = Mapper::new(dense_config()).unwrap();
+        mapper
+            .add_keyframe(plane_frame(|_, _| 2.0), Isometry3::identity(), [0.0, 0.0])
+            .unwrap();
+        let (n, keyframes) = (mapper.map().len(), mapper.keyframes().len());
+        let nan = Isometry3::translation(0.0, f64::NAN, 0.0);
+        let e = mapper
+            .add_keyframe(plane_frame(|_, _| 1.0), nan, [0.0, 0.0])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("keyframe pose") && e.contains("NaN"), "{e}");
+        let e = mapper
+            .insert_from(&plane_frame(|_, _| 1.0), &nan)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("keyframe pose"), "{e}");
+        let e = mapper
+            .add_keyframe(
+                plane_frame(|_, _| 1.0),
+                Isometry3::identity(),
+                [f64::NAN, 0.0],
+            )
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("exposure"), "{e}");
+        assert_eq!(
+            (mapper.map().len(), mapper.keyframes().len()),
+            (n, keyframes)
+        );
     }
 }

@@ -98,7 +98,7 @@ pub enum PoseQuality {
     Ok,
     /// Lost: the map does not explain the frame at the estimate.
     Lost,
-    /// Skipped: the frame was unusable (black, no depth, NaN).
+    /// Skipped: the frame was unusable (black, saturated, no depth, NaN colour).
     Skipped,
 }
 

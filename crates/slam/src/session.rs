@@ -28,6 +28,7 @@ use crate::dense::DenseReference;
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::loss::Residuals;
+use crate::mapper::{copy_gaussian, finite_mask};
 use crate::references::{ReferenceConfig, References};
 use crate::tracker::{TrackerConfig, TrackingStatus, track};
 
@@ -191,9 +192,23 @@ impl TrackingSession {
         self.frames.insert(frame_id, frame);
     }
 
-    /// Stores the map snapshot that includes every frame ≤ `frame_id`.
-    pub fn add_map(&mut self, frame_id: u64, map: Arc<Gaussians<f32>>) {
+    /// Stores the map snapshot that includes every frame ≤ `frame_id`, without its Gaussians
+    /// that have a NaN or infinite parameter (they would put NaN into the renders); returns
+    /// how many were dropped, for the caller to report.
+    pub fn add_map(&mut self, frame_id: u64, map: Arc<Gaussians<f32>>) -> usize {
+        let keep = finite_mask(&map);
+        let dropped = keep.iter().filter(|k| !**k).count();
+        let map = if dropped == 0 {
+            map
+        } else {
+            let mut clean = Gaussians::new();
+            for (i, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
+                copy_gaussian(&map, i, &mut clean);
+            }
+            Arc::new(clean)
+        };
         self.maps.insert(frame_id, map);
+        dropped
     }
 
     /// Stores the motion prior from frame `step` to frame `step + 1`.
@@ -390,5 +405,235 @@ mod tests {
         let nan = Isometry3::translation(f64::NAN, 0.0, 0.0);
         session.add_motion(1, MotionPrior::Relative(nan));
         assert!(session.process_ready().is_err());
+    }
+    /// Bad numbers (issue 18): the box room of the dense tracker's tests, 64×64.
+    mod bad_numbers {
+        use super::*;
+        use crate::dense::tests::{box_frame, camera_at};
+        use activemap_geometry::se3::pose_error;
+        use rand::{Rng, SeedableRng};
+        use rand_chacha::ChaCha8Rng;
+
+        fn intrinsics() -> Intrinsics {
+            Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2)
+        }
+
+        /// The anchor pose of frame 0 and the true pose of the frames after it.
+        fn poses() -> (Isometry3<f64>, Isometry3<f64>) {
+            (
+                camera_at(0.0, 0.0, 0.3),
+                camera_at(0.03, 0.01, 0.3 + 2f64.to_radians()),
+            )
+        }
+
+        /// A session anchored on a clean frame 0 at the anchor pose.
+        fn anchored() -> TrackingSession {
+            let (anchor, _) = poses();
+            let mut session = TrackingSession::new(TrackingConfig {
+                initial_pose: anchor,
+                ..TrackingConfig::default()
+            })
+            .unwrap();
+            session.add_frame(0, box_frame(intrinsics(), &anchor));
+            let out = session.process_ready().unwrap();
+            assert_eq!(out[0].status, TrackingStatus::Ok);
+            session
+        }
+
+        /// Tracks the session's next frame against `map` (motion prior: the previous pose);
+        /// returns the estimate and how many Gaussians of `map` the session dropped.
+        fn track_with(
+            session: &mut TrackingSession,
+            frame: Frame,
+            map: Arc<Gaussians<f32>>,
+        ) -> (TrackedFrame, usize) {
+            let k = session.next_frame();
+            session.add_motion(k - 1, MotionPrior::None);
+            let dropped = session.add_map(k - 1, map);
+            session.add_frame(k, frame);
+            let mut out = session.process_ready().unwrap();
+            assert_eq!(out.len(), 1, "frame {k}");
+            (out.pop().unwrap(), dropped)
+        }
+
+        /// [`track_with`] against an empty map.
+        fn track_next(session: &mut TrackingSession, frame: Frame) -> TrackedFrame {
+            track_with(session, frame, Arc::new(Gaussians::new())).0
+        }
+
+        fn is_finite(p: &Isometry3<f64>) -> bool {
+            finite_pose(p)
+        }
+
+        /// The clean frame at the true pose with its depth or colour replaced.
+        fn variant(depth: Option<f32>, rgb: Option<f32>) -> Frame {
+            let clean = box_frame(intrinsics(), &poses().1);
+            let n = clean.depth.len();
+            Frame::new(
+                clean.intrinsics,
+                rgb.map_or(clean.rgb, |c| vec![[c; 3]; n]),
+                depth.map_or(clean.depth, |d| vec![d; n]),
+                1.0,
+            )
+            .unwrap()
+        }
+
+        fn bad_frames() -> Vec<(&'static str, Frame, SkipReason)> {
+            let white = Frame::from_rgb8(
+                intrinsics(),
+                &[255; 64 * 64 * 3],
+                box_frame(intrinsics(), &poses().1).depth,
+                1.0,
+            )
+            .unwrap();
+            vec![
+                (
+                    "NaN depth",
+                    variant(Some(f32::NAN), None),
+                    SkipReason::NoDepth,
+                ),
+                (
+                    "+inf depth",
+                    variant(Some(f32::INFINITY), None),
+                    SkipReason::NoDepth,
+                ),
+                (
+                    "-inf depth",
+                    variant(Some(f32::NEG_INFINITY), None),
+                    SkipReason::NoDepth,
+                ),
+                ("zero depth", variant(Some(0.0), None), SkipReason::NoDepth),
+                ("black colour", variant(None, Some(0.0)), SkipReason::Black),
+                ("saturated colour", white, SkipReason::Saturated),
+                (
+                    "NaN colour",
+                    variant(None, Some(f32::NAN)),
+                    SkipReason::NonFinite,
+                ),
+                (
+                    "inf colour",
+                    variant(None, Some(f32::INFINITY)),
+                    SkipReason::NonFinite,
+                ),
+            ]
+        }
+
+        /// Every bad frame is skipped at the previous pose (finite, never NaN), before and
+        /// after the world is anchored, and leaves the state alone: a clean frame after them
+        /// tracks as if they had never come.
+        #[test]
+        fn bad_frames_are_skipped_at_a_finite_pose_and_change_nothing() {
+            let (anchor, truth) = poses();
+            for (what, frame, reason) in bad_frames() {
+                let mut session = TrackingSession::new(TrackingConfig {
+                    initial_pose: anchor,
+                    ..TrackingConfig::default()
+                })
+                .unwrap();
+                session.add_frame(0, frame);
+                let out = session.process_ready().unwrap();
+                assert_eq!(out[0].status, TrackingStatus::Skipped(reason), "{what}");
+                assert_eq!(out[0].pose, anchor, "{what}");
+                assert!(session.references().is_empty(), "{what} anchored the world");
+            }
+            let mut clean = anchored();
+            let reference = track_next(&mut clean, variant(None, None));
+            assert_eq!(reference.status, TrackingStatus::Ok);
+            let (t, a) = pose_error(&reference.pose, &truth);
+            assert!(
+                t < 2e-3 && a.to_degrees() < 0.1,
+                "clean: {t} m {}°",
+                a.to_degrees()
+            );
+            let mut session = anchored();
+            for (what, frame, reason) in bad_frames() {
+                let out = track_next(&mut session, frame);
+                assert_eq!(out.status, TrackingStatus::Skipped(reason), "{what}");
+                assert!(is_finite(&out.pose), "{what}: {:?}", out.pose);
+                assert_eq!(out.pose, anchor, "{what}: not the prediction");
+            }
+            assert_eq!(session.references().len(), 1);
+            let after = track_next(&mut session, variant(None, None));
+            assert_eq!(after.status, TrackingStatus::Ok);
+            assert_eq!(after.pose, reference.pose);
+        }
+
+        /// A depth image with a fraction of NaN / ±inf pixels tracks on the rest: status Ok, the
+        /// pose within a millimetre and 0.05° of the clean frame's.
+        #[test]
+        fn depth_with_some_non_finite_pixels_still_tracks() {
+            let clean = track_next(&mut anchored(), variant(None, None));
+            let mut rng = ChaCha8Rng::seed_from_u64(18);
+            for fraction in [0.05, 0.3, 0.6] {
+                let base = variant(None, None);
+                let depth: Vec<f32> = base
+                    .depth
+                    .iter()
+                    .map(|&d| {
+                        if rng.random_bool(fraction) {
+                            [f32::NAN, f32::INFINITY, f32::NEG_INFINITY][rng.random_range(0..3)]
+                        } else {
+                            d
+                        }
+                    })
+                    .collect();
+                let holes = Frame::new(base.intrinsics, base.rgb, depth, 1.0).unwrap();
+                assert!(holes.non_finite_depth > 0);
+                let out = track_next(&mut anchored(), holes);
+                assert_eq!(
+                    out.status,
+                    TrackingStatus::Ok,
+                    "{fraction}: {:?}",
+                    out.residuals
+                );
+                let (t, a) = pose_error(&out.pose, &clean.pose);
+                assert!(
+                    t < 1e-3 && a.to_degrees() < 0.05,
+                    "{fraction} non-finite: {t} m {}° from the clean estimate",
+                    a.to_degrees()
+                );
+            }
+        }
+
+        /// A map snapshot with NaN / inf parameters loses exactly those Gaussians (counted);
+        /// the frame tracks as against the clean part: same pose, finite residuals.
+        #[test]
+        fn non_finite_map_gaussians_are_dropped_and_counted() {
+            let mut map = Gaussians::<f32>::new();
+            for i in 0..40 {
+                let (y, z) = (-1.0 + 0.1 * (i % 20) as f64, 0.9 + 0.3 * (i / 20) as f64);
+                map.push(
+                    [1.99, y, z],
+                    [0.5, 0.4, 0.3],
+                    [1.0, 0.0, 0.0, 0.0],
+                    0.9,
+                    [0.05; 3],
+                );
+            }
+            let mut corrupt = map.clone();
+            let bad = [
+                (0, f32::NAN),          // mean x
+                (2, f32::NEG_INFINITY), // mean z
+                (4, f32::NAN),          // colour
+                (7, f32::INFINITY),     // rotation
+                (10, f32::NAN),         // opacity
+                (12, f32::INFINITY),    // scale
+            ];
+            for (j, (k, v)) in bad.iter().enumerate() {
+                let mut g = Gaussians::<f32>::new();
+                crate::mapper::copy_gaussian(&map, j, &mut g);
+                *g.param_mut(0, *k) = *v;
+                corrupt.extend_from(&g);
+            }
+            let (clean, none) = track_with(&mut anchored(), variant(None, None), Arc::new(map));
+            assert_eq!(none, 0);
+            let (got, dropped) =
+                track_with(&mut anchored(), variant(None, None), Arc::new(corrupt));
+            assert_eq!(dropped, bad.len());
+            assert!(is_finite(&got.pose));
+            assert_eq!(got.pose, clean.pose);
+            assert_eq!(got.residuals, clean.residuals);
+            assert!(got.residuals.photometric.is_finite() && got.residuals.coverage > 0.0);
+        }
     }
 }
