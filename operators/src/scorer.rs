@@ -815,6 +815,7 @@ mod tests {
             gaussians: 1200,
             unknown_gaussians: 200,
             model_reused: false,
+            distinct_path_views: 3,
             note: Some("no path has a finite objective".into()),
             timings: StageTimings {
                 unknown_ms: 1.0,

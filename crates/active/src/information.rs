@@ -10,7 +10,7 @@
 //! the far plane, which the render would cull too.
 
 use activemap_geometry::{Intrinsics, Isometry3, Point3};
-use activemap_splat::{Camera, FisherMode, Gaussians, Real, RenderOptions, fisher, render};
+use activemap_splat::{Camera, FisherMode, Gaussians, Real, RenderOptions, fisher_sparse, render};
 use nalgebra::{Matrix6, SymmetricEigen};
 
 use crate::ActiveError;
@@ -52,8 +52,19 @@ pub struct ViewInformation {
     /// `(index into the map, H diagonal)` for every Gaussian with a non-zero diagonal,
     /// ascending by index: `(1/P)·Σ_px [Σ_ch (∂c_ch/∂w)² + depth_weight·(∂D/∂w)²]`.
     pub diagonal: Vec<(u32, Diagonal)>,
-    /// `(1/P)·(J_rgbᵀJ_rgb + depth_weight·J_Dᵀ J_D)` for the left pose update τ = [ρ, θ].
-    pub pose: Matrix6<f64>,
+    /// `(1/P)·(J_rgbᵀJ_rgb + depth_weight·J_Dᵀ J_D)` for the left pose update τ = [ρ, θ]
+    /// (`None` when computed with [`ViewParts::Diagonal`]).
+    pub pose: Option<Matrix6<f64>>,
+}
+
+/// Which parts of a view's information to compute.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ViewParts {
+    /// The per-Gaussian diagonal only: what the EIG needs (the candidates, the model Fisher).
+    /// Skips the per-pixel pose Jacobians, most of the Fisher walk's work.
+    Diagonal,
+    /// The diagonal and the 6×6 pose information: what C_local needs (the path poses).
+    DiagonalAndPose,
 }
 
 impl ViewInformation {
@@ -279,71 +290,38 @@ pub fn view_information<T: Real>(
     scene: &ScoringScene<T>,
     world_from_camera: &Isometry3<f64>,
     settings: &ViewSettings,
+    parts: ViewParts,
 ) -> Result<ViewInformation, ActiveError> {
     let map = &scene.map;
-    let mut indices = scene.visible(&settings.intrinsics, world_from_camera, settings.far_m);
+    let with_pose = parts == ViewParts::DiagonalAndPose;
+    let indices = scene.visible(&settings.intrinsics, world_from_camera, settings.far_m);
     if indices.is_empty() {
-        return Ok(ViewInformation::default());
+        // Nothing seen: no diagonal, and (when asked for) a zero pose information.
+        return Ok(ViewInformation {
+            diagonal: Vec::new(),
+            pose: with_pose.then(Matrix6::zeros),
+        });
     }
-    let mut part = subset(map, &indices);
+    let part = subset(map, &indices);
     let camera =
         Camera::from_world_pose(settings.intrinsics, world_from_camera).with_far(settings.far_m);
-    let options = RenderOptions::default();
-    let mut image = render(&part, &camera, &options)?;
-    // Only composited Gaussians carry information. When many are hidden (behind a wall, in
-    // the depth of an unknown-space cloud), render the composited ones alone: every pixel
-    // composites the same Gaussians in the same order (the hidden ones all lay beyond the
-    // point where each pixel of their tiles stopped), so the images and the Fisher of the
-    // kept ones are unchanged, and the Fisher pass skips the hidden ones' Jacobians.
-    let composited = composited(&image);
-    let kept = composited.iter().filter(|c| **c).count();
-    if kept * 10 < part.len() * 9 {
-        indices = indices
-            .iter()
-            .zip(&composited)
-            .filter(|(_, c)| **c)
-            .map(|(i, _)| *i)
-            .collect();
-        if indices.is_empty() {
-            return Ok(ViewInformation::default());
-        }
-        part = subset(map, &indices);
-        image = render(&part, &camera, &options)?;
-    }
-    let info = fisher(&part, &image, FisherMode::PerChannel)?;
+    let image = render(&part, &camera, &RenderOptions::default())?;
+    // Only the Gaussians the pixels composite carry information; the sparse pass prepares
+    // and returns those alone (behind a wall or in the depth of an unknown-space cloud most
+    // of the culled set is hidden).
+    let info = fisher_sparse(&part, &image, FisherMode::PerChannel, with_pose)?;
     let scale = 1.0 / settings.intrinsics.pixel_count() as f64;
-    let mut diagonal = Vec::new();
-    for (j, &i) in indices.iter().enumerate() {
-        let d = info.combined(j, settings.depth_weight);
+    let mut diagonal = Vec::with_capacity(info.ids.len());
+    for (k, &j) in info.ids.iter().enumerate() {
+        let d = info.combined(k, settings.depth_weight);
         if d.iter().any(|v| *v != 0.0) {
-            diagonal.push((i, d.map(|v| v * scale)));
+            diagonal.push((indices[j as usize], d.map(|v| v * scale)));
         }
     }
     Ok(ViewInformation {
         diagonal,
-        pose: info.pose(settings.depth_weight) * scale,
+        pose: info.pose(settings.depth_weight).map(|p| p * scale),
     })
-}
-
-/// Per Gaussian of the render: whether some pixel composited it (it lies within the part of a
-/// tile's front-to-back list that the tile's pixels walked before stopping).
-pub fn composited<T: Real>(image: &activemap_splat::Render<T>) -> Vec<bool> {
-    let ctx = &image.context;
-    let bins = &ctx.bins;
-    let mut out = vec![false; ctx.splats.len()];
-    for t in 0..bins.tile_count() {
-        let [x0, x1, y0, y1] = bins.tile_rect(t, image.width, image.height);
-        let mut walked = 0usize;
-        for y in y0..y1 {
-            for x in x0..x1 {
-                walked = walked.max(ctx.contributors[y * image.width + x] as usize);
-            }
-        }
-        for &i in &bins.tile(t)[..walked] {
-            out[i as usize] = true;
-        }
-    }
-    out
 }
 
 /// Something that gives the prior information `I_k + λ` (positive) of a Gaussian's parameters
@@ -424,7 +402,7 @@ mod tests {
             );
         }
         // An opaque wall 1 m ahead of the first pose hides most of what lies behind it, so
-        // that view takes the composited-only second render.
+        // in that view most of the culled set is hidden and left out by the sparse pass.
         for j in 0..40 {
             for h in 0..20 {
                 map.push(
@@ -448,7 +426,12 @@ mod tests {
         for (x, y, yaw) in [(0.1, -0.2, 0.0), (2.0, 1.0, 2.0), (-3.0, 4.0, -1.0)] {
             let robot = activemap_geometry::RobotModel::default();
             let pose = robot.camera_pose(&activemap_geometry::PlanarPose::new(x, y, yaw), 0.0);
-            let culled = view_information(&scene, &pose, &settings).unwrap();
+            let culled =
+                view_information(&scene, &pose, &settings, ViewParts::DiagonalAndPose).unwrap();
+            let diagonal_only =
+                view_information(&scene, &pose, &settings, ViewParts::Diagonal).unwrap();
+            assert_eq!(diagonal_only.diagonal, culled.diagonal);
+            assert_eq!(diagonal_only.pose, None);
             let camera = Camera::from_world_pose(k, &pose).with_far(4.0);
             let image = render(&map, &camera, &RenderOptions::default()).unwrap();
             let passed = scene.visible(&k, &pose, 4.0);
@@ -465,10 +448,10 @@ mod tests {
                 "the cull keeps {}",
                 passed.len()
             );
-            let shown = composited(&image);
+            let shown = image.context.walked_mask();
             let visible = image.context.visible.iter().filter(|v| **v).count();
             hidden_views += usize::from(shown.iter().filter(|c| **c).count() * 10 < visible * 9);
-            let full = fisher(&map, &image, FisherMode::PerChannel).unwrap();
+            let full = activemap_splat::fisher(&map, &image, FisherMode::PerChannel).unwrap();
             let mut expected = Vec::new();
             for i in 0..map.len() {
                 let d = full.combined(i, 0.5);
@@ -485,9 +468,10 @@ mod tests {
                 }
             }
             let pose_full = full.pose(0.5) / p;
-            assert!((culled.pose - pose_full).norm() <= 1e-9 * pose_full.norm());
+            let culled_pose = culled.pose.unwrap();
+            assert!((culled_pose - pose_full).norm() <= 1e-9 * pose_full.norm());
         }
-        assert!(hidden_views >= 1, "no view took the composited-only render");
+        assert!(hidden_views >= 1, "no view hid most of what it culled in");
     }
 
     /// C_local is +∞ (never NaN) for an empty, a non-finite and a rank-deficient matrix, and

@@ -13,9 +13,9 @@ use std::collections::HashMap;
 use activemap_geometry::{PlanarPose, RobotModel};
 use activemap_planning::OccupancyGrid;
 use activemap_planning::astar::AstarConfig;
-use activemap_planning::clearance::ClearanceConfig;
+use activemap_planning::clearance::ClearanceMap;
 use activemap_planning::executor::{Decision, ExecutorConfig, PathExecutor};
-use activemap_planning::path::{PlannedPath, shortest_path};
+use activemap_planning::path::{PlannedPath, shortest_path_on};
 use nalgebra::Point2;
 
 use crate::ActiveError;
@@ -33,13 +33,13 @@ pub struct FuturePath {
 
 /// The path from `start` to the cell of `goal`, facing `focus` at the end, and its future
 /// poses (at most `max_steps` actions); `None` when A* finds no path or the goal is off the
-/// grid.
+/// grid. `clear` is the clearance map of `grid` (built once for all the paths of a replan).
 pub fn future_path(
     grid: &OccupancyGrid,
+    clear: &ClearanceMap,
     start: &PlanarPose,
     goal: &PlanarPose,
     focus: Point2<f64>,
-    clearance: &ClearanceConfig,
     robot: &RobotModel,
     max_steps: usize,
 ) -> Result<Option<FuturePath>, ActiveError> {
@@ -47,12 +47,12 @@ pub fn future_path(
     if !grid.geometry.contains(cell) {
         return Ok(None);
     }
-    let Some(path) = shortest_path(
+    let Some(path) = shortest_path_on(
+        clear,
         grid,
         Point2::new(start.x, start.y),
         cell,
         focus,
-        clearance,
         &AstarConfig::default(),
     )?
     else {
@@ -149,8 +149,8 @@ impl Prior for PathPrior<'_> {
 }
 
 /// Path EIG (against the accumulating prior) and C_local of each view of a path, in order.
-pub fn path_terms(
-    views: &[ViewInformation],
+pub fn path_terms<V: std::borrow::Borrow<ViewInformation>>(
+    views: &[V],
     prior: &[Diagonal],
     degenerate_ratio: f64,
 ) -> (Vec<f64>, Vec<f64>) {
@@ -158,11 +158,11 @@ pub fn path_terms(
     let mut eigs = Vec::with_capacity(views.len());
     let mut costs = Vec::with_capacity(views.len());
     for v in views {
+        let v = v.borrow();
         eigs.push(eig(v, &along));
-        costs.push(if v.is_empty() {
-            f64::INFINITY
-        } else {
-            localisation_cost(&v.pose, degenerate_ratio)
+        costs.push(match (&v.pose, v.is_empty()) {
+            (Some(pose), false) => localisation_cost(pose, degenerate_ratio),
+            _ => f64::INFINITY,
         });
         along.observe(v);
     }
@@ -214,6 +214,7 @@ pub fn objective(eigs: &[f64], costs: &[f64], config: &FisherConfig) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use activemap_planning::clearance::ClearanceConfig;
     use activemap_planning::{CellState, GridGeometry};
     use nalgebra::Matrix6;
 
@@ -233,7 +234,7 @@ mod tests {
     fn the_same_view_twice_gains_less_the_second_time() {
         let view = ViewInformation {
             diagonal: vec![(0, [2.0; 14]), (2, [0.5; 14])],
-            pose: Matrix6::identity(),
+            pose: Some(Matrix6::identity()),
         };
         let prior = vec![[1.0; 14], [3.0; 14], [0.25; 14]];
         let (eigs, costs) = path_terms(&[view.clone(), view.clone()], &prior, 1e-9);
@@ -286,7 +287,8 @@ mod tests {
         let goal = PlanarPose::new(0.0, 1.0, 0.0);
         let focus = Point2::new(1.0, 1.0);
         let clearance = ClearanceConfig::for_disc(robot.radius_m, 0.05).unwrap();
-        let f = future_path(&grid, &start, &goal, focus, &clearance, &robot, 500)
+        let clear = ClearanceMap::new(&grid, &clearance).unwrap();
+        let f = future_path(&grid, &clear, &start, &goal, focus, &robot, 500)
             .unwrap()
             .unwrap();
         let end = *f.poses.last().unwrap();

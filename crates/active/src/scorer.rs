@@ -24,7 +24,9 @@ use serde::{Deserialize, Serialize};
 use crate::ActiveError;
 use crate::candidates::{sample_candidates, sample_free_space_poses};
 use crate::config::{FisherConfig, ModelFisherSource};
-use crate::information::{ScoringScene, ViewInformation, ViewSettings, eig, view_information};
+use crate::information::{
+    ScoringScene, ViewInformation, ViewParts, ViewSettings, eig, view_information,
+};
 use crate::model::{ModelFisher, ModelSample};
 use crate::paths::{FuturePath, future_path, objective, path_terms, scored_steps};
 use crate::refine::refine_target;
@@ -166,6 +168,10 @@ pub struct ReplanOutcome {
     pub unknown_gaussians: usize,
     /// Whether `I(w)` was reused unchanged from the previous replan.
     pub model_reused: bool,
+    /// Distinct poses rendered for the path scores (paths sharing their first moves share
+    /// those views).
+    #[serde(default)]
+    pub distinct_path_views: usize,
     /// Why the replan fell back, when it did (no candidate, no path, no cluster).
     pub note: Option<String>,
     /// Stage timings.
@@ -258,16 +264,18 @@ impl FisherScorer {
         (all, ids)
     }
 
-    /// The views of `poses` (planar, on the floor at `floor_z`) on `map`, in order.
+    /// The views of `poses` (planar, on the floor at `floor_z`) on `map`, in order, with
+    /// `parts` computed.
     fn views(
         &self,
         map: &ScoringScene<f32>,
         poses: &[PlanarPose],
         floor_z: f64,
+        parts: ViewParts,
     ) -> Result<Vec<ViewInformation>, ActiveError> {
         poses
             .par_iter()
-            .map(|p| view_information(map, &self.robot.camera_pose(p, floor_z), &self.view))
+            .map(|p| view_information(map, &self.robot.camera_pose(p, floor_z), &self.view, parts))
             .collect()
     }
 
@@ -346,7 +354,7 @@ impl FisherScorer {
                 .par_iter()
                 .map(|(planar, full)| {
                     let camera = full.unwrap_or_else(|| self.robot.camera_pose(planar, floor_z));
-                    view_information(&scoring, &camera, &self.view)
+                    view_information(&scoring, &camera, &self.view, ViewParts::Diagonal)
                         .map(|v| ModelSample::from_view(&v, &ids, generation))
                 })
                 .collect::<Result<_, _>>()?;
@@ -360,7 +368,6 @@ impl FisherScorer {
         Ok(Prepared {
             scoring,
             prior,
-            clearance,
             clear,
             floor_z,
             model_reused,
@@ -383,7 +390,12 @@ impl FisherScorer {
     ) -> Result<Vec<f64>, ActiveError> {
         let mut rng = self.rng(input.frame_id);
         let prepared = self.prepare(input, &mut rng)?;
-        let views = self.views(&prepared.scoring, poses, prepared.floor_z)?;
+        let views = self.views(
+            &prepared.scoring,
+            poses,
+            prepared.floor_z,
+            ViewParts::Diagonal,
+        )?;
         Ok(views
             .iter()
             .map(|v| eig(v, prepared.prior.as_slice()))
@@ -397,7 +409,6 @@ impl FisherScorer {
         let Prepared {
             scoring,
             prior,
-            clearance,
             clear,
             floor_z,
             model_reused,
@@ -419,6 +430,7 @@ impl FisherScorer {
             gaussians: input.map.gaussians.len(),
             unknown_gaussians: self.unknown.ids.len(),
             model_reused,
+            distinct_path_views: 0,
             note: None,
             timings,
         };
@@ -471,7 +483,8 @@ impl FisherScorer {
                     .filter(|p| clear.is_clear(grid.geometry.cell_of(Point2::new(p.x, p.y)))),
             );
         }
-        let views = self.views(&scoring, &poses, floor_z)?;
+        // Candidates are ranked by EIG alone: no pose information.
+        let views = self.views(&scoring, &poses, floor_z, ViewParts::Diagonal)?;
         let mut candidates: Vec<CandidateScore> = poses
             .iter()
             .zip(&views)
@@ -509,16 +522,8 @@ impl FisherScorer {
         let futures: Vec<(PlanarPose, FuturePath)> = top
             .par_iter()
             .map(|goal| {
-                future_path(
-                    grid,
-                    &start,
-                    goal,
-                    focus,
-                    &clearance,
-                    &self.robot,
-                    MAX_ROLLOUT,
-                )
-                .map(|f| f.map(|f| (*goal, f)))
+                future_path(grid, &clear, &start, goal, focus, &self.robot, MAX_ROLLOUT)
+                    .map(|f| f.map(|f| (*goal, f)))
             })
             .collect::<Result<Vec<_>, _>>()?
             .into_iter()
@@ -526,17 +531,58 @@ impl FisherScorer {
             .collect();
         outcome.timings.paths_ms = ms(t);
 
-        // 6. Path EIG and C_local along each, and the objective.
+        // 6. Path EIG and C_local along each, and the objective. Paths to nearby candidates
+        // share their first moves (the same rollout from the same start), so each distinct
+        // scored pose is rendered once.
         let t = Instant::now();
-        let scored: Vec<PathScore> = futures
+        let steps: Vec<Vec<usize>> = futures
+            .iter()
+            .map(|(_, f)| scored_steps(f.poses.len(), config.stride, config.max_actions))
+            .collect();
+        let mut distinct: Vec<PlanarPose> = Vec::new();
+        let mut slot_of: std::collections::HashMap<[u64; 3], usize> = Default::default();
+        let slots: Vec<Vec<usize>> = futures
+            .iter()
+            .zip(&steps)
+            .map(|((_, f), steps)| {
+                steps
+                    .iter()
+                    .map(|s| {
+                        let p = f.poses[s - 1];
+                        *slot_of
+                            .entry([p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()])
+                            .or_insert_with(|| {
+                                distinct.push(p);
+                                distinct.len() - 1
+                            })
+                    })
+                    .collect()
+            })
+            .collect();
+        let distinct_views =
+            self.views(&scoring, &distinct, floor_z, ViewParts::DiagonalAndPose)?;
+        outcome.distinct_path_views = distinct.len();
+        // Paths whose scored poses are the same sequence have the same terms: each distinct
+        // sequence is scored once.
+        let mut sequences: Vec<&Vec<usize>> = slots.iter().collect();
+        sequences.sort();
+        sequences.dedup();
+        let terms: std::collections::HashMap<&Vec<usize>, (Vec<f64>, Vec<f64>)> = sequences
             .par_iter()
-            .map(|(goal, f)| {
-                let steps = scored_steps(f.poses.len(), config.stride, config.max_actions);
-                let at: Vec<PlanarPose> = steps.iter().map(|s| f.poses[s - 1]).collect();
-                let views = self.views(&scoring, &at, floor_z)?;
-                let (eig, c_local) = path_terms(&views, &prior, config.degenerate_ratio);
+            .map(|seq| {
+                let views: Vec<&ViewInformation> =
+                    seq.iter().map(|&k| &distinct_views[k]).collect();
+                (*seq, path_terms(&views, &prior, config.degenerate_ratio))
+            })
+            .collect();
+        let scored: Vec<PathScore> = futures
+            .iter()
+            .zip(steps)
+            .zip(&slots)
+            .map(|(((goal, f), steps), slots)| {
+                let (eig, c_local) = terms[slots].clone();
                 let objective = objective(&eig, &c_local, &config);
-                Ok(PathScore {
+                PathScore {
                     goal: *goal,
                     waypoints: f.path.waypoints.clone(),
                     actions: f.poses.len(),
@@ -544,9 +590,9 @@ impl FisherScorer {
                     eig,
                     c_local,
                     objective,
-                })
+                }
             })
-            .collect::<Result<_, ActiveError>>()?;
+            .collect();
         outcome.timings.path_scores_ms = ms(t);
         let chosen = scored
             .iter()
@@ -581,7 +627,6 @@ struct Prepared {
     scoring: ScoringScene<f32>,
     /// `I + λ` per Gaussian of `scoring`.
     prior: Vec<crate::information::Diagonal>,
-    clearance: ClearanceConfig,
     clear: ClearanceMap,
     floor_z: f64,
     model_reused: bool,

@@ -3,7 +3,8 @@
 //! finite-difference pose Jacobian, on a tiny map.
 
 use activemap_active::information::{
-    Diagonal, PARAMS, ScoringScene, ViewSettings, eig, localisation_cost, view_information,
+    Diagonal, PARAMS, ScoringScene, ViewParts, ViewSettings, eig, localisation_cost,
+    view_information,
 };
 use activemap_geometry::{Intrinsics, Isometry3, Vector6, se3};
 use activemap_splat::{Camera, Gaussians, RenderOptions, render};
@@ -97,7 +98,13 @@ fn view_eig_matches_finite_differences() {
         far_m: 50.0,
         depth_weight: DEPTH_WEIGHT,
     };
-    let view = view_information(&ScoringScene::new(map.clone()), &pose, &settings).unwrap();
+    let view = view_information(
+        &ScoringScene::new(map.clone()),
+        &pose,
+        &settings,
+        ViewParts::DiagonalAndPose,
+    )
+    .unwrap();
     assert_eq!(view.diagonal.len(), map.len());
     // A prior with a different value per entry, so a swapped index would show.
     let prior: Vec<Diagonal> = (0..map.len())
@@ -150,11 +157,17 @@ fn localisation_cost_matches_finite_differences() {
         far_m: 50.0,
         depth_weight: DEPTH_WEIGHT,
     };
-    let view = view_information(&ScoringScene::new(map.clone()), &pose, &settings).unwrap();
+    let view = view_information(
+        &ScoringScene::new(map.clone()),
+        &pose,
+        &settings,
+        ViewParts::DiagonalAndPose,
+    )
+    .unwrap();
     let j = pose_jacobian(&map, k, &pose);
     let jtj = j.transpose() * &j;
     let expected = -jtj.determinant().ln();
-    let got = localisation_cost(&view.pose, 1e-12);
+    let got = localisation_cost(&view.pose.unwrap(), 1e-12);
     assert!(expected.is_finite(), "{jtj}");
     assert!(
         (got - expected).abs() < 1e-5 * expected.abs().max(1.0),
@@ -185,17 +198,24 @@ fn localisation_cost_is_infinite_for_empty_and_degenerate_views() {
         Translation3::identity(),
         UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI),
     );
-    let empty = view_information(&ScoringScene::new(map.clone()), &behind, &settings).unwrap();
+    let empty = view_information(
+        &ScoringScene::new(map.clone()),
+        &behind,
+        &settings,
+        ViewParts::DiagonalAndPose,
+    )
+    .unwrap();
     assert!(empty.is_empty());
-    assert_eq!(localisation_cost(&empty.pose, 1e-9), f64::INFINITY);
+    assert_eq!(localisation_cost(&empty.pose.unwrap(), 1e-9), f64::INFINITY);
     let blob = view_information(
         &ScoringScene::new(map.clone()),
         &Isometry3::identity(),
         &settings,
+        ViewParts::DiagonalAndPose,
     )
     .unwrap();
     assert!(!blob.is_empty());
-    let cost = localisation_cost(&blob.pose, 1e-9);
+    let cost = localisation_cost(&blob.pose.unwrap(), 1e-9);
     assert_eq!(
         cost,
         f64::INFINITY,

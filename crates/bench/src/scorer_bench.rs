@@ -53,6 +53,8 @@ pub struct Case {
     pub chosen: Vec<bool>,
     /// Scored poses along all paths, per replan (the path-score stage's views).
     pub path_views: Vec<usize>,
+    /// Distinct poses among them (each rendered once), per replan.
+    pub distinct_views: Vec<usize>,
     /// Median rollout length of the paths (actions), per replan.
     pub path_actions: Vec<f64>,
 }
@@ -68,6 +70,7 @@ impl Case {
             model_reused: Vec::new(),
             chosen: Vec::new(),
             path_views: Vec::new(),
+            distinct_views: Vec::new(),
             path_actions: Vec::new(),
         }
     }
@@ -78,6 +81,7 @@ impl Case {
         self.paths.push(outcome.paths.len());
         self.model_reused.push(outcome.model_reused);
         self.chosen.push(outcome.chosen.is_some());
+        self.distinct_views.push(outcome.distinct_path_views);
         self.path_views
             .push(outcome.paths.iter().map(|p| p.scored_steps.len()).sum());
         let actions: Vec<f64> = outcome.paths.iter().map(|p| p.actions as f64).collect();
@@ -266,7 +270,7 @@ impl ScorerBench {
         );
         let _ = writeln!(
             s,
-            "{:<12} {:>4} {:>10} {:>11} {:>10} {:>10} {:>14} {:>10}  {:>5} {:>5} {:>7} {:>6} {:>6}  model",
+            "{:<12} {:>4} {:>10} {:>11} {:>10} {:>10} {:>14} {:>10}  {:>5} {:>5} {:>7} {:>6} {:>8} {:>6}  model",
             "case",
             "runs",
             "unknown_ms",
@@ -279,6 +283,7 @@ impl ScorerBench {
             "paths",
             "actions",
             "views",
+            "distinct",
             "chosen"
         );
         for c in &self.cases {
@@ -288,7 +293,7 @@ impl ScorerBench {
             let reused = c.model_reused.iter().filter(|r| **r).count();
             let _ = writeln!(
                 s,
-                "{:<12} {:>4} {:>10.1} {:>11.1} {:>10.1} {:>10.1} {:>14.1} {:>10.1}  {:>5.0} {:>5.0} {:>7.0} {:>6.0} {:>3}/{:<2}  {}{}",
+                "{:<12} {:>4} {:>10.1} {:>11.1} {:>10.1} {:>10.1} {:>14.1} {:>10.1}  {:>5.0} {:>5.0} {:>7.0} {:>6.0} {:>8.0} {:>3}/{:<2}  {}{}",
                 c.name,
                 c.timings.len(),
                 c.median_of(|t| t.unknown_ms),
@@ -301,6 +306,7 @@ impl ScorerBench {
                 med(&c.paths),
                 median(&c.path_actions).unwrap_or(f64::NAN),
                 med(&c.path_views),
+                med(&c.distinct_views),
                 c.chosen.iter().filter(|x| **x).count(),
                 c.chosen.len(),
                 c.model,
@@ -314,7 +320,8 @@ impl ScorerBench {
         let _ = writeln!(
             s,
             "# medians over the runs; cands = candidates in free space (each one view), actions = \
-             median rollout length of the paths, views = poses scored along all paths; the \
+             median rollout length of the paths, views = poses scored along all paths, distinct = \
+             those rendered (paths share their first moves); the \
              summary line reports `incremental` (the map changed since the last replan, as \
              after every keyframe in an episode)"
         );

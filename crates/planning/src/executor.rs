@@ -160,6 +160,10 @@ pub struct PathExecutor {
     /// The grid the current path was planned on (the first grid seen after it arrived): only
     /// obstacles that appeared since then trigger an obstacle-ahead replan.
     plan_grid: Option<OccupancyGrid>,
+    /// The occupied-only clearance map of the triggers' checks and the grid it was built from:
+    /// rebuilt only when the grid changes (a rollout on one grid, the Fisher scorer's future
+    /// poses, would otherwise repeat the distance transform at every step).
+    occupied_only: Option<(OccupancyGrid, ClearanceMap)>,
     /// Where the robot was when it last moved forward (cleared by any other decision).
     forward_from: Option<Point2<f64>>,
     /// Forward moves in a row that did not move the robot.
@@ -189,6 +193,7 @@ impl PathExecutor {
             config,
             robot,
             plan_grid: None,
+            occupied_only: None,
             forward_from: None,
             bumps_in_row: 0,
             counters: ExecutorCounters::default(),
@@ -317,20 +322,24 @@ impl PathExecutor {
                     goal,
                     look_yaw,
                 } => {
-                    let occupied_only = ClearanceMap::new(
-                        grid,
-                        &ClearanceConfig {
-                            unknown_is_blocked: false,
-                            ..ClearanceConfig::for_disc(
-                                self.robot.radius_m,
-                                grid.geometry.resolution,
-                            )?
-                        },
-                    )?;
+                    if self.occupied_only.as_ref().is_none_or(|(g, _)| g != grid) {
+                        let map = ClearanceMap::new(
+                            grid,
+                            &ClearanceConfig {
+                                unknown_is_blocked: false,
+                                ..ClearanceConfig::for_disc(
+                                    self.robot.radius_m,
+                                    grid.geometry.resolution,
+                                )?
+                            },
+                        )?;
+                        self.occupied_only = Some((grid.clone(), map));
+                    }
+                    let occupied_only = &self.occupied_only.as_ref().expect("just built").1;
                     let plan_grid = self.plan_grid.get_or_insert_with(|| grid.clone());
                     let reason = check_replan(
                         grid,
-                        &occupied_only,
+                        occupied_only,
                         pose,
                         follower.remaining(),
                         Some(*goal),

@@ -41,11 +41,25 @@ pub fn shortest_path(
         });
     }
     let map = ClearanceMap::new(grid, clearance)?;
+    shortest_path_on(&map, grid, robot, goal, look_at, astar)
+}
+
+/// [`shortest_path`] on the clearance map `map`, built beforehand from `grid`: a caller that
+/// plans many paths on one grid (the Fisher scorer's paths to its top candidates) computes
+/// the distance transform once.
+pub fn shortest_path_on(
+    map: &ClearanceMap,
+    grid: &OccupancyGrid,
+    robot: Point2<f64>,
+    goal: Cell,
+    look_at: Point2<f64>,
+    astar: &AstarConfig,
+) -> Result<Option<PlannedPath>, PlanningError> {
     let start = grid.geometry.require_cell(robot, "robot position")?;
-    let Some(path) = plan(&map, start, goal, astar)? else {
+    let Some(path) = plan(map, start, goal, astar)? else {
         return Ok(None);
     };
-    let cells = shortcut(&map, &path.cells);
+    let cells = shortcut(map, &path.cells);
     let mut previous = robot;
     let mut waypoints = Vec::new();
     for c in cells.iter().skip(1) {

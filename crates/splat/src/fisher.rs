@@ -29,8 +29,8 @@ use crate::rasterize::{ForwardContext, Render};
 use crate::real::Real;
 use crate::tiles::TILE;
 use crate::walk::{
-    BackSink, Lanes, PADDED, TILE_PIXELS, lane_sum, lanes_n, lanes_n_mut, reduce_slots, walk_back,
-    walk_tiles,
+    BackSink, Lanes, PADDED, TILE_PIXELS, lane_sum, lanes_n, lanes_n_mut, reduce_slots_by,
+    walk_back, walk_tiles,
 };
 use nalgebra::Matrix6;
 use rayon::prelude::*;
@@ -233,13 +233,17 @@ fn project_diag<T: Real>(
 
 /// What the Fisher pass accumulates along the shared back-to-front walk
 /// ([`crate::walk::walk_back`]): per pixel its pose Jacobians, per (tile, Gaussian) pair the
-/// [`SLOT`] moment sums. `PER_CHANNEL` is [`FisherMode::PerChannel`], fixed at compile time so
+/// [`SLOT`] moment sums. `POSE` asks for the pose information too (else the per-pixel pose
+/// Jacobians, most of the walk's work, are skipped). `PER_CHANNEL` is [`FisherMode::PerChannel`], fixed at compile time so
 /// that the lane loop carries no mode select.
 ///
 /// The colour quantities leave out the exposure gain `e^a`: every colour output is linear in
 /// it, so the colour diagonal and `J_τᵀ J_τ` are scaled by `e^{2a}` once at the end.
-struct FisherSink<'a, T: Real, const PER_CHANNEL: bool, const L: usize> {
+struct FisherSink<'a, T: Real, const PER_CHANNEL: bool, const POSE: bool, const L: usize> {
+    /// Pose rows of the walked Gaussians, by compact index.
     pose_rows: &'a [PoseRows<T>],
+    /// Compact index of each Gaussian (meaningful for the walked ones).
+    dense: &'a [u32],
     /// ∂(raw colour channel)/∂τ per tile-local pixel, `[channel][τ component][pixel]`, summed
     /// over the Gaussians walked so far.
     jt_col: [[[T; PADDED]; 6]; 3],
@@ -271,11 +275,14 @@ struct FisherSink<'a, T: Real, const PER_CHANNEL: bool, const L: usize> {
     pose: PosePart,
 }
 
-impl<'a, T: Real, const PER_CHANNEL: bool, const L: usize> FisherSink<'a, T, PER_CHANNEL, L> {
-    fn new(pose_rows: &'a [PoseRows<T>], slots: &'a mut [T]) -> Self {
+impl<'a, T: Real, const PER_CHANNEL: bool, const POSE: bool, const L: usize>
+    FisherSink<'a, T, PER_CHANNEL, POSE, L>
+{
+    fn new(pose_rows: &'a [PoseRows<T>], dense: &'a [u32], slots: &'a mut [T]) -> Self {
         let z = T::zero();
         Self {
             pose_rows,
+            dense,
             jt_col: [[[z; PADDED]; 6]; 3],
             jt_dep: [[z; PADDED]; 6],
             splat: Splat::default(),
@@ -334,8 +341,8 @@ impl<'a, T: Real, const PER_CHANNEL: bool, const L: usize> FisherSink<'a, T, PER
     }
 }
 
-impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
-    for FisherSink<'_, T, PER_CHANNEL, L>
+impl<T: Real, const PER_CHANNEL: bool, const POSE: bool, const L: usize> BackSink<T, L>
+    for FisherSink<'_, T, PER_CHANNEL, POSE, L>
 {
     #[inline(always)]
     fn init_pixel(&mut self, _local: usize, _pixel: usize) {}
@@ -343,7 +350,9 @@ impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
     #[inline(always)]
     fn begin_pair(&mut self, id: usize, splat: &Splat<T>) {
         self.splat = *splat;
-        self.rows = self.pose_rows[id];
+        if POSE {
+            self.rows = self.pose_rows[self.dense[id] as usize];
+        }
         self.weight_sq = [T::zero(); L];
         self.col_sums = [[[T::zero(); L]; 5]; ROW_CHUNKS];
         self.dep_sums = [[[T::zero(); L]; 5]; ROW_CHUNKS];
@@ -354,10 +363,12 @@ impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
 
     #[inline(always)]
     fn begin_row(&mut self, dy: T) {
-        let pl = &self.rows.pose_l;
         let dy2 = dy * dy;
-        self.r = std::array::from_fn(|j| pl[2][j] * dy + pl[5][j] * dy2);
-        self.q = std::array::from_fn(|j| pl[1][j] + pl[4][j] * dy);
+        if POSE {
+            let pl = &self.rows.pose_l;
+            self.r = std::array::from_fn(|j| pl[2][j] * dy + pl[5][j] * dy2);
+            self.q = std::array::from_fn(|j| pl[1][j] + pl[4][j] * dy);
+        }
         self.dy_pow = [T::one(), dy, dy2, dy2 * dy, dy2 * dy2];
     }
 
@@ -391,10 +402,12 @@ impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
             e_dep[l] = w_dep[l] * w_dep[l];
             e_cross[l] = w_dep[l] * weight;
             // Pose: v' = (∂u/∂τ)ᵀ ∂α/∂u / α = Σ_m pose_l[m]·mono[m].
-            let dx = ln.dx[l];
-            let dx2 = dx * dx;
-            for j in 0..6 {
-                v[j][l] = dx2.mul_add(p3[j], dx.mul_add(q[j], r[j]));
+            if POSE {
+                let dx = ln.dx[l];
+                let dx2 = dx * dx;
+                for j in 0..6 {
+                    v[j][l] = dx2.mul_add(p3[j], dx.mul_add(q[j], r[j]));
+                }
             }
         }
         // The accumulators are updated in place (one load, FMA and store each).
@@ -419,6 +432,9 @@ impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
         }
         self.chunk_dx[chunk] = ln.dx;
         self.chunks_used = self.chunks_used.max(chunk + 1);
+        if !POSE {
+            return;
+        }
         for ch in 0..3 {
             for j in 0..6 {
                 let jt = lanes_n_mut::<_, L>(&mut self.jt_col[ch][j], base);
@@ -492,7 +508,9 @@ impl<T: Real, const PER_CHANNEL: bool, const L: usize> BackSink<T, L>
 
     #[inline(always)]
     fn end_tile(&mut self) {
-        self.pose = self.pose_part();
+        if POSE {
+            self.pose = self.pose_part();
+        }
     }
 }
 
@@ -512,12 +530,13 @@ fn lane_tree_sum<T: Real, const L: usize>(v: &[T; L]) -> T {
 }
 
 /// Walks every tile with a [`FisherSink`]: the pair slots and the per-tile pose matrices.
-fn walk_fisher<T: Real, const PER_CHANNEL: bool, const L: usize>(
+fn walk_fisher<T: Real, const PER_CHANNEL: bool, const POSE: bool, const L: usize>(
     ctx: &ForwardContext<T>,
     pose_rows: &[PoseRows<T>],
+    dense: &[u32],
 ) -> (Vec<T>, Vec<PosePart>) {
     walk_tiles(ctx, SLOT, |t, piece| {
-        let mut sink = FisherSink::<T, PER_CHANNEL, L>::new(pose_rows, piece);
+        let mut sink = FisherSink::<T, PER_CHANNEL, POSE, L>::new(pose_rows, dense, piece);
         walk_back(ctx, t, &mut sink);
         sink.pose
     })
@@ -526,6 +545,104 @@ fn walk_fisher<T: Real, const PER_CHANNEL: bool, const L: usize>(
 /// Per-tile result: the two packed 6×6 pose matrices.
 type PosePart = ([f64; 36], [f64; 36]);
 
+/// The projection Jacobians of Gaussian `i` of the render: `∂u_k/∂w` over the 10 geometric
+/// parameters (mean, quaternion, log-scale) and `∂u_k/∂τ` over the pose, for the 6 geometric
+/// entries of `u`; zero when the projection chain is degenerate.
+fn projection_jacobians<T: Real>(
+    ctx: &ForwardContext<T>,
+    gaussians: &Gaussians<T>,
+    i: usize,
+) -> (GeoJacobian<T>, [[T; 6]; 6]) {
+    let mut geo = GeoJacobian::<T>::default();
+    let mut pose = [[T::zero(); 6]; 6];
+    let Some(c) = chain(&ctx.cam, gaussians, i) else {
+        return (geo, pose);
+    };
+    let prep = ConicPrep::new(&c);
+    for k in 0..6 {
+        let mut up = [T::zero(); 6];
+        up[k] = T::one();
+        let g = project_vjp_with(&c, &prep, &ctx.cam, &up);
+        geo[k] = [
+            g.mean[0],
+            g.mean[1],
+            g.mean[2],
+            g.rotation[0],
+            g.rotation[1],
+            g.rotation[2],
+            g.rotation[3],
+            g.log_scale[0],
+            g.log_scale[1],
+            g.log_scale[2],
+        ];
+        pose[k] = g.pose;
+    }
+    (geo, pose)
+}
+
+/// What the pixel walk needs of a Gaussian's pose Jacobian `pose[k][j] = ∂u_k/∂τ_j`.
+fn pose_rows_of<T: Real>(splat: &Splat<T>, pose: &[[T; 6]; 6]) -> PoseRows<T> {
+    let mut rows = PoseRows::<T>::default();
+    // pose_l[·][j] = Lᵀ·(∂u/∂τ_j) (z and the logit have no L entry / no pose).
+    for j in 0..6 {
+        let column: [T; U] = std::array::from_fn(|k| if k < 5 { pose[k][j] } else { T::zero() });
+        let folded = l_transpose_times(splat, &column);
+        for (m, v) in folded.into_iter().enumerate() {
+            rows.pose_l[m][j] = v;
+        }
+    }
+    rows.depth = [pose[5][2], pose[5][3], pose[5][4]];
+    rows
+}
+
+/// Fisher information of the view rendered in `render` (SPEC §5), for the Gaussians the walk
+/// reaches only: the compact form of [`FisherOutput`]. Every Gaussian it leaves out (culled,
+/// or behind what each pixel of its tiles composited) has an exactly zero diagonal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SparseFisher<T: Real> {
+    /// Indices (into the rendered set, ascending) of the Gaussians with an entry.
+    pub ids: Vec<u32>,
+    /// Colour diagonal of each of `ids`, in the [`layout`] order.
+    pub colour: Vec<[T; 14]>,
+    /// Depth diagonal of each of `ids` (colour entries are 0).
+    pub depth: Vec<[T; 14]>,
+    /// `J_τᵀ J_τ` of the RGB outputs (`None` when not asked for).
+    pub pose_colour: Option<Matrix6<f64>>,
+    /// `J_τᵀ J_τ` of the depth output (`None` when not asked for).
+    pub pose_depth: Option<Matrix6<f64>>,
+}
+
+impl<T: Real> SparseFisher<T> {
+    /// Colour plus `depth_weight` × depth diagonal of entry `k` (Gaussian `ids[k]`).
+    pub fn combined(&self, k: usize, depth_weight: f64) -> [f64; 14] {
+        std::array::from_fn(|p| {
+            self.colour[k][p].to_f64() + depth_weight * self.depth[k][p].to_f64()
+        })
+    }
+
+    /// Colour plus `depth_weight` × depth pose information (`None` when not asked for).
+    pub fn pose(&self, depth_weight: f64) -> Option<Matrix6<f64>> {
+        Some(self.pose_colour? + self.pose_depth? * depth_weight)
+    }
+
+    /// The dense form: one diagonal per Gaussian of a set of `n`, zero where there is no entry
+    /// (the pose matrices zero when they were not asked for).
+    pub fn into_dense(self, n: usize) -> FisherOutput<T> {
+        let mut colour = vec![[T::zero(); 14]; n];
+        let mut depth = vec![[T::zero(); 14]; n];
+        for (k, &i) in self.ids.iter().enumerate() {
+            colour[i as usize] = self.colour[k];
+            depth[i as usize] = self.depth[k];
+        }
+        FisherOutput {
+            colour,
+            depth,
+            pose_colour: self.pose_colour.unwrap_or_else(Matrix6::zeros),
+            pose_depth: self.pose_depth.unwrap_or_else(Matrix6::zeros),
+        }
+    }
+}
+
 /// Fisher information of the view rendered in `render` (SPEC §5). `gaussians` must be the set
 /// `render` was computed from. Cost: a small multiple of one [`crate::backward`] pass.
 pub fn fisher<T: Real>(
@@ -533,17 +650,31 @@ pub fn fisher<T: Real>(
     render: &Render<T>,
     mode: FisherMode,
 ) -> Result<FisherOutput<T>, SplatError> {
-    let wide = render.context.cam.width >= WIDE_IMAGE;
-    fisher_with_lanes(gaussians, render, mode, wide)
+    Ok(fisher_sparse(gaussians, render, mode, true)?.into_dense(gaussians.len()))
 }
 
-/// [`fisher`], walking 16 lanes at a time when `wide`, else 8.
+/// [`fisher`] in compact form: only the Gaussians the walk reaches get an entry, so a view
+/// that sees a little of a large set costs (in time and memory) what it composites. With
+/// `with_pose` false the 6×6 pose information is not computed (`None`): a view scored by its
+/// EIG alone skips the per-pixel pose Jacobians, most of the walk's work.
+pub fn fisher_sparse<T: Real>(
+    gaussians: &Gaussians<T>,
+    render: &Render<T>,
+    mode: FisherMode,
+    with_pose: bool,
+) -> Result<SparseFisher<T>, SplatError> {
+    let wide = render.context.cam.width >= WIDE_IMAGE;
+    fisher_with_lanes(gaussians, render, mode, wide, with_pose)
+}
+
+/// [`fisher_sparse`], walking 16 lanes at a time when `wide`, else 8.
 pub(crate) fn fisher_with_lanes<T: Real>(
     gaussians: &Gaussians<T>,
     render: &Render<T>,
     mode: FisherMode,
     wide: bool,
-) -> Result<FisherOutput<T>, SplatError> {
+    with_pose: bool,
+) -> Result<SparseFisher<T>, SplatError> {
     let ctx = &render.context;
     check_pixels(
         "gaussians (vs. the render)",
@@ -551,74 +682,61 @@ pub(crate) fn fisher_with_lanes<T: Real>(
         ctx.splats.len(),
     )?;
     let n = gaussians.len();
-    let mut geos = vec![GeoJacobian::<T>::default(); n];
-    let mut pose_rows = vec![PoseRows::<T>::default(); n];
-    geos.par_chunks_mut(CHUNK)
-        .zip(pose_rows.par_chunks_mut(CHUNK))
-        .enumerate()
-        .for_each(|(chunk, (geo_part, rows_part))| {
-            for (j, (geo, rows)) in geo_part.iter_mut().zip(rows_part).enumerate() {
-                let i = chunk * CHUNK + j;
-                if !ctx.visible[i] {
-                    continue;
-                }
-                let Some(c) = chain(&ctx.cam, gaussians, i) else {
-                    continue;
-                };
-                let prep = ConicPrep::new(&c);
-                let mut pose = [[T::zero(); 6]; 6];
-                for k in 0..6 {
-                    let mut up = [T::zero(); 6];
-                    up[k] = T::one();
-                    let g = project_vjp_with(&c, &prep, &ctx.cam, &up);
-                    geo[k] = [
-                        g.mean[0],
-                        g.mean[1],
-                        g.mean[2],
-                        g.rotation[0],
-                        g.rotation[1],
-                        g.rotation[2],
-                        g.rotation[3],
-                        g.log_scale[0],
-                        g.log_scale[1],
-                        g.log_scale[2],
-                    ];
-                    pose[k] = g.pose;
-                }
-                // pose_l[·][j] = Lᵀ·(∂u/∂τ_j) (z and the logit have no L entry / no pose).
-                for j in 0..6 {
-                    let column: [T; U] =
-                        std::array::from_fn(|k| if k < 5 { pose[k][j] } else { T::zero() });
-                    let folded = l_transpose_times(&ctx.splats[i], &column);
-                    for (m, v) in folded.into_iter().enumerate() {
-                        rows.pose_l[m][j] = v;
-                    }
-                }
-                rows.depth = [pose[5][2], pose[5][3], pose[5][4]];
-            }
-        });
+    // Only the Gaussians some tile walks get pair slots; every other one has a zero Fisher, so
+    // their Jacobians are never needed. Behind a wall or inside a dense cloud that is most of
+    // the visible set. They get compact indices, ascending with the Gaussian index.
+    let walked = ctx.walked_mask();
+    let mut ids = Vec::new();
+    let mut dense = vec![u32::MAX; n];
+    for (i, w) in walked.iter().enumerate() {
+        if *w {
+            dense[i] = ids.len() as u32;
+            ids.push(i as u32);
+        }
+    }
+    let m = ids.len();
+    // Per walked Gaussian: ∂u/∂w over the 10 geometric parameters and ∂u/∂τ over the pose.
+    let jacobians: Vec<(GeoJacobian<T>, [[T; 6]; 6])> = ids
+        .par_iter()
+        .with_min_len(CHUNK)
+        .map(|&i| projection_jacobians(ctx, gaussians, i as usize))
+        .collect();
+    let pose_rows: Vec<PoseRows<T>> = if with_pose {
+        jacobians
+            .par_iter()
+            .zip(&ids)
+            .with_min_len(CHUNK)
+            .map(|((_, pose), &i)| pose_rows_of(&ctx.splats[i as usize], pose))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let gain_sq_f64 = (2.0 * ctx.options.exposure[0]).exp();
     let gain_sq = T::of(gain_sq_f64);
-    let (slots, parts) = match (mode, wide) {
-        (FisherMode::PerChannel, true) => walk_fisher::<T, true, 16>(ctx, &pose_rows),
-        (FisherMode::PerChannel, false) => walk_fisher::<T, true, 8>(ctx, &pose_rows),
-        (FisherMode::ChannelSum, true) => walk_fisher::<T, false, 16>(ctx, &pose_rows),
-        (FisherMode::ChannelSum, false) => walk_fisher::<T, false, 8>(ctx, &pose_rows),
+    let (rows, d) = (pose_rows.as_slice(), dense.as_slice());
+    let (slots, parts) = match (mode, with_pose, wide) {
+        (FisherMode::PerChannel, true, true) => walk_fisher::<T, true, true, 16>(ctx, rows, d),
+        (FisherMode::PerChannel, true, false) => walk_fisher::<T, true, true, 8>(ctx, rows, d),
+        (FisherMode::PerChannel, false, true) => walk_fisher::<T, true, false, 16>(ctx, rows, d),
+        (FisherMode::PerChannel, false, false) => walk_fisher::<T, true, false, 8>(ctx, rows, d),
+        (FisherMode::ChannelSum, true, true) => walk_fisher::<T, false, true, 16>(ctx, rows, d),
+        (FisherMode::ChannelSum, true, false) => walk_fisher::<T, false, true, 8>(ctx, rows, d),
+        (FisherMode::ChannelSum, false, true) => walk_fisher::<T, false, false, 16>(ctx, rows, d),
+        (FisherMode::ChannelSum, false, false) => walk_fisher::<T, false, false, 8>(ctx, rows, d),
     };
-    let per_gaussian: Vec<[T; SLOT]> = reduce_slots(ctx, &slots, n);
-    let mut colour = vec![[T::zero(); 14]; n];
-    let mut depth = vec![[T::zero(); 14]; n];
+    let per_gaussian: Vec<[T; SLOT]> =
+        reduce_slots_by(ctx, &slots, m, |id| dense[id as usize] as usize);
+    let mut colour = vec![[T::zero(); 14]; m];
+    let mut depth = vec![[T::zero(); 14]; m];
     colour
         .par_chunks_mut(CHUNK)
         .zip(depth.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each(|(chunk, (col, dep))| {
             for j in 0..col.len() {
-                let i = chunk * CHUNK + j;
-                if !ctx.visible[i] {
-                    continue;
-                }
-                let acc = &per_gaussian[i];
+                let k = chunk * CHUNK + j;
+                let i = ids[k] as usize;
+                let acc = &per_gaussian[k];
                 // The colour moments carry the exposure gain squared (see [`FisherSink`]).
                 let col_moments: [T; MOMENTS] = std::array::from_fn(|q| acc[q] * gain_sq);
                 let dep_moments: [T; MOMENTS] = std::array::from_fn(|q| acc[MOMENTS + q]);
@@ -629,7 +747,7 @@ pub(crate) fn fisher_with_lanes<T: Real>(
                 let m_dep = moments_to_packed(&dep_moments, &ctx.splats[i], &cross, weight_sq);
                 // ∂C_ch/∂sh_ch = e^a·C0·weight.
                 let colour_v = gain_sq * T::of(SH_C0 * SH_C0) * weight_sq;
-                let (diag_col, diag_dep) = project_diag(&m_col, &m_dep, &geos[i]);
+                let (diag_col, diag_dep) = project_diag(&m_col, &m_dep, &jacobians[k].0);
                 for (out, (geo, logit_v), colour_v) in [
                     (&mut col[j], diag_col, colour_v),
                     (&mut dep[j], diag_dep, T::zero()),
@@ -642,18 +760,23 @@ pub(crate) fn fisher_with_lanes<T: Real>(
                 }
             }
         });
-    let mut pose_colour = Matrix6::zeros();
-    let mut pose_depth = Matrix6::zeros();
-    for (pc, pd) in parts {
-        for a in 0..6 {
-            for b in 0..6 {
-                pose_colour[(a, b)] += pc[a * 6 + b];
-                pose_depth[(a, b)] += pd[a * 6 + b];
+    let (pose_colour, pose_depth) = if with_pose {
+        let mut pose_colour = Matrix6::zeros();
+        let mut pose_depth = Matrix6::zeros();
+        for (pc, pd) in parts {
+            for a in 0..6 {
+                for b in 0..6 {
+                    pose_colour[(a, b)] += pc[a * 6 + b];
+                    pose_depth[(a, b)] += pd[a * 6 + b];
+                }
             }
         }
-    }
-    pose_colour *= gain_sq_f64;
-    Ok(FisherOutput {
+        (Some(pose_colour * gain_sq_f64), Some(pose_depth))
+    } else {
+        (None, None)
+    };
+    Ok(SparseFisher {
+        ids,
         colour,
         depth,
         pose_colour,
@@ -667,6 +790,66 @@ mod tests {
     use crate::bench::{camera, scene};
     use crate::{RenderOptions, render};
 
+    /// The sparse pass holds exactly the walked Gaussians, and its entries are the dense
+    /// pass's (the others are zero there); without the pose it computes the same diagonals
+    /// bit for bit and no pose matrix.
+    #[test]
+    fn the_sparse_pass_and_the_diagonal_alone_agree_with_the_dense_one() {
+        let mut g = scene(3000);
+        // An opaque wall (three layers) over the left half of the view hides what lies behind.
+        for layer in 0..3 {
+            for j in 0..30 {
+                for h in 0..30 {
+                    g.push(
+                        [
+                            -0.82 + 0.028 * j as f64,
+                            -0.82 + 0.057 * h as f64,
+                            0.8 + 0.02 * layer as f64,
+                        ],
+                        [0.4, 0.5, 0.6],
+                        [1.0, 0.0, 0.0, 0.0],
+                        0.98,
+                        [0.03, 0.03, 0.01],
+                    );
+                }
+            }
+        }
+        let out = render(&g, &camera(64), &RenderOptions::default()).unwrap();
+        let walked = out.context.walked_mask();
+        let visible = out.context.visible.iter().filter(|v| **v).count();
+        let dense = fisher(&g, &out, FisherMode::PerChannel).unwrap();
+        let sparse = fisher_sparse(&g, &out, FisherMode::PerChannel, true).unwrap();
+        let diagonal = fisher_sparse(&g, &out, FisherMode::PerChannel, false).unwrap();
+        let expected: Vec<u32> = (0..g.len() as u32)
+            .filter(|&i| walked[i as usize])
+            .collect();
+        assert_eq!(sparse.ids, expected);
+        assert!(
+            !expected.is_empty() && expected.len() < visible,
+            "{} walked of {visible} visible: the scene should hide some",
+            expected.len()
+        );
+        for i in 0..g.len() {
+            match sparse.ids.binary_search(&(i as u32)) {
+                Ok(k) => {
+                    assert_eq!(dense.colour[i], sparse.colour[k]);
+                    assert_eq!(dense.depth[i], sparse.depth[k]);
+                }
+                Err(_) => {
+                    assert!(dense.colour[i].iter().all(|v| *v == 0.0));
+                    assert!(dense.depth[i].iter().all(|v| *v == 0.0));
+                }
+            }
+        }
+        assert_eq!(sparse.pose_colour, Some(dense.pose_colour));
+        assert_eq!(sparse.pose_depth, Some(dense.pose_depth));
+        assert_eq!(diagonal.ids, sparse.ids);
+        assert_eq!(diagonal.colour, sparse.colour);
+        assert_eq!(diagonal.depth, sparse.depth);
+        assert_eq!((diagonal.pose_colour, diagonal.pose_depth), (None, None));
+        assert_eq!(diagonal.pose(0.5), None);
+    }
+
     /// The 16-lane walk (wide images) sums the same terms as the 8-lane one (checked against
     /// brute force in tests/gradients.rs), grouped differently: equal up to rounding.
     #[test]
@@ -674,8 +857,12 @@ mod tests {
         let g = scene(2000);
         let out = render(&g, &camera(96), &RenderOptions::default()).unwrap();
         for mode in [FisherMode::PerChannel, FisherMode::ChannelSum] {
-            let narrow = fisher_with_lanes(&g, &out, mode, false).unwrap();
-            let wide = fisher_with_lanes(&g, &out, mode, true).unwrap();
+            let narrow = fisher_with_lanes(&g, &out, mode, false, true)
+                .unwrap()
+                .into_dense(g.len());
+            let wide = fisher_with_lanes(&g, &out, mode, true, true)
+                .unwrap()
+                .into_dense(g.len());
             let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-4 * scale + 1e-12;
             for (pn, pw) in [
                 (narrow.pose_colour, wide.pose_colour),

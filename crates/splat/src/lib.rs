@@ -68,7 +68,7 @@ mod walk;
 pub use adam::{AdamConfig, AdamState, GaussianAdam};
 pub use backward::{Gradients, PixelGrads, backward};
 pub use camera::{Camera, DEFAULT_NEAR};
-pub use fisher::{FisherMode, FisherOutput, fisher};
+pub use fisher::{FisherMode, FisherOutput, SparseFisher, fisher, fisher_sparse};
 pub use gaussians::{FLAG_UNKNOWN_SPACE, Gaussians, SH_C0, layout};
 pub use rasterize::{ForwardContext, Render, RenderOptions, render};
 pub use real::Real;

@@ -53,6 +53,19 @@ impl<T: Real> ForwardContext<T> {
     pub(crate) fn walked(&self, t: usize) -> usize {
         self.walked_offsets[t + 1] - self.walked_offsets[t]
     }
+
+    /// Per Gaussian: whether it lies in the walked part of some tile's list (at or before the
+    /// last Gaussian a pixel of that tile composited), i.e. whether the backward and Fisher
+    /// walks visit one of its pairs. Every other Gaussian has a zero gradient and Fisher.
+    pub fn walked_mask(&self) -> Vec<bool> {
+        let mut out = vec![false; self.splats.len()];
+        for t in 0..self.bins.tile_count() {
+            for &i in &self.bins.tile(t)[..self.walked(t)] {
+                out[i as usize] = true;
+            }
+        }
+        out
+    }
 }
 
 /// Output of [`render`]: images (row-major, `width × height`) and the context for backward.

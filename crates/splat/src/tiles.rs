@@ -94,15 +94,13 @@ pub fn bin<T: Real>(
     }
     let slices = split_by_offsets(&mut ids, &offsets, 1);
     slices.into_par_iter().for_each(|list| {
-        let mut keyed: Vec<(T, u32)> = list
+        // Integer keys (depth in a bit pattern that orders as the value, then index) sort
+        // several times faster than a float comparator.
+        let mut keyed: Vec<(u64, u32)> = list
             .iter()
-            .map(|&i| (splats[i as usize].depth, i))
+            .map(|&i| (depth_key(splats[i as usize].depth.to_f64()), i))
             .collect();
-        keyed.sort_unstable_by(|a, b| {
-            a.0.partial_cmp(&b.0)
-                .unwrap_or(std::cmp::Ordering::Equal)
-                .then(a.1.cmp(&b.1))
-        });
+        keyed.sort_unstable();
         for (dst, (_, i)) in list.iter_mut().zip(keyed) {
             *dst = i;
         }
@@ -112,6 +110,17 @@ pub fn bin<T: Real>(
         tiles_y,
         offsets,
         ids,
+    }
+}
+
+/// The bits of `depth` as an unsigned integer ordered as `f64::total_cmp` orders the values
+/// (for the finite depths of projected splats: as their values).
+fn depth_key(depth: f64) -> u64 {
+    let bits = depth.to_bits();
+    if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | 1 << 63
     }
 }
 
@@ -128,4 +137,45 @@ pub(crate) fn split_by_offsets<'a, V>(
         data = tail;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The integer depth key orders values as `f64::total_cmp` does, across signs, zeros,
+    /// subnormals, infinities and the range of f32 depths.
+    #[test]
+    fn depth_keys_order_as_the_values() {
+        let mut values = vec![
+            f64::NEG_INFINITY,
+            -1e300,
+            -2.5,
+            -f64::MIN_POSITIVE,
+            -0.0,
+            0.0,
+            f64::MIN_POSITIVE / 4.0,
+            1e-9,
+            0.01,
+            0.010000001,
+            1.0,
+            f32::MAX as f64,
+            f64::INFINITY,
+        ];
+        let mut x = 0.37f64;
+        for _ in 0..200 {
+            x = (x * 3.9 * (1.0 - x)).abs();
+            values.push((x - 0.5) * 40.0);
+            values.push(x as f32 as f64);
+        }
+        for a in &values {
+            for b in &values {
+                assert_eq!(
+                    depth_key(*a).cmp(&depth_key(*b)),
+                    a.total_cmp(b),
+                    "{a} vs {b}"
+                );
+            }
+        }
+    }
 }

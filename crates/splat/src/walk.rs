@@ -357,12 +357,24 @@ pub(crate) fn reduce_slots<T: Real, const N: usize>(
     slots: &[T],
     gaussians: usize,
 ) -> Vec<[T; N]> {
+    reduce_slots_by(ctx, slots, gaussians, |id| id as usize)
+}
+
+/// [`reduce_slots`] into `count` sums, the pairs of Gaussian `id` going to sum `index(id)`
+/// (`< count`): a compact output when only some Gaussians are walked.
+pub(crate) fn reduce_slots_by<T: Real, const N: usize>(
+    ctx: &ForwardContext<T>,
+    slots: &[T],
+    count: usize,
+    index: impl Fn(u32) -> usize,
+) -> Vec<[T; N]> {
+    let gaussians = count;
     let tiles = ctx.bins.tile_count();
     let walked_ids = |t: usize| &ctx.bins.tile(t)[..ctx.walked(t)];
     let mut starts = vec![0usize; gaussians + 1];
     for t in 0..tiles {
         for &id in walked_ids(t) {
-            starts[id as usize + 1] += 1;
+            starts[index(id) + 1] += 1;
         }
     }
     for i in 0..gaussians {
@@ -373,7 +385,7 @@ pub(crate) fn reduce_slots<T: Real, const N: usize>(
     for t in 0..tiles {
         let first = ctx.walked_offsets[t];
         for (k, &id) in walked_ids(t).iter().enumerate() {
-            let at = &mut fill[id as usize];
+            let at = &mut fill[index(id)];
             pairs[*at] = first + k;
             *at += 1;
         }
@@ -466,9 +478,16 @@ mod tests {
             }
             let grads = backward(&g, &out, &dl).unwrap();
             let info = fisher(&g, &out, FisherMode::PerChannel).unwrap();
-            let wide = crate::fisher::fisher_with_lanes(&g, &out, FisherMode::PerChannel, true);
+            let wide =
+                crate::fisher::fisher_with_lanes(&g, &out, FisherMode::PerChannel, true, true);
+            let diagonal = crate::fisher::fisher_sparse(&g, &out, FisherMode::PerChannel, false);
             SIMD_CAP.store(2, Ordering::Relaxed);
-            (out.colour, out.depth, grads, (info, wide.unwrap()))
+            (
+                out.colour,
+                out.depth,
+                grads,
+                (info, wide.unwrap(), diagonal.unwrap()),
+            )
         };
         eprintln!("this CPU runs the {:?} build", super::simd_level());
         let simd = run(2);
