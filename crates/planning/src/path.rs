@@ -35,11 +35,6 @@ pub fn shortest_path(
     clearance: &ClearanceConfig,
     astar: &AstarConfig,
 ) -> Result<Option<PlannedPath>, PlanningError> {
-    if !(look_at.x.is_finite() && look_at.y.is_finite()) {
-        return Err(PlanningError::NonFinite {
-            what: "look-at point of the path",
-        });
-    }
     let map = ClearanceMap::new(grid, clearance)?;
     shortest_path_on(&map, grid, robot, goal, look_at, astar)
 }
@@ -55,6 +50,11 @@ pub fn shortest_path_on(
     look_at: Point2<f64>,
     astar: &AstarConfig,
 ) -> Result<Option<PlannedPath>, PlanningError> {
+    if !(look_at.x.is_finite() && look_at.y.is_finite()) {
+        return Err(PlanningError::NonFinite {
+            what: "look-at point of the path",
+        });
+    }
     let start = grid.geometry.require_cell(robot, "robot position")?;
     let Some(path) = plan(map, start, goal, astar)? else {
         return Ok(None);
