@@ -6,6 +6,7 @@ mod integration {
     mod distributed;
     mod explore;
     mod fisher;
+    mod fuzz_regressions;
     pub mod harness;
     mod llm;
     mod processes;

@@ -14,6 +14,8 @@
 //! producer's port, so no list of canonical topic names is kept here.
 
 pub mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod gaussian_map;
 pub mod kind;
 mod layout;

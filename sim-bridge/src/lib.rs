@@ -40,6 +40,8 @@
 pub mod bench;
 pub mod error;
 pub mod export;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod ground_truth;
 pub mod house;
 pub mod load;

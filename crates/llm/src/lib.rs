@@ -17,6 +17,8 @@
 pub mod bev;
 pub mod config;
 pub mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod parse;
 pub mod planner;
 pub mod prompt;

@@ -83,6 +83,8 @@ pub mod daemon;
 pub mod dataflow;
 pub mod delta;
 mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod graph;
 pub mod launch;
 pub mod node;

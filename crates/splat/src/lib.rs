@@ -56,6 +56,8 @@ pub mod backward;
 pub mod bench;
 pub mod camera;
 pub mod fisher;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod gaussians;
 pub mod ortho;
 pub mod ply;

@@ -2,7 +2,7 @@
 //! and fans are converted), base colour factor and texture with its sampler's wrap modes,
 //! vertex colours (COLOR_0). Positions are converted from glTF's y-up to the z-up world.
 
-use super::{LoadOptions, LoadWarning, UpAxis, texture_from_image};
+use super::{LoadOptions, LoadWarning, UpAxis, panic_message, texture_from_image};
 use crate::error::{Result, SimError};
 use crate::scene::{Material, Scene, Triangle, Vertex, Wrap};
 use gltf::mesh::Mode;
@@ -66,27 +66,24 @@ fn image_to_dynamic(data: &gltf::image::Data) -> Option<image::DynamicImage> {
     }
 }
 
-/// Loads a `.gltf` or `.glb` file already read into `bytes`. The `gltf` crate can panic on
-/// some invalid indices during validation; such a panic becomes a [`SimError::Malformed`].
+/// Loads a `.gltf` or `.glb` file already read into `bytes`, its external buffers and images
+/// relative to `base` (none read without one). The `gltf` crate can panic on some invalid
+/// indices during validation; such a panic becomes a [`SimError::Malformed`].
 pub(super) fn load(
     path: &Path,
     bytes: &[u8],
+    base: Option<&Path>,
     options: &LoadOptions,
     warnings: &mut Vec<LoadWarning>,
 ) -> Result<Scene> {
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        load_checked(path, bytes, options, warnings)
+        load_checked(path, bytes, base, options, warnings)
     }));
     outcome.unwrap_or_else(|panic| {
-        let what = panic
-            .downcast_ref::<String>()
-            .cloned()
-            .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-            .unwrap_or_else(|| "unknown".into());
         Err(SimError::Malformed {
             format: "glTF",
             path: path.to_path_buf(),
-            reason: format!("invalid document ({what})"),
+            reason: format!("invalid document ({})", panic_message(&*panic)),
         })
     })
 }
@@ -94,6 +91,7 @@ pub(super) fn load(
 fn load_checked(
     path: &Path,
     bytes: &[u8],
+    base: Option<&Path>,
     options: &LoadOptions,
     warnings: &mut Vec<LoadWarning>,
 ) -> Result<Scene> {
@@ -104,9 +102,8 @@ fn load_checked(
     };
     let up = options.placement.up_axis.unwrap_or(UpAxis::Y);
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
-    let base = path.parent().unwrap_or_else(|| Path::new("."));
     let document = gltf.document;
-    let buffers = gltf::import_buffers(&document, Some(base), gltf.blob)
+    let buffers = gltf::import_buffers(&document, base, gltf.blob)
         .map_err(|e| malformed(format!("buffer data: {e}")))?;
     for (i, b) in document.buffers().enumerate() {
         if buffers[i].len() < b.length() {
@@ -121,7 +118,7 @@ fn load_checked(
             gltf::image::Source::Uri { uri, .. } => uri.chars().take(80).collect::<String>(),
             gltf::image::Source::View { .. } => format!("embedded image {}", image.index()),
         };
-        match gltf::image::Data::from_source(image.source(), Some(base), &buffers) {
+        match gltf::image::Data::from_source(image.source(), base, &buffers) {
             Ok(data) => images.push(image_to_dynamic(&data)),
             Err(e) => {
                 warnings.push(LoadWarning {

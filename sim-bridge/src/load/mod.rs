@@ -212,35 +212,72 @@ pub struct Loaded {
     pub placement: Option<PlacementReport>,
 }
 
+/// The scene file formats [`load_scene`] reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SceneFormat {
+    /// glTF 2.0, JSON (`.gltf`) or binary (`.glb`).
+    Gltf,
+    /// Wavefront OBJ (`.obj`), with an optional MTL material library.
+    Obj,
+    /// PLY mesh (`.ply`).
+    Ply,
+}
+
+impl SceneFormat {
+    /// The format of a file by its extension (case-insensitive); `None` if unsupported.
+    pub fn from_path(path: &Path) -> Option<SceneFormat> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        Some(match ext.as_str() {
+            "glb" | "gltf" => SceneFormat::Gltf,
+            "obj" => SceneFormat::Obj,
+            "ply" => SceneFormat::Ply,
+            _ => return None,
+        })
+    }
+
+    /// The up axis of files of this format when none is configured.
+    fn default_up(self) -> UpAxis {
+        match self {
+            SceneFormat::Gltf | SceneFormat::Obj => UpAxis::Y,
+            SceneFormat::Ply => UpAxis::Z,
+        }
+    }
+}
+
 /// Loads a scene file, choosing the format by extension (case-insensitive).
 pub fn load_scene(path: &Path, options: &LoadOptions) -> Result<Loaded> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase())
-        .unwrap_or_default();
-    if !matches!(ext.as_str(), "glb" | "gltf" | "obj" | "ply") {
-        return Err(SimError::UnsupportedFormat {
-            path: path.to_path_buf(),
-        });
-    }
+    let format = SceneFormat::from_path(path).ok_or_else(|| SimError::UnsupportedFormat {
+        path: path.to_path_buf(),
+    })?;
     let bytes = std::fs::read(path).map_err(|source| SimError::Io {
         path: path.to_path_buf(),
         source,
     })?;
+    let base = path.parent().unwrap_or_else(|| Path::new("."));
+    load_scene_bytes(&bytes, format, path, Some(base), options)
+}
+
+/// Loads a scene from the bytes of a file of format `format`; `path` only names it in errors
+/// and warnings. External files (an OBJ's material library and textures, a glTF's buffers and
+/// images) are read relative to the folder `base`; with `base` `None` nothing outside `bytes`
+/// is read: a glTF external buffer is then an error, a material library or texture a warning.
+pub fn load_scene_bytes(
+    bytes: &[u8],
+    format: SceneFormat,
+    path: &Path,
+    base: Option<&Path>,
+    options: &LoadOptions,
+) -> Result<Loaded> {
     let mut warnings = Vec::new();
-    let (mut scene, default_up) = match ext.as_str() {
-        "glb" | "gltf" => (
-            gltf_scene::load(path, &bytes, options, &mut warnings)?,
-            UpAxis::Y,
-        ),
-        "obj" => (obj_scene::load(path, options, &mut warnings)?, UpAxis::Y),
-        _ => (ply_scene::load(path, &bytes, options)?, UpAxis::Z),
+    let mut scene = match format {
+        SceneFormat::Gltf => gltf_scene::load(path, bytes, base, options, &mut warnings)?,
+        SceneFormat::Obj => obj_scene::load(path, bytes, base, options, &mut warnings)?,
+        SceneFormat::Ply => ply_scene::load(path, bytes, options)?,
     };
     scene.validate()?;
     // The loader applied the up axis to every vertex; the rest of the placement follows.
     let placement = &options.placement;
-    let up = placement.up_axis.unwrap_or(default_up);
+    let up = placement.up_axis.unwrap_or(format.default_up());
     let (report, placement_warnings) =
         placement.finish(&mut scene, up, &nalgebra::Similarity3::identity())?;
     warnings.extend(placement_warnings);
@@ -261,6 +298,15 @@ impl Scene {
         }
         Ok(loaded.scene)
     }
+}
+
+/// The message of a panic caught from a format crate, for the error that replaces it.
+pub(crate) fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "unknown".into())
 }
 
 /// Converts a decoded image to an RGB8 texture (alpha dropped, grey expanded, 16 bits reduced).

@@ -1,16 +1,20 @@
 //! Wavefront OBJ + MTL loading with `tobj`: polygons are triangulated, `Kd` gives the flat
 //! colour and `map_Kd` the texture (JPEG or PNG, relative to the OBJ's folder). OBJ texture
-//! coordinates have v up, so v is flipped to the scene's top-left convention.
+//! coordinates have v up, so v is flipped to the scene's top-left convention. Material
+//! libraries and textures are read relative to a base folder, and not at all without one.
 
-use super::{LoadOptions, LoadWarning, UpAxis, texture_from_image};
+use super::{LoadOptions, LoadWarning, UpAxis, panic_message, texture_from_image};
 use crate::error::{Result, SimError};
 use crate::scene::{Material, Scene, Triangle, Vertex, Wrap};
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// Loads an `.obj` file (and its `.mtl` and textures).
+/// Loads an `.obj` file already read into `bytes` (and its `.mtl` and textures, relative to
+/// `base`).
 pub(super) fn load(
     path: &Path,
+    bytes: &[u8],
+    base: Option<&Path>,
     options: &LoadOptions,
     warnings: &mut Vec<LoadWarning>,
 ) -> Result<Scene> {
@@ -20,11 +24,23 @@ pub(super) fn load(
         triangulate: true,
         ..Default::default()
     };
-    let (models, materials) = tobj::load_obj(path, &opts).map_err(|e| SimError::Malformed {
+    let malformed = |reason: String| SimError::Malformed {
         format: "OBJ",
         path: path.to_path_buf(),
-        reason: e.to_string(),
-    })?;
+        reason,
+    };
+    // `tobj` overflows (a panic with overflow checks, as in tests) on a face index far out of
+    // range; such a panic becomes an error naming it.
+    let parsed = std::panic::catch_unwind(|| {
+        let mut reader = std::io::Cursor::new(bytes);
+        tobj::load_obj_buf(&mut reader, &opts, |mtl| match base {
+            Some(base) => tobj::load_mtl(base.join(mtl)),
+            None => Err(tobj::LoadError::OpenFileFailed),
+        })
+    });
+    let (models, materials) = parsed
+        .map_err(|panic| malformed(format!("invalid face index ({})", panic_message(&*panic))))?
+        .map_err(|e| malformed(e.to_string()))?;
     let obj_materials = match materials {
         Ok(m) => m,
         Err(e) => {
@@ -35,7 +51,6 @@ pub(super) fn load(
             Vec::new()
         }
     };
-    let base = path.parent().unwrap_or_else(|| Path::new("."));
     let mut scene = Scene {
         name: path.display().to_string(),
         ..Scene::default()
@@ -45,8 +60,16 @@ pub(super) fn load(
         let mut texture = None;
         if let Some(file) = m.diffuse_texture.as_deref().filter(|f| !f.is_empty()) {
             texture = *texture_of.entry(file.to_string()).or_insert_with(|| {
-                let tex_path = base.join(file.replace('\\', "/"));
-                match image::open(&tex_path) {
+                let file = file.replace('\\', "/");
+                let tex_path = base.map_or_else(|| PathBuf::from(&file), |b| b.join(&file));
+                let image = match base {
+                    Some(_) => image::open(&tex_path),
+                    None => Err(image::ImageError::IoError(std::io::Error::new(
+                        std::io::ErrorKind::Unsupported,
+                        "no folder to read external files from",
+                    ))),
+                };
+                match image {
                     Ok(img) => {
                         scene.textures.push(texture_from_image(
                             tex_path.display().to_string(),

@@ -42,6 +42,43 @@ fn index_list(p: &Property) -> Option<Vec<i64>> {
     })
 }
 
+/// Checks the header's `format` and `element` lines before `ply-rs` reads them: its grammar
+/// panics on a run of digits there (the version's `MAJOR.MINOR`, an element count) that does
+/// not fit in 64 bits, and it allocates an element per count even when no data follows. Every
+/// element takes at least one byte of the file (its ASCII line, or a binary property), so a
+/// count above the file's size is refused.
+fn check_header_numbers(bytes: &[u8]) -> std::result::Result<(), String> {
+    for (no, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        let line = String::from_utf8_lossy(line);
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.first().copied() {
+            Some("end_header") => break,
+            Some(keyword @ ("format" | "element")) => {
+                let too_long = line
+                    .split(|c: char| !c.is_ascii_digit())
+                    .find(|run| !run.is_empty() && run.parse::<u64>().is_err());
+                if let Some(run) = too_long {
+                    return Err(format!(
+                        "header line {}: number {run} of the `{keyword}` line does not fit in 64 bits",
+                        no + 1
+                    ));
+                }
+                if let ["element", name, count] = words.as_slice()
+                    && count.parse::<u64>().is_ok_and(|n| n > bytes.len() as u64)
+                {
+                    return Err(format!(
+                        "header line {}: element `{name}` declares {count} items, more than the file's {} bytes can hold",
+                        no + 1,
+                        bytes.len()
+                    ));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Loads a `.ply` file already read into `bytes`.
 pub(super) fn load(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Scene> {
     let malformed = |reason: String| SimError::Malformed {
@@ -50,6 +87,7 @@ pub(super) fn load(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<S
         reason,
     };
     let up = options.placement.up_axis.unwrap_or(UpAxis::Z);
+    check_header_numbers(bytes).map_err(malformed)?;
     let parser = ply_rs::parser::Parser::<ply_rs::ply::DefaultElement>::new();
     let mut reader = std::io::Cursor::new(bytes);
     let ply = parser
