@@ -28,7 +28,7 @@ use crate::dense::DenseReference;
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::loss::Residuals;
-use crate::mapper::{copy_gaussian, finite_mask};
+use crate::mapper::{drop_non_finite, finite_mask};
 use crate::references::{ReferenceConfig, References};
 use crate::tracker::{TrackerConfig, TrackingStatus, track};
 
@@ -195,17 +195,13 @@ impl TrackingSession {
     /// Stores the map snapshot that includes every frame ≤ `frame_id`, without its Gaussians
     /// that have a NaN or infinite parameter (they would put NaN into the renders); returns
     /// how many were dropped, for the caller to report.
-    pub fn add_map(&mut self, frame_id: u64, map: Arc<Gaussians<f32>>) -> usize {
-        let keep = finite_mask(&map);
-        let dropped = keep.iter().filter(|k| !**k).count();
-        let map = if dropped == 0 {
-            map
+    pub fn add_map(&mut self, frame_id: u64, mut map: Arc<Gaussians<f32>>) -> usize {
+        let dropped = if finite_mask(&map).iter().all(|k| *k) {
+            0
         } else {
-            let mut clean = Gaussians::new();
-            for (i, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
-                copy_gaussian(&map, i, &mut clean);
-            }
-            Arc::new(clean)
+            // Copied only when something must go.
+            drop_non_finite(Arc::make_mut(&mut map))
+                .expect("the finite mask is computed from the map itself")
         };
         self.maps.insert(frame_id, map);
         dropped
