@@ -5,6 +5,7 @@ mod integration {
     mod bench;
     mod distributed;
     mod explore;
+    mod faults;
     mod fisher;
     mod fuzz_regressions;
     pub mod harness;
@@ -12,4 +13,5 @@ mod integration {
     mod processes;
     mod python_bridge;
     mod validate;
+    mod view;
 }

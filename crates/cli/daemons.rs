@@ -8,24 +8,55 @@ use std::time::Duration;
 
 use activemap_runtime::daemon::{DaemonClient, DaemonOptions, RunEntry, RunState, serve};
 use activemap_runtime::node::install_stop_signals;
+use activemap_runtime::tls::{TlsFiles, tls_from_args};
 use anyhow::Context as _;
+
+/// Mutual TLS: this party's identity (PEM files), on daemons and their clients alike.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct Tls {
+    /// The CA certificate that signed every daemon's and client's certificate (PEM).
+    #[arg(long, value_name = "FILE")]
+    pub tls_ca: Option<PathBuf>,
+    /// This party's certificate (PEM), signed by --tls-ca.
+    #[arg(long, value_name = "FILE")]
+    pub tls_cert: Option<PathBuf>,
+    /// This party's private key (PEM).
+    #[arg(long, value_name = "FILE")]
+    pub tls_key: Option<PathBuf>,
+}
+
+impl Tls {
+    /// The checked files, or `None` when no TLS option was given.
+    pub fn files(&self) -> anyhow::Result<Option<TlsFiles>> {
+        Ok(tls_from_args(
+            self.tls_ca.clone(),
+            self.tls_cert.clone(),
+            self.tls_key.clone(),
+        )?)
+    }
+}
 
 /// Options shared by the client commands: where to reach the daemon network.
 #[derive(clap::Args, Debug)]
 pub struct Connect {
-    /// Control endpoint of any daemon (its `up --listen`), e.g. tcp/127.0.0.1:7400.
+    /// Control endpoint of any daemon (its `up --listen`), e.g. tcp/127.0.0.1:7400 or, with
+    /// mutual TLS, tls/10.0.0.1:7400.
     #[arg(long, required = true)]
     pub connect: Vec<String>,
     /// How long to wait for the daemons' answers, in seconds.
     #[arg(long, default_value_t = 5.0)]
     pub timeout: f64,
+    #[command(flatten)]
+    pub tls: Tls,
 }
 
 impl Connect {
     fn client(&self) -> anyhow::Result<DaemonClient> {
+        let tls = self.tls.files()?;
         Ok(DaemonClient::connect(
             &self.connect,
             Duration::from_secs_f64(self.timeout.max(0.1)),
+            tls.as_ref(),
         )?)
     }
 }
@@ -38,6 +69,7 @@ pub fn up(
     runs: PathBuf,
     allow_exec: Vec<PathBuf>,
     insecure: bool,
+    tls: &Tls,
 ) -> anyhow::Result<()> {
     let opts = DaemonOptions {
         machine,
@@ -48,6 +80,7 @@ pub fn up(
         base_dir: std::env::current_dir().context("reading the working directory")?,
         allow_exec,
         insecure,
+        tls: tls.files()?,
     };
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;

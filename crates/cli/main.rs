@@ -66,6 +66,11 @@ enum Command {
         /// Do not write recording.mcap.
         #[arg(long)]
         no_record: bool,
+        /// Serve the run live to Foxglove over its WebSocket protocol, on HOST:PORT (default
+        /// 127.0.0.1:8765, loopback; another host only when named here).
+        #[arg(long, value_name = "HOST:PORT", num_args = 0..=1,
+              default_missing_value = activemap_view::live::DEFAULT_LIVE_ADDRESS)]
+        view: Option<String>,
         /// Do not evaluate the run (metrics.json) when it ends; report.html is still written.
         #[arg(long)]
         no_eval: bool,
@@ -115,6 +120,10 @@ enum Command {
         /// start and at every submitted flow).
         #[arg(long, requires = "listen")]
         insecure: bool,
+        /// Daemon mode: mutual TLS on `tls/` endpoints (clients and other daemons must show a
+        /// certificate of the same CA), also used by the runs it starts.
+        #[command(flatten)]
+        tls: daemons::Tls,
         /// One-shot mode: run id shared by all machines of the run.
         #[arg(long, requires = "file")]
         run_id: Option<String>,
@@ -171,6 +180,8 @@ enum Command {
         /// Control endpoint of any daemon.
         #[arg(long)]
         connect: Vec<String>,
+        #[command(flatten)]
+        tls: daemons::Tls,
     },
     /// Print the last lines of a run's node logs: a local run folder, or a distributed run's
     /// logs from every machine (--run-id with --connect).
@@ -190,6 +201,8 @@ enum Command {
         /// Control endpoint of any daemon.
         #[arg(long)]
         connect: Vec<String>,
+        #[command(flatten)]
+        tls: daemons::Tls,
     },
     /// Run one operator alone on its recorded inputs and compare its outputs with the recording.
     Replay {
@@ -344,6 +357,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             out,
             max_steps,
             no_record,
+            view,
             no_eval,
             eval_views,
             set,
@@ -352,7 +366,11 @@ fn real_main() -> anyhow::Result<ExitCode> {
                 views: eval_views,
                 ..Default::default()
             });
-            return run(&file, &set.set, out, max_steps, !no_record, None, eval);
+            let outputs = Outputs {
+                record: !no_record,
+                view,
+            };
+            return run(&file, &set.set, out, max_steps, outputs, None, eval);
         }
         Command::Eval { run_dir, args } => evaluate::eval(&run_dir, &args)?,
         Command::Report { run_dir } => evaluate::report(&run_dir)?,
@@ -364,6 +382,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             runs,
             allow_exec,
             insecure,
+            tls,
             run_id,
             out,
             max_steps,
@@ -376,7 +395,10 @@ fn real_main() -> anyhow::Result<ExitCode> {
                     &[],
                     out,
                     max_steps,
-                    !no_record,
+                    Outputs {
+                        record: !no_record,
+                        view: None,
+                    },
                     Some((machine, run_id)),
                     None,
                 );
@@ -384,7 +406,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             None if listen.is_empty() => {
                 bail!("`up` needs --listen ENDPOINT (daemon mode) or a dataflow FILE (one-shot)")
             }
-            None => daemons::up(machine, listen, connect, runs, allow_exec, insecure)?,
+            None => daemons::up(machine, listen, connect, runs, allow_exec, insecure, &tls)?,
         },
         Command::Start {
             file,
@@ -405,10 +427,11 @@ fn real_main() -> anyhow::Result<ExitCode> {
             daemons: connect,
         } => daemons::stop(&connect, &run_id)?,
         Command::Down { daemons: connect } => daemons::down(&connect)?,
-        Command::List { connect, .. } if !connect.is_empty() => {
+        Command::List { connect, tls, .. } if !connect.is_empty() => {
             daemons::list(&daemons::Connect {
                 connect,
                 timeout: 5.0,
+                tls,
             })?;
         }
         Command::List { dir, .. } => {
@@ -436,11 +459,13 @@ fn real_main() -> anyhow::Result<ExitCode> {
             lines,
             run_id,
             connect,
+            tls,
         } => match (run_id, run_dir) {
             (Some(run_id), _) => daemons::logs(
                 &daemons::Connect {
                     connect,
                     timeout: 5.0,
+                    tls,
                 },
                 &run_id,
                 node,
@@ -482,12 +507,20 @@ fn real_main() -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// What a local run writes and serves besides its run folder.
+struct Outputs {
+    /// Write recording.mcap.
+    record: bool,
+    /// Serve the live view on this address.
+    view: Option<String>,
+}
+
 fn run(
     file: &Path,
     overrides: &[Override],
     out: Option<PathBuf>,
     max_steps: Option<u64>,
-    record: bool,
+    outputs: Outputs,
     distributed: Option<(String, String)>,
     eval: Option<evaluate::EvalArgs>,
 ) -> anyhow::Result<ExitCode> {
@@ -518,7 +551,8 @@ fn run(
         std::env::current_exe().context("locating the activemap executable")?,
     );
     opts.max_steps = max_steps;
-    opts.record = record;
+    opts.record = outputs.record;
+    opts.view = outputs.view;
     opts.progress = true;
     if let Some((machine, run_id)) = distributed {
         opts.machine = Some(machine);

@@ -15,8 +15,9 @@ use crate::SchemaError;
 use crate::layout::{Layout, cast_mut, cast_or_copy, read_header};
 
 const WHAT: &str = "GaussianMap";
-/// Floats per Gaussian in each f32 section, in payload order (the u64 ids follow them).
-const SECTION_WIDTHS: [usize; 5] = [3, 3, 4, 1, 3];
+/// Floats per Gaussian in each f32 section, in payload order: means, colors, rotations,
+/// opacities, log_scales (the sixth section holds one u64 id per Gaussian).
+pub const SECTION_WIDTHS: [usize; 5] = [3, 3, 4, 1, 3];
 /// Index of the ids section in the layout.
 const IDS: usize = 5;
 
@@ -77,6 +78,25 @@ impl GaussianMapHeader {
     /// Total payload size in bytes.
     pub fn payload_len(&self) -> Result<usize, SchemaError> {
         Ok(self.layout()?.total)
+    }
+
+    /// Byte ranges of the six sections in a payload with this header: the five f32 sections of
+    /// [`SECTION_WIDTHS`] then the u64 ids. Sections start 8-byte aligned; the bytes between
+    /// them (and after the last) are padding.
+    pub fn section_ranges(&self) -> Result<[core::ops::Range<usize>; 6], SchemaError> {
+        let layout = self.layout()?;
+        Ok(core::array::from_fn(|i| layout.range(i)))
+    }
+
+    /// Read and check (magic, version) the header at the start of a payload, without the rest.
+    pub fn read(bytes: &[u8]) -> Result<Self, SchemaError> {
+        read_header(
+            WHAT,
+            bytes,
+            |h: &GaussianMapHeader| (h.magic, h.schema_version),
+            Self::MAGIC,
+            Self::VERSION,
+        )
     }
 }
 

@@ -25,7 +25,9 @@ pub mod rgbd;
 pub mod small;
 
 pub use error::SchemaError;
-pub use gaussian_map::{GaussianMap, GaussianMapHeader, GaussianMapMut, GaussianMapView};
+pub use gaussian_map::{
+    GaussianMap, GaussianMapHeader, GaussianMapMut, GaussianMapView, SECTION_WIDTHS,
+};
 pub use kind::{MessageKind, Payload, TransportClass};
 pub use messages::*;
 pub use occupancy::{CellState, OccupancyGrid, OccupancyGridHeader, OccupancyGridView};

@@ -37,13 +37,18 @@ fn start_when_up(file: &str, control: &str, not_up: impl Fn(&str) -> bool) -> Fi
 
 /// A two-machine flow: machine a produces counters and frames, machine b doubles and checks them.
 fn two_machine_flow(pa: u16, pb: u16) -> String {
+    two_machine_flow_over("tcp", pa, pb)
+}
+
+/// [`two_machine_flow`] with its data plane over `scheme` (`tcp` or `tls`).
+fn two_machine_flow_over(scheme: &str, pa: u16, pb: u16) -> String {
     format!(
         "machines:
   - id: a
-    listen: [tcp/127.0.0.2:{pa}]
+    listen: [{scheme}/127.0.0.2:{pa}]
   - id: b
-    listen: [tcp/127.0.0.3:{pb}]
-    connect: [tcp/127.0.0.2:{pa}]
+    listen: [{scheme}/127.0.0.3:{pb}]
+    connect: [{scheme}/127.0.0.2:{pa}]
 nodes:
   - id: source
     operator: counter_source
@@ -397,4 +402,205 @@ fn daemons_refuse_exposed_listening_and_executables_outside_allow_exec() {
         !tmp.path().join("outside.sh.ran").exists(),
         "the refused node ran"
     );
+}
+
+/// A test certificate authority named `name` in `dir`, and for each party (name, subject
+/// alternative names) a certificate it signs (both server and client use) with its key: the
+/// PEM paths `[ca, cert, key]` of each party.
+fn test_pki(dir: &std::path::Path, name: &str, parties: &[(&str, &[&str])]) -> Vec<[String; 3]> {
+    use rcgen::{
+        BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer,
+        KeyPair, KeyUsagePurpose,
+    };
+    let mut ca_params = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    ca_params
+        .distinguished_name
+        .push(DnType::CommonName, format!("{name} test CA"));
+    ca_params.key_usages = vec![
+        KeyUsagePurpose::KeyCertSign,
+        KeyUsagePurpose::CrlSign,
+        KeyUsagePurpose::DigitalSignature,
+    ];
+    let ca_key = KeyPair::generate().unwrap();
+    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
+    let ca_path = dir.join(format!("{name}-ca.pem"));
+    std::fs::write(&ca_path, ca_cert.pem()).unwrap();
+    let issuer = Issuer::new(ca_params, ca_key);
+    parties
+        .iter()
+        .map(|(party, sans)| {
+            let mut params =
+                CertificateParams::new(sans.iter().map(|s| s.to_string()).collect::<Vec<_>>())
+                    .unwrap();
+            params.distinguished_name.push(DnType::CommonName, *party);
+            params.extended_key_usages = vec![
+                ExtendedKeyUsagePurpose::ServerAuth,
+                ExtendedKeyUsagePurpose::ClientAuth,
+            ];
+            let key = KeyPair::generate().unwrap();
+            let cert = params.signed_by(&key, &issuer).unwrap();
+            let cert_path = dir.join(format!("{name}-{party}.pem"));
+            let key_path = dir.join(format!("{name}-{party}.key"));
+            std::fs::write(&cert_path, cert.pem()).unwrap();
+            std::fs::write(&key_path, key.serialize_pem()).unwrap();
+            [&ca_path, &cert_path, &key_path].map(|p| p.display().to_string())
+        })
+        .collect()
+}
+
+/// The `--tls-ca/--tls-cert/--tls-key` arguments of an identity.
+fn tls_args(id: &[String; 3]) -> Vec<&str> {
+    vec![
+        "--tls-ca",
+        &id[0],
+        "--tls-cert",
+        &id[1],
+        "--tls-key",
+        &id[2],
+    ]
+}
+
+/// Issue 18: two daemons on 127.0.0.2 and 127.0.0.3 with mutual TLS (certificates made here)
+/// run the two-machine flow, control and data plane both over `tls/`; a client whose
+/// certificate another CA signed, a client without a certificate and a plain-TCP client are
+/// all refused; a daemon given a `tls/` endpoint without its files is refused at start.
+#[test]
+fn daemons_with_mutual_tls_run_a_flow_and_refuse_clients_without_a_valid_certificate() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ids = test_pki(
+        tmp.path(),
+        "trusted",
+        &[
+            ("a", &["127.0.0.2"]),
+            ("b", &["127.0.0.3"]),
+            ("client", &["activemap-client"]),
+        ],
+    );
+    let (id_a, id_b, id_client) = (&ids[0], &ids[1], &ids[2]);
+    let rogue = &test_pki(tmp.path(), "rogue", &[("client", &["activemap-client"])])[0];
+
+    let no_files = run(
+        &["up", "--machine", "a", "--listen", "tls/127.0.0.2:1"],
+        &root(),
+        Duration::from_secs(30),
+    );
+    assert!(!no_files.status.success());
+    assert!(
+        no_files.stderr.contains("--tls-cert"),
+        "{}",
+        no_files.stderr
+    );
+
+    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let (ca, cb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
+    let file = tmp.path().join("two-tls.yaml");
+    std::fs::write(&file, two_machine_flow_over("tls", pa, pb)).unwrap();
+    let file = file.to_str().unwrap();
+    let (runs_a, runs_b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let control_a = format!("tls/127.0.0.2:{ca}");
+    let control_b = format!("tls/127.0.0.3:{cb}");
+    let mut up_a = vec!["up", "--machine", "a", "--listen", &control_a, "--runs"];
+    up_a.push(runs_a.to_str().unwrap());
+    up_a.extend(tls_args(id_a));
+    let daemon_a = spawn(&up_a, &root());
+    let mut up_b = vec![
+        "up",
+        "--machine",
+        "b",
+        "--listen",
+        &control_b,
+        "--connect",
+        &control_a,
+    ];
+    up_b.extend(["--runs", runs_b.to_str().unwrap()]);
+    up_b.extend(tls_args(id_b));
+    let daemon_b = spawn(&up_b, &root());
+
+    let run_id = format!("m{}", std::process::id());
+    let mut start = vec![
+        "start",
+        file,
+        "--connect",
+        &control_a,
+        "--run-id",
+        &run_id,
+        "--wait",
+    ];
+    start.extend(tls_args(id_client));
+    let mut started = None;
+    for _ in 0..60 {
+        let out = run(&start, &root(), Duration::from_secs(120));
+        if out.status.success() {
+            started = Some(out);
+            break;
+        }
+        assert!(
+            out.stderr.contains("no daemon answered") || out.stderr.contains("no daemon reachable"),
+            "start failed for another reason:\n{}",
+            out.stderr
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    let started = started.expect("the TLS daemons never accepted the flow");
+    assert!(
+        started.stdout.contains(&format!("run {run_id} started")),
+        "{}",
+        started.stdout
+    );
+    check_machine_b(&runs_b.join(&run_id));
+
+    // Refused: a certificate of another CA, no certificate, plain TCP on the TLS port.
+    let mut rogue_list = vec!["list", "--connect", &control_a];
+    rogue_list.extend(tls_args(rogue));
+    let plain = format!("tcp/127.0.0.2:{ca}");
+    for (what, args) in [
+        ("another CA's certificate", rogue_list),
+        ("no certificate", vec!["list", "--connect", &control_a]),
+        ("plain TCP", vec!["list", "--connect", &plain]),
+    ] {
+        let out = run(&args, &root(), Duration::from_secs(60));
+        assert!(!out.status.success(), "{what}: accepted:\n{}", out.stdout);
+        assert!(
+            out.stderr.contains("no daemon reachable"),
+            "{what}: {}",
+            out.stderr
+        );
+        assert!(!out.stdout.contains(&run_id), "{what}: {}", out.stdout);
+    }
+    // The trusted client lists the run on both machines; no key content in any output.
+    let mut list = vec!["list", "--connect", &control_a];
+    list.extend(tls_args(id_client));
+    let listed = run(&list, &root(), Duration::from_secs(60));
+    assert!(listed.status.success(), "{}", listed.stderr);
+    assert_eq!(
+        listed
+            .stdout
+            .lines()
+            .filter(|l| l.contains(&run_id))
+            .count(),
+        2,
+        "{}",
+        listed.stdout
+    );
+    let mut down = vec!["down", "--connect", &control_a];
+    down.extend(tls_args(id_client));
+    let down = run(&down, &root(), Duration::from_secs(30));
+    assert!(down.status.success(), "{}", down.stderr);
+    let out_a = wait(daemon_a, Duration::from_secs(60), "daemon a");
+    let out_b = wait(daemon_b, Duration::from_secs(60), "daemon b");
+    assert!(out_a.status.success(), "daemon a:\n{}", out_a.stderr);
+    assert!(out_b.status.success(), "daemon b:\n{}", out_b.stderr);
+    let key_line = std::fs::read_to_string(&id_a[2]).unwrap();
+    let key_body = key_line.lines().nth(1).unwrap();
+    for text in [
+        &out_a.stderr,
+        &out_b.stderr,
+        &listed.stdout,
+        &started.stdout,
+    ] {
+        assert!(!text.contains(key_body), "a private key was printed");
+    }
+    let run_json = std::fs::read_to_string(runs_a.join(&run_id).join("run.json")).unwrap();
+    assert!(!run_json.contains(key_body));
 }

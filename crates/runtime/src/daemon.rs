@@ -23,6 +23,7 @@ use crate::catalog::OperatorDescriptor;
 use crate::dataflow::Dataflow;
 use crate::launch::{LaunchOptions, NodeExit, broadcast_stop, new_run_id, run_local, tail};
 use crate::node::logs_dir;
+use crate::tls::TlsFiles;
 use crate::transport::{ZenohSettings, open_zenoh};
 
 /// Zenoh key of a daemon request: `activemap/daemon/<machine>/<verb>` (`*` for every machine).
@@ -51,6 +52,10 @@ pub struct DaemonOptions {
     /// Accept listening on a non-loopback address without TLS (`--insecure`), with a warning
     /// at start and at every submitted flow.
     pub insecure: bool,
+    /// Mutual TLS (`--tls-ca/--tls-cert/--tls-key`): required of every client and daemon on
+    /// the `tls/` control endpoints, and the default for the `tls/` endpoints of the runs it
+    /// starts (a flow's own `machines[].tls` wins).
+    pub tls: Option<TlsFiles>,
 }
 
 /// True when a Zenoh endpoint (`tcp/HOST:PORT`, `udp/…`, `tls/…`, optionally with a
@@ -68,18 +73,34 @@ pub fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// Refuses a daemon that would listen on a non-loopback address without TLS, unless
-/// `insecure`; returns the exposed endpoints (to warn about) when it is allowed.
-pub fn check_listen(listen: &[String], insecure: bool) -> Result<Vec<String>, RuntimeError> {
+/// True when `endpoint` is a `tls/` endpoint.
+fn is_tls_endpoint(endpoint: &str) -> bool {
+    endpoint.starts_with("tls/")
+}
+
+/// Refuses a daemon that would listen on a non-loopback address without mutual TLS, unless
+/// `insecure`; returns the exposed endpoints (to warn about) when it is allowed. With `tls`,
+/// `tls/` endpoints are protected; a `tls/` endpoint without TLS files is refused outright.
+pub fn check_listen(
+    listen: &[String],
+    insecure: bool,
+    tls: bool,
+) -> Result<Vec<String>, RuntimeError> {
+    if !tls && let Some(e) = listen.iter().find(|e| is_tls_endpoint(e)) {
+        return Err(RuntimeError::Other(format!(
+            "`{e}` is a TLS endpoint: give the daemon its --tls-ca, --tls-cert and --tls-key"
+        )));
+    }
     let exposed: Vec<String> = listen
         .iter()
-        .filter(|e| !endpoint_is_loopback(e))
+        .filter(|e| !(endpoint_is_loopback(e) || (tls && is_tls_endpoint(e))))
         .cloned()
         .collect();
     if !exposed.is_empty() && !insecure {
         return Err(RuntimeError::Other(format!(
             "refusing to listen on {} without TLS: anyone who can reach it could submit flows \
-             to this machine; listen on a loopback address, or pass --insecure to accept the risk",
+             to this machine; listen on a loopback address, use `tls/` endpoints with \
+             --tls-ca/--tls-cert/--tls-key (mutual TLS), or pass --insecure to accept the risk",
             exposed.join(", ")
         )));
     }
@@ -215,7 +236,7 @@ pub fn serve(
                 .into(),
         ));
     }
-    let exposed = check_listen(&opts.listen, opts.insecure)?;
+    let exposed = check_listen(&opts.listen, opts.insecure, opts.tls.is_some())?;
     if !exposed.is_empty() {
         eprintln!("{}", insecure_warning(&exposed));
     }
@@ -224,7 +245,7 @@ pub fn serve(
         mode: "router".into(),
         listen: opts.listen.clone(),
         connect: opts.connect.clone(),
-        tls: None,
+        tls: opts.tls.as_ref().map(TlsFiles::zenoh_config),
     })?;
     let queryable = session
         .declare_queryable(daemon_key(&opts.machine, "*"))
@@ -238,6 +259,16 @@ pub fn serve(
     );
     let mut runs: BTreeMap<String, Run> = BTreeMap::new();
     while !stop.load(Ordering::SeqCst) {
+        // Join the supervisors of finished runs: a joinable thread keeps its stack until then
+        // (a long-lived daemon would grow by one per run).
+        for run in runs.values_mut() {
+            if run.thread.as_ref().is_some_and(|t| t.is_finished())
+                && let Some(t) = run.thread.take()
+                && t.join().is_err()
+            {
+                eprintln!("activemap daemon: a run supervisor panicked");
+            }
+        }
         let query = match queryable.recv_timeout(Duration::from_millis(200)) {
             Ok(Some(q)) => q,
             Ok(None) => continue,
@@ -348,7 +379,7 @@ fn start_run(
     let exposed: Vec<String> = opts
         .listen
         .iter()
-        .filter(|e| !endpoint_is_loopback(e))
+        .filter(|e| !(endpoint_is_loopback(e) || (opts.tls.is_some() && is_tls_endpoint(e))))
         .cloned()
         .collect();
     if !exposed.is_empty() {
@@ -360,6 +391,7 @@ fn start_run(
     launch.record = request.record;
     launch.machine = Some(opts.machine.clone());
     launch.run_id = Some(request.run_id.clone());
+    launch.tls = opts.tls.as_ref().map(TlsFiles::zenoh_config);
     let state = Arc::new(Mutex::new(RunState::Running));
     let stop = Arc::new(AtomicBool::new(false));
     let thread = {
@@ -458,8 +490,13 @@ pub struct DaemonClient {
 }
 
 impl DaemonClient {
-    /// Connect to the daemon network through `connect` (any daemon's `--listen` endpoint).
-    pub fn connect(connect: &[String], timeout: Duration) -> Result<Self, RuntimeError> {
+    /// Connect to the daemon network through `connect` (any daemon's `--listen` endpoint),
+    /// presenting `tls` on `tls/` endpoints.
+    pub fn connect(
+        connect: &[String],
+        timeout: Duration,
+        tls: Option<&TlsFiles>,
+    ) -> Result<Self, RuntimeError> {
         if connect.is_empty() {
             return Err(RuntimeError::Other(
                 "give a daemon endpoint with --connect (e.g. tcp/127.0.0.1:7400)".into(),
@@ -469,7 +506,7 @@ impl DaemonClient {
             mode: "client".into(),
             listen: vec![],
             connect: connect.to_vec(),
-            tls: None,
+            tls: tls.map(TlsFiles::zenoh_config),
         })
         .map_err(|e| {
             RuntimeError::Other(format!(
@@ -699,11 +736,11 @@ mod tests {
             assert!(!endpoint_is_loopback(e), "{e}");
         }
         assert!(
-            check_listen(&["tcp/127.0.0.2:1".into()], false)
+            check_listen(&["tcp/127.0.0.2:1".into()], false, false)
                 .unwrap()
                 .is_empty()
         );
-        let e = check_listen(&["tcp/10.0.0.1:7400".into()], false)
+        let e = check_listen(&["tcp/10.0.0.1:7400".into()], false, false)
             .unwrap_err()
             .to_string();
         assert!(
@@ -711,9 +748,31 @@ mod tests {
             "{e}"
         );
         assert_eq!(
-            check_listen(&["tcp/10.0.0.1:7400".into()], true).unwrap(),
+            check_listen(&["tcp/10.0.0.1:7400".into()], true, false).unwrap(),
             ["tcp/10.0.0.1:7400"]
         );
+        // Mutual TLS protects `tls/` endpoints, not plain TCP ones beside them.
+        assert!(
+            check_listen(&["tls/10.0.0.1:7400".into()], false, true)
+                .unwrap()
+                .is_empty()
+        );
+        let e = check_listen(
+            &["tls/10.0.0.1:7400".into(), "tcp/10.0.0.1:7401".into()],
+            false,
+            true,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("tcp/10.0.0.1:7401") && !e.contains("7400"),
+            "{e}"
+        );
+        // A `tls/` endpoint without the files: refused, saying what is missing.
+        let e = check_listen(&["tls/127.0.0.1:7400".into()], false, false)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--tls-cert"), "{e}");
     }
 
     /// A `path:` node runs only from an `--allow-exec` folder (after resolving `..` and

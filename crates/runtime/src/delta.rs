@@ -11,14 +11,20 @@
 //! - empty: an empty payload (the end-of-stream marker), stored as is;
 //! - `0` then the payload: stored in full;
 //! - `1`, then the payload length (u64), then runs of `offset (u64), length (u64), bytes` that
-//!   replace the previous payload's bytes at those offsets.
+//!   replace the previous payload's bytes at those offsets;
+//! - `2`, then a Gaussian map stored column by column against the previous map, Gaussian by
+//!   Gaussian id ([`map_columns`], [`encode_map`]).
 
 use thiserror::Error;
+
+mod map_columns;
 
 /// Tag of a payload stored in full.
 const FULL: u8 = 0;
 /// Tag of a payload stored as changed runs.
 const RUNS: u8 = 1;
+/// Tag of a Gaussian map stored column by column against the previous one.
+const MAP: u8 = 2;
 /// Payloads are compared in blocks of this many bytes; a run covers whole blocks.
 const BLOCK: usize = 64;
 /// Bytes of a run header (offset and length).
@@ -41,6 +47,9 @@ pub enum DeltaError {
         /// Length of the previous payload, if any.
         previous: Option<usize>,
     },
+    /// A column-wise map message whose header or sections do not add up.
+    #[error("column-wise map message: {0}")]
+    InvalidMap(String),
     /// A run reaches past the end of the payload.
     #[error("delta run at {offset} of {len} bytes ends past the payload's {total} bytes")]
     RunOutOfRange {
@@ -97,6 +106,39 @@ pub fn encode(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) {
     out.extend_from_slice(next);
 }
 
+/// Encodes a Gaussian-map payload: as changed runs when only a little changed (a map
+/// republished between keyframes), otherwise column by column against the previous map
+/// ([`map_columns`]); a payload that is not a valid map goes through [`encode`].
+pub fn encode_map(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) {
+    encode(previous, next, out);
+    if out.len() <= next.len() / 4 {
+        return;
+    }
+    out.clear();
+    out.push(MAP);
+    if !map_columns::encode(previous, next, out) {
+        encode(previous, next, out);
+    }
+}
+
+/// Makes `base` equal to `next` after `next` was encoded into `encoded` against `base`:
+/// for a run-encoded message only the changed runs are copied (a map republished between
+/// keyframes costs its few changed blocks, not a copy of the whole map every frame).
+pub fn update_base(base: &mut Vec<u8>, next: &[u8], encoded: &[u8]) {
+    if encoded.first() == Some(&RUNS) && base.len() == next.len() {
+        let mut at = 9;
+        while at + RUN_HEADER <= encoded.len() {
+            let offset = read_u64(encoded, at, "").unwrap_or(0) as usize;
+            let len = read_u64(encoded, at + 8, "").unwrap_or(0) as usize;
+            at += RUN_HEADER + len;
+            base[offset..offset + len].copy_from_slice(&next[offset..offset + len]);
+        }
+        return;
+    }
+    base.clear();
+    base.extend_from_slice(next);
+}
+
 fn read_u64(data: &[u8], at: usize, what: &'static str) -> Result<u64, DeltaError> {
     data.get(at..at + 8)
         .map(|b| u64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
@@ -139,6 +181,7 @@ pub fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, DeltaErro
             }
             Ok(out)
         }
+        MAP => map_columns::decode(previous, rest),
         other => Err(DeltaError::UnknownTag(other)),
     }
 }
@@ -206,6 +249,29 @@ mod tests {
         let mut q = p.clone();
         q[9_999] = 1;
         assert_eq!(roundtrip(Some(&p), &q), 9 + RUN_HEADER + 10_000 % BLOCK);
+    }
+
+    #[test]
+    fn the_base_follows_the_payloads_run_by_run_or_whole() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let mut base: Vec<u8> = (0..5000).map(|_| rng.random()).collect();
+        for step in 0..50 {
+            let mut next = base.clone();
+            if step % 10 == 9 {
+                next = (0..rng.random_range(1..6000))
+                    .map(|_| rng.random())
+                    .collect();
+            } else {
+                for _ in 0..rng.random_range(0..5) {
+                    let i = rng.random_range(0..next.len());
+                    next[i] ^= 0x55;
+                }
+            }
+            let mut enc = Vec::new();
+            encode(Some(&base), &next, &mut enc);
+            update_base(&mut base, &next, &enc);
+            assert_eq!(base, next, "step {step}");
+        }
     }
 
     #[test]

@@ -13,7 +13,7 @@ use crate::RuntimeError;
 use crate::dataflow::{Dataflow, NodeImpl, RestartPolicy};
 use crate::node::{RunInfo, control_key, logs_dir};
 use crate::progress::Progress;
-use crate::record::{Recorder, RecorderStats};
+use crate::record::{Recorder, RecorderOutputs, RecorderStats};
 use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh, topic_key};
 use activemap_schemas::{EpisodeStatus, MessageKind, SmallMessage};
 
@@ -28,6 +28,9 @@ pub struct LaunchOptions {
     pub max_steps: Option<u64>,
     /// Write `recording.mcap`.
     pub record: bool,
+    /// Serve the view channels live over the Foxglove WebSocket protocol on this `HOST:PORT`
+    /// (`--view`).
+    pub view: Option<String>,
     /// Show a progress bar on stderr.
     pub progress: bool,
     /// Give up when the nodes are not all ready after this long.
@@ -39,6 +42,9 @@ pub struct LaunchOptions {
     pub machine: Option<String>,
     /// Run id shared by every machine of a distributed run (default: a fresh one).
     pub run_id: Option<String>,
+    /// Distributed mode: Zenoh `transport/link/tls` settings for the machines whose flow entry
+    /// gives none (a daemon's mutual-TLS identity).
+    pub tls: Option<serde_json::Value>,
 }
 
 impl LaunchOptions {
@@ -49,11 +55,13 @@ impl LaunchOptions {
             exe,
             max_steps: None,
             record: true,
+            view: None,
             progress: false,
             startup_timeout: Duration::from_secs(60),
             stop_grace: Duration::from_secs(5),
             machine: None,
             run_id: None,
+            tls: None,
         }
     }
 }
@@ -306,7 +314,12 @@ pub fn run_local(
                 tls: dataflow
                     .machines
                     .iter()
-                    .filter_map(|m| m.tls.clone().map(|t| (m.id.clone(), t)))
+                    .filter_map(|m| {
+                        m.tls
+                            .clone()
+                            .or_else(|| opts.tls.clone())
+                            .map(|t| (m.id.clone(), t))
+                    })
                     .collect(),
                 max_steps: opts.max_steps,
             };
@@ -314,16 +327,38 @@ pub fn run_local(
                 mode: "router".into(),
                 listen: spec.listen.clone(),
                 connect: spec.connect.clone(),
-                tls: spec.tls.clone(),
+                tls: spec.tls.clone().or_else(|| opts.tls.clone()),
             };
             (run, router)
         }
     };
     run.save(&opts.run_dir)?;
     let session = open_zenoh(&router)?;
-    let recorder = if opts.record {
+    let live = match &opts.view {
+        Some(address) => {
+            let live = activemap_view::LiveView::start(address)
+                .map_err(|e| RuntimeError::Other(e.to_string()))?;
+            let host = address.rsplit_once(':').map_or("", |(h, _)| h);
+            if !activemap_view::live::is_loopback_host(host) {
+                eprintln!(
+                    "activemap: WARNING: the live view listens on {address}, not on loopback: \
+                     anyone who can reach it can watch the run"
+                );
+            }
+            eprintln!(
+                "activemap: live view at {} (Foxglove: Open connection → Foxglove WebSocket)",
+                live.url()
+            );
+            Some(live)
+        }
+        None => None,
+    };
+    let recorder = if opts.record || live.is_some() {
         Some(Recorder::start(
-            &opts.run_dir.join("recording.mcap"),
+            RecorderOutputs {
+                file: opts.record.then(|| opts.run_dir.join("recording.mcap")),
+                live,
+            },
             dataflow,
             &run,
             session.clone(),
@@ -334,7 +369,8 @@ pub fn run_local(
     };
     let result = supervise(dataflow, opts, &run, &session, &stop);
     let recording = match recorder {
-        Some(r) => Some(r.finish()?),
+        // Statistics only when a file was written (the live view alone records nothing).
+        Some(r) => r.finish()?.into_recorded(opts.record),
         None => None,
     };
     let _ = zenoh::Wait::wait(session.close());

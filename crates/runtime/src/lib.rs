@@ -91,6 +91,7 @@ pub mod node;
 pub mod operator;
 pub mod progress;
 pub mod record;
+pub mod tls;
 pub mod transport;
 pub mod yaml;
 

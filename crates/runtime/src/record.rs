@@ -30,7 +30,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use activemap_schemas::TransportClass;
+use activemap_schemas::{MessageKind, TransportClass};
+use activemap_view::topics::VIEW_ENCODING;
+use activemap_view::{ViewConverter, ViewSettings, ViewTopic};
 
 use crate::RuntimeError;
 use crate::dataflow::{Dataflow, DropPolicy};
@@ -44,6 +46,12 @@ pub const LARGE_ENCODING: &str = "activemap/repr-c";
 /// Message encoding of large payloads stored with [`crate::delta`] against the channel's previous
 /// payload.
 pub const DELTA_ENCODING: &str = "activemap/repr-c-delta";
+
+/// True for the encodings of the exact (replay) channels; false for the view channels, which
+/// readers of this module skip.
+pub fn is_replay_encoding(encoding: &str) -> bool {
+    encoding.starts_with(SMALL_ENCODING) || encoding == LARGE_ENCODING || encoding == DELTA_ENCODING
+}
 
 /// Target uncompressed size of one chunk of a recording, in bytes.
 ///
@@ -67,6 +75,30 @@ pub struct RecorderStats {
     pub written_bytes: u64,
     /// Messages lost per topic (gaps in sequence numbers). Empty when nothing was lost.
     pub dropped: BTreeMap<String, u64>,
+    /// View messages made (Foxglove schemas, for the file's view channels and the live view).
+    pub view_messages: u64,
+    /// Bytes of those view messages.
+    pub view_bytes: u64,
+    /// Pipeline messages that could not be shown (each reported once per topic on stderr).
+    pub view_errors: u64,
+    /// Pipeline messages not shown because the view thread was behind (the exact channels
+    /// never wait for the view).
+    pub view_dropped: u64,
+}
+
+impl RecorderStats {
+    /// `Some(self)` when a file was written.
+    pub fn into_recorded(self, recorded: bool) -> Option<Self> {
+        recorded.then_some(self)
+    }
+}
+
+/// What the recorder thread writes and serves.
+pub struct RecorderOutputs {
+    /// The MCAP file to write (exact channels and view channels); `None` with `--no-record`.
+    pub file: Option<std::path::PathBuf>,
+    /// The live view to feed (`--view`), if any.
+    pub live: Option<activemap_view::LiveView>,
 }
 
 /// A running recorder thread.
@@ -76,10 +108,11 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Subscribe to every topic of the flow and start writing `path`. Returns once every
-    /// subscription exists, so no message sent after that is missed.
+    /// Subscribe to every topic of the flow and start writing `outputs.file` and feeding
+    /// `outputs.live`. Returns once every subscription exists, so no message sent after that is
+    /// missed.
     pub fn start(
-        path: &Path,
+        outputs: RecorderOutputs,
         dataflow: &Dataflow,
         run: &RunInfo,
         session: zenoh::Session,
@@ -90,13 +123,12 @@ impl Recorder {
         let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel(1);
         let dataflow = dataflow.clone();
         let run = run.clone();
-        let path = path.to_path_buf();
         let stop2 = stop.clone();
         let thread = std::thread::Builder::new()
             .name("recorder".into())
             .spawn(move || {
                 record_loop(
-                    &path,
+                    outputs,
                     &dataflow,
                     &run,
                     machine.as_deref(),
@@ -165,6 +197,7 @@ fn open_writer(file: File) -> Result<McapWriter, RuntimeError> {
 fn write_message(
     writer: &mut McapWriter,
     header: &mcap::records::MessageHeader,
+    kind: MessageKind,
     bytes: &[u8],
     previous: &mut Option<Vec<u8>>,
     encoded: &mut Vec<u8>,
@@ -172,10 +205,13 @@ fn write_message(
     let record: &[u8] = match previous {
         Some(prev) => {
             let base = (!prev.is_empty()).then_some(prev.as_slice());
-            crate::delta::encode(base, bytes, encoded);
+            if kind == MessageKind::GaussianMap {
+                crate::delta::encode_map(base, bytes, encoded);
+            } else {
+                crate::delta::encode(base, bytes, encoded);
+            }
             if !bytes.is_empty() {
-                prev.clear();
-                prev.extend_from_slice(bytes);
+                crate::delta::update_base(prev, bytes, encoded);
             }
             encoded
         }
@@ -185,8 +221,21 @@ fn write_message(
     Ok(record.len())
 }
 
+/// One recorded topic: where its messages come from and what the writer keeps for it.
+struct RecordedTopic {
+    topic: String,
+    kind: MessageKind,
+    channel: u16,
+    source: Source,
+    last_seq: u64,
+    /// `Some` on a delta-encoded channel: its last non-empty payload.
+    previous: Option<Vec<u8>>,
+    /// Keyframe of the last map of this topic handed to the view.
+    view_keyframe: Option<u64>,
+}
+
 fn record_loop(
-    path: &Path,
+    outputs: RecorderOutputs,
     dataflow: &Dataflow,
     run: &RunInfo,
     machine: Option<&str>,
@@ -194,22 +243,30 @@ fn record_loop(
     stop: &AtomicBool,
     ready: std::sync::mpsc::SyncSender<Result<(), String>>,
 ) -> Result<RecorderStats, RuntimeError> {
+    let RecorderOutputs { file, live } = outputs;
     let setup = || -> Result<_, RuntimeError> {
-        let file = File::create(path).map_err(|e| RuntimeError::io(path, e))?;
-        let mut writer = open_writer(file)?;
-        let mut meta = BTreeMap::new();
-        meta.insert("run_id".to_string(), run.run_id.clone());
-        meta.insert("dataflow_file".to_string(), dataflow.file.clone());
-        meta.insert("dataflow_yaml".to_string(), dataflow.source.clone());
-        if let Some(n) = run.max_steps {
-            meta.insert("max_steps".to_string(), n.to_string());
+        let mut writer = match &file {
+            Some(path) => {
+                let f = File::create(path).map_err(|e| RuntimeError::io(path, e))?;
+                Some(open_writer(f)?)
+            }
+            None => None,
+        };
+        if let Some(writer) = &mut writer {
+            let mut meta = BTreeMap::new();
+            meta.insert("run_id".to_string(), run.run_id.clone());
+            meta.insert("dataflow_file".to_string(), dataflow.file.clone());
+            meta.insert("dataflow_yaml".to_string(), dataflow.source.clone());
+            if let Some(n) = run.max_steps {
+                meta.insert("max_steps".to_string(), n.to_string());
+            }
+            writer
+                .write_metadata(&mcap::records::Metadata {
+                    name: "activemap.dataflow".into(),
+                    metadata: meta,
+                })
+                .map_err(mcap_err)?;
         }
-        writer
-            .write_metadata(&mcap::records::Metadata {
-                name: "activemap.dataflow".into(),
-                metadata: meta,
-            })
-            .map_err(mcap_err)?;
         let iox = if dataflow.nodes.iter().any(|n| {
             n.outputs
                 .iter()
@@ -224,40 +281,47 @@ fn record_loop(
         for n in &dataflow.nodes {
             for o in &n.outputs {
                 let kind = o.kind;
-                let schema_id = match schemas.get(&kind) {
-                    Some(id) => *id,
-                    None => {
-                        let id = writer
-                            .add_schema(
-                                kind.name(),
-                                "activemap/text",
-                                format!(
-                                    "{} v{}: {}",
-                                    kind.name(),
-                                    kind.schema_version(),
-                                    kind.description()
-                                )
-                                .as_bytes(),
-                            )
-                            .map_err(mcap_err)?;
-                        schemas.insert(kind, id);
-                        id
-                    }
-                };
                 let topic = format!("{}/{}", n.id, o.name);
-                let mut ch_meta = BTreeMap::new();
-                ch_meta.insert("kind".to_string(), kind.name().to_string());
-                ch_meta.insert(
-                    "schema_version".to_string(),
-                    kind.schema_version().to_string(),
-                );
-                let encoding = match kind.transport_class() {
-                    TransportClass::SharedMemory => DELTA_ENCODING.to_string(),
-                    TransportClass::Small => format!("{SMALL_ENCODING}{}", kind.schema_version()),
+                let channel = match &mut writer {
+                    Some(writer) => {
+                        let schema_id = match schemas.get(&kind) {
+                            Some(id) => *id,
+                            None => {
+                                let id = writer
+                                    .add_schema(
+                                        kind.name(),
+                                        "activemap/text",
+                                        format!(
+                                            "{} v{}: {}",
+                                            kind.name(),
+                                            kind.schema_version(),
+                                            kind.description()
+                                        )
+                                        .as_bytes(),
+                                    )
+                                    .map_err(mcap_err)?;
+                                schemas.insert(kind, id);
+                                id
+                            }
+                        };
+                        let mut ch_meta = BTreeMap::new();
+                        ch_meta.insert("kind".to_string(), kind.name().to_string());
+                        ch_meta.insert(
+                            "schema_version".to_string(),
+                            kind.schema_version().to_string(),
+                        );
+                        let encoding = match kind.transport_class() {
+                            TransportClass::SharedMemory => DELTA_ENCODING.to_string(),
+                            TransportClass::Small => {
+                                format!("{SMALL_ENCODING}{}", kind.schema_version())
+                            }
+                        };
+                        writer
+                            .add_channel(schema_id, &topic, &encoding, &ch_meta)
+                            .map_err(mcap_err)?
+                    }
+                    None => 0,
                 };
-                let channel = writer
-                    .add_channel(schema_id, &topic, &encoding, &ch_meta)
-                    .map_err(mcap_err)?;
                 let key = topic_key(&run.run_id, &n.id, &o.name);
                 // Shared memory only from a built-in producer on the recorder's machine; an
                 // external node or another machine's node publishes on Zenoh.
@@ -276,15 +340,38 @@ fn record_loop(
                     )?),
                 };
                 // Large channels keep their previous payload for the delta encoding.
-                let previous =
-                    (kind.transport_class() == TransportClass::SharedMemory).then(Vec::<u8>::new);
-                sources.push((topic, channel, source, 0u64, previous));
+                let previous = (writer.is_some()
+                    && kind.transport_class() == TransportClass::SharedMemory)
+                    .then(Vec::<u8>::new);
+                sources.push(RecordedTopic {
+                    topic,
+                    kind,
+                    channel,
+                    source,
+                    last_seq: 0,
+                    previous,
+                    view_keyframe: None,
+                });
             }
         }
-        writer.flush().map_err(mcap_err)?;
-        Ok((writer, iox, sources))
+        // The view channels, in Foxglove's well-known schemas (activemap_view).
+        let mut view_channels = BTreeMap::new();
+        if let Some(writer) = &mut writer {
+            for topic in ViewTopic::ALL {
+                let schema = topic.schema();
+                let schema_id = writer
+                    .add_schema(&schema.name, &schema.encoding, &schema.data)
+                    .map_err(mcap_err)?;
+                let channel = writer
+                    .add_channel(schema_id, topic.topic(), VIEW_ENCODING, &BTreeMap::new())
+                    .map_err(mcap_err)?;
+                view_channels.insert(topic, channel);
+            }
+            writer.flush().map_err(mcap_err)?;
+        }
+        Ok((writer, iox, sources, view_channels))
     };
-    let (mut writer, _iox, mut sources) = match setup() {
+    let (mut writer, _iox, mut sources, view_channels) = match setup() {
         Ok(s) => {
             let _ = ready.send(Ok(()));
             s
@@ -297,35 +384,118 @@ fn record_loop(
     let mut stats = RecorderStats::default();
     let mut stop_seen: Option<Instant> = None;
     let mut last_flush = Instant::now();
-    let mut mcap_sequence = 0u32;
     let mut encoded: Vec<u8> = Vec::new();
+    let mut view_sequence = 0u32;
+    type ViewItem = (String, MessageKind, Vec<u8>, u64);
+    let (view_tx, view_rx) = std::sync::mpsc::sync_channel::<ViewItem>(64);
+    let (shown_tx, shown_rx) = std::sync::mpsc::channel::<activemap_view::ViewMessage>();
+    let view_thread = std::thread::Builder::new()
+        .name("recorder-view".into())
+        .spawn(move || {
+            let mut view = ViewConverter::new(ViewSettings::default());
+            let mut failed = BTreeSet::new();
+            let mut errors = 0u64;
+            for (topic, kind, bytes, t) in view_rx {
+                match view.convert(&topic, kind, &bytes, t) {
+                    Ok(shown) => {
+                        for m in shown {
+                            if let Some(live) = &live {
+                                live.publish(&m);
+                            }
+                            let _ = shown_tx.send(m);
+                        }
+                    }
+                    Err(e) => {
+                        errors += 1;
+                        if failed.insert(topic) {
+                            eprintln!("activemap: recorder: view: {e} (shown once per topic)");
+                        }
+                    }
+                }
+            }
+            if let Some(live) = live {
+                live.stop();
+            }
+            errors
+        })
+        .map_err(|e| RuntimeError::Other(format!("cannot start the view thread: {e}")))?;
+    let write_view = |writer: &mut Option<McapWriter>,
+                      stats: &mut RecorderStats,
+                      view_sequence: &mut u32,
+                      m: activemap_view::ViewMessage|
+     -> Result<(), RuntimeError> {
+        stats.view_messages += 1;
+        stats.view_bytes += m.data.len() as u64;
+        if let (Some(writer), Some(&channel_id)) = (writer, view_channels.get(&m.topic)) {
+            *view_sequence = view_sequence.wrapping_add(1);
+            let header = mcap::records::MessageHeader {
+                channel_id,
+                sequence: *view_sequence,
+                log_time: m.log_time_ns,
+                publish_time: m.log_time_ns,
+            };
+            writer
+                .write_to_known_channel(&header, &m.data)
+                .map_err(mcap_err)?;
+            stats.written_bytes += m.data.len() as u64;
+        }
+        Ok(())
+    };
     loop {
         let mut busy = false;
-        for (topic, channel, source, last_seq, previous) in &mut sources {
+        for rt in &mut sources {
             let mut write_err = None;
             let mut handle = |seq: u64, bytes: &[u8]| {
-                if seq > *last_seq + 1 && *last_seq > 0 {
-                    *stats.dropped.entry(topic.clone()).or_default() += seq - *last_seq - 1;
-                } else if *last_seq == 0 && seq > 1 {
-                    *stats.dropped.entry(topic.clone()).or_default() += seq - 1;
+                if seq > rt.last_seq + 1 && rt.last_seq > 0 {
+                    *stats.dropped.entry(rt.topic.clone()).or_default() += seq - rt.last_seq - 1;
+                } else if rt.last_seq == 0 && seq > 1 {
+                    *stats.dropped.entry(rt.topic.clone()).or_default() += seq - 1;
                 }
-                *last_seq = seq;
-                mcap_sequence = mcap_sequence.wrapping_add(1);
+                rt.last_seq = seq;
                 let t = now_ns();
-                let header = mcap::records::MessageHeader {
-                    channel_id: *channel,
-                    sequence: seq as u32,
-                    log_time: t,
-                    publish_time: t,
-                };
-                match write_message(&mut writer, &header, bytes, previous, &mut encoded) {
-                    Ok(written) => stats.written_bytes += written as u64,
-                    Err(e) => write_err = Some(e),
-                }
                 stats.messages += 1;
                 stats.bytes += bytes.len() as u64;
+                if let Some(writer) = &mut writer {
+                    let header = mcap::records::MessageHeader {
+                        channel_id: rt.channel,
+                        sequence: seq as u32,
+                        log_time: t,
+                        publish_time: t,
+                    };
+                    match write_message(
+                        writer,
+                        &header,
+                        rt.kind,
+                        bytes,
+                        &mut rt.previous,
+                        &mut encoded,
+                    ) {
+                        Ok(written) => stats.written_bytes += written as u64,
+                        Err(e) => {
+                            write_err = Some(e);
+                            return;
+                        }
+                    }
+                }
+                // The view is made on its own thread: image encoding must never slow the
+                // exact channels (a slow recorder loses shared-memory samples). A full queue
+                // drops the view message, never an exact one. A map goes only when its
+                // keyframe changed (the converter shows nothing else).
+                if !bytes.is_empty() {
+                    let keyframe = (rt.kind == MessageKind::GaussianMap)
+                        .then(|| activemap_schemas::GaussianMapHeader::read(bytes).ok())
+                        .flatten()
+                        .map(|h| h.keyframe_id);
+                    if keyframe.is_none() || keyframe != rt.view_keyframe {
+                        rt.view_keyframe = keyframe;
+                        let item = (rt.topic.clone(), rt.kind, bytes.to_vec(), t);
+                        if view_tx.try_send(item).is_err() {
+                            stats.view_dropped += 1;
+                        }
+                    }
+                }
             };
-            let got = match source {
+            let got = match &mut rt.source {
                 Source::Shm(s) => s.try_recv(&mut handle)?,
                 Source::Zenoh(z) => z.try_recv(&mut handle)?,
             };
@@ -334,8 +504,13 @@ fn record_loop(
             }
             busy |= got;
         }
+        while let Ok(m) = shown_rx.try_recv() {
+            write_view(&mut writer, &mut stats, &mut view_sequence, m)?;
+        }
         if last_flush.elapsed() > FLUSH_INTERVAL {
-            writer.flush().map_err(mcap_err)?;
+            if let Some(writer) = &mut writer {
+                writer.flush().map_err(mcap_err)?;
+            }
             last_flush = Instant::now();
         }
         if stop.load(Ordering::Relaxed) {
@@ -349,7 +524,14 @@ fn record_loop(
             std::thread::sleep(Duration::from_micros(200));
         }
     }
-    writer.finish().map_err(mcap_err)?;
+    drop(view_tx);
+    stats.view_errors = view_thread.join().unwrap_or(0);
+    while let Ok(m) = shown_rx.try_recv() {
+        write_view(&mut writer, &mut stats, &mut view_sequence, m)?;
+    }
+    if let Some(writer) = &mut writer {
+        writer.finish().map_err(mcap_err)?;
+    }
     Ok(stats)
 }
 
@@ -404,6 +586,8 @@ impl MessageRef<'_> {
 struct ChannelState {
     topic: String,
     delta: bool,
+    /// False for a view channel, which is never read.
+    replay: bool,
     wanted: bool,
     /// Last non-empty payload (empty before the first one).
     last: Vec<u8>,
@@ -459,7 +643,7 @@ impl RecordingReader {
     /// without decoding them.
     pub fn only_topics(&mut self, topics: BTreeSet<String>) {
         for ch in self.channels.values_mut() {
-            ch.wanted = topics.contains(&ch.topic);
+            ch.wanted = ch.replay && topics.contains(&ch.topic);
         }
         if let Some((id, ..)) = self.pending
             && !self.channels.get(&id).is_some_and(|c| c.wanted)
@@ -557,10 +741,13 @@ impl RecordingReader {
                 }
                 Record::Channel(c) => {
                     // Chunks repeat the channels they use: keep the state of a known one.
-                    let wanted = self.topics.as_ref().is_none_or(|t| t.contains(&c.topic));
+                    // The view channels (Foxglove schemas) are for viewers: never read here.
+                    let ours = is_replay_encoding(&c.message_encoding);
+                    let wanted = ours && self.topics.as_ref().is_none_or(|t| t.contains(&c.topic));
                     self.channels.entry(c.id).or_insert_with(|| ChannelState {
                         topic: c.topic.clone(),
                         delta: c.message_encoding == DELTA_ENCODING,
+                        replay: ours,
                         wanted,
                         last: Vec::new(),
                     });
@@ -878,7 +1065,14 @@ pub(crate) fn write_test_recording(
             log_time: *seq,
             publish_time: *seq,
         };
-        write_message(&mut writer, &header, bytes, previous, &mut encoded).unwrap();
+        // Large test payloads go through the map codec's entry point, which stores anything
+        // that is not a valid map as the byte-run delta does.
+        let kind = if *large {
+            MessageKind::GaussianMap
+        } else {
+            MessageKind::Counter
+        };
+        write_message(&mut writer, &header, kind, bytes, previous, &mut encoded).unwrap();
     }
     writer.finish().unwrap();
 }
