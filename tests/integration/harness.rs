@@ -142,3 +142,63 @@ pub fn pids_with(needles: &[&str]) -> Vec<u32> {
     }
     out
 }
+
+/// A venv named `name` next to the test binary with `packages` installed (pip), created or
+/// reused; `installed` is a Python snippet that exits 0 when the pinned versions are already
+/// there. `None` when there is no `python3`; a failing `venv` or `pip` fails the test with its
+/// output.
+pub fn python_venv(name: &str, installed: &str, packages: &[&str]) -> Option<PathBuf> {
+    if !Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
+        eprintln!("skipping {name}: python3 is not available");
+        return None;
+    }
+    let target = exe()
+        .parent()
+        .and_then(Path::parent)
+        .expect("the binary lives in <target>/<profile>/")
+        .to_path_buf();
+    let venv = target.join(name);
+    let python = venv.join("bin").join("python");
+    let run = |cmd: &mut Command, what: &str| {
+        let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert!(
+            out.status.success(),
+            "{what} failed:\n{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    if !python.exists() {
+        run(
+            Command::new("python3").args(["-m", "venv"]).arg(&venv),
+            "python3 -m venv",
+        );
+    }
+    let pinned = Command::new(&python)
+        .args(["-c", installed])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !pinned {
+        run(
+            Command::new(&python)
+                .args(["-m", "pip", "install", "--disable-pip-version-check"])
+                .args(packages),
+            &format!("pip install {}", packages.join(" ")),
+        );
+    }
+    Some(python)
+}
+
+/// Send SIGKILL to `pid` (a process found with [`pids_with`]).
+pub fn kill9(pid: u32) {
+    // SAFETY: kill(2) on a pid found in /proc.
+    assert_eq!(
+        unsafe { libc::kill(pid as i32, libc::SIGKILL) },
+        0,
+        "kill {pid}"
+    );
+}

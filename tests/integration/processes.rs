@@ -7,7 +7,7 @@ use std::time::Duration;
 use activemap_runtime::record::{RecordedMessage, Recording, read_recording};
 use activemap_schemas::{Counter, SmallMessage};
 
-use super::harness::{pids_with, root, run, spawn, wait};
+use super::harness::{kill9, pids_with, root, run, spawn, wait};
 
 /// Runs the dataflow file `flow` (relative to the repository root) into a fresh run folder and
 /// reads its recording back; returns the tempdir (keeps the folder alive), the recording's
@@ -168,8 +168,7 @@ fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
         std::thread::sleep(Duration::from_millis(50));
     }
     let victim = victim.expect("victim node never started");
-    // SAFETY: kill(2) on a pid found in /proc.
-    assert_eq!(unsafe { libc_kill(victim as i32, 9) }, 0);
+    kill9(victim);
     let out = wait(child, Duration::from_secs(60), "run with a killed node");
     assert!(!out.status.success());
     assert!(
@@ -199,9 +198,4 @@ fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
         Duration::from_secs(120),
     );
     assert!(out.status.success(), "second run failed:\n{}", out.stderr);
-}
-
-unsafe extern "C" {
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, sig: i32) -> i32;
 }

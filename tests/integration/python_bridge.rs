@@ -4,7 +4,6 @@
 //! python sim. The test installs the pinned `eclipse-zenoh` into a venv under the target dir.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Duration;
 
 use super::harness;
@@ -15,59 +14,13 @@ const ZENOH_PACKAGE: &str = "eclipse-zenoh==1.10.2";
 /// Lockstep steps of the episode.
 const STEPS: u64 = 20;
 
-/// A venv with the pinned Zenoh package, created (or reused) next to the test binary. `None`
-/// when there is no `python3`; a failing `venv` or `pip` fails the test with its output.
+/// A venv with the pinned Zenoh package (see [`harness::python_venv`]).
 fn python_with_zenoh() -> Option<PathBuf> {
-    if !Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-    {
-        eprintln!("skipping the Python bridge test: python3 is not available");
-        return None;
-    }
-    let target = harness::exe()
-        .parent()
-        .and_then(Path::parent)
-        .expect("the binary lives in <target>/<profile>/")
-        .to_path_buf();
-    let venv = target.join("python-bridge-venv");
-    let python = venv.join("bin").join("python");
-    let run = |cmd: &mut Command, what: &str| {
-        let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
-        assert!(
-            out.status.success(),
-            "{what} failed:\n{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    if !python.exists() {
-        run(
-            Command::new("python3").args(["-m", "venv"]).arg(&venv),
-            "python3 -m venv",
-        );
-    }
-    let has_zenoh = Command::new(&python)
-        .args([
-            "-c",
-            "import importlib.metadata as m, sys; sys.exit(m.version('eclipse-zenoh') != '1.10.2')",
-        ])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !has_zenoh {
-        run(
-            Command::new(&python).args([
-                "-m",
-                "pip",
-                "install",
-                "--disable-pip-version-check",
-                ZENOH_PACKAGE,
-            ]),
-            &format!("pip install {ZENOH_PACKAGE}"),
-        );
-    }
-    Some(python)
+    harness::python_venv(
+        "python-bridge-venv",
+        "import importlib.metadata as m, sys; sys.exit(m.version('eclipse-zenoh') != '1.10.2')",
+        &[ZENOH_PACKAGE],
+    )
 }
 
 /// The reference loop with the Python client as `sim` (no evaluator: the box room has no

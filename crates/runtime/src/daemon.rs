@@ -78,6 +78,16 @@ fn is_tls_endpoint(endpoint: &str) -> bool {
     endpoint.starts_with("tls/")
 }
 
+/// The endpoints of `listen` that anyone on the network can reach unauthenticated: not
+/// loopback, and not `tls/` with mutual TLS on.
+fn exposed_endpoints(listen: &[String], tls: bool) -> Vec<String> {
+    listen
+        .iter()
+        .filter(|e| !(endpoint_is_loopback(e) || (tls && is_tls_endpoint(e))))
+        .cloned()
+        .collect()
+}
+
 /// Refuses a daemon that would listen on a non-loopback address without mutual TLS, unless
 /// `insecure`; returns the exposed endpoints (to warn about) when it is allowed. With `tls`,
 /// `tls/` endpoints are protected; a `tls/` endpoint without TLS files is refused outright.
@@ -91,11 +101,7 @@ pub fn check_listen(
             "`{e}` is a TLS endpoint: give the daemon its --tls-ca, --tls-cert and --tls-key"
         )));
     }
-    let exposed: Vec<String> = listen
-        .iter()
-        .filter(|e| !(endpoint_is_loopback(e) || (tls && is_tls_endpoint(e))))
-        .cloned()
-        .collect();
+    let exposed = exposed_endpoints(listen, tls);
     if !exposed.is_empty() && !insecure {
         return Err(RuntimeError::Other(format!(
             "refusing to listen on {} without TLS: anyone who can reach it could submit flows \
@@ -376,12 +382,7 @@ fn start_run(
         ));
     }
     check_exec_allowed(&flow, &opts.machine, &opts.allow_exec)?;
-    let exposed: Vec<String> = opts
-        .listen
-        .iter()
-        .filter(|e| !(endpoint_is_loopback(e) || (opts.tls.is_some() && is_tls_endpoint(e))))
-        .cloned()
-        .collect();
+    let exposed = exposed_endpoints(&opts.listen, opts.tls.is_some());
     if !exposed.is_empty() {
         eprintln!("{}", insecure_warning(&exposed));
     }

@@ -75,6 +75,15 @@ fn match_ids(prev_ids: &[u64], next_ids: &[u64]) -> Vec<Option<usize>> {
     }
 }
 
+/// The bits a value is stored against: component `c` of the matched previous Gaussian `j` in
+/// its section (of `w` floats per Gaussian), or zero for a new Gaussian or without a base.
+fn reference(prev_section: Option<&[u8]>, j: Option<usize>, w: usize, c: usize) -> u32 {
+    match (j, prev_section) {
+        (Some(j), Some(prev)) => u32_at(prev, j * w + c),
+        _ => 0,
+    }
+}
+
 fn ids_of(payload: &[u8], layout: &MapLayout) -> Vec<u64> {
     let section = &payload[layout.ranges[5].clone()];
     (0..layout.count).map(|k| u64_at(section, k)).collect()
@@ -118,11 +127,7 @@ pub(super) fn encode(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) ->
         for (i, j) in matched.iter().enumerate() {
             for c in 0..w {
                 let k = i * w + c;
-                let reference = match (j, prev_section) {
-                    (Some(j), Some(prev)) => u32_at(prev, j * w + c),
-                    _ => 0,
-                };
-                let x = (u32_at(cur, k) ^ reference).to_le_bytes();
+                let x = (u32_at(cur, k) ^ reference(prev_section, *j, w, c)).to_le_bytes();
                 for (b, byte) in x.into_iter().enumerate() {
                     out[start + b * values + k] = byte;
                 }
@@ -203,13 +208,10 @@ pub(super) fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, De
         for (i, j) in matched.iter().enumerate() {
             for c in 0..w {
                 let k = i * w + c;
-                let reference = match (j, prev_section) {
-                    (Some(j), Some(prev)) => u32_at(prev, j * w + c),
-                    _ => 0,
-                };
                 let x = u32::from_le_bytes(std::array::from_fn(|b| planes[b * values + k]));
                 let o = r[s].start + 4 * k;
-                out[o..o + 4].copy_from_slice(&(x ^ reference).to_le_bytes());
+                let v = x ^ reference(prev_section, *j, w, c);
+                out[o..o + 4].copy_from_slice(&v.to_le_bytes());
             }
         }
         let gap = r[s + 1].start - r[s].end;
