@@ -1,8 +1,9 @@
 //! Issue 18, faults: `kill -9` of each operator of the exploration loop in turn, at a seeded
 //! step, on the small house: the run ends (no hang) with an error naming the node and how it
 //! died, leaves no process behind, its recording reads back up to the crash, and the next run
-//! starts clean. And the `restart: { on-failure: N }` policy of a stateless node: a killed
-//! node comes back while restarts remain, and the run fails once they are used up.
+//! starts clean. The `restart: { on-failure: N }` policy of a stateless node: a killed node
+//! comes back while restarts remain, and the run fails once they are used up. And a full disk
+//! while recording: the run stops with an error naming the file, which reads back.
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -11,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use activemap_runtime::record::read_recording;
 
-use super::harness::{self, pids_with, root, run, spawn};
+use super::harness::{self, kill9, pids_with, root, run, spawn};
 
 /// Every node of `dataflow.yaml`.
 const LOOP_NODES: [&str; 9] = [
@@ -71,11 +72,6 @@ fn follow_stderr(
 fn progress_step(line: &str) -> Option<u64> {
     let rest = line.split("step ").nth(1)?;
     rest.split('/').next()?.trim().parse().ok()
-}
-
-fn kill9(pid: u32) {
-    // SAFETY: kill(2) on a pid found in /proc.
-    assert_eq!(unsafe { libc_kill(pid as i32, 9) }, 0, "kill {pid}");
 }
 
 fn wait_exit(child: &mut std::process::Child, timeout: Duration) -> std::process::ExitStatus {
@@ -154,7 +150,6 @@ fn kill_one(tmp: &Path, flow: &Path, node: &str, at: u64) {
 
 /// Each operator of the loop killed in turn at a seeded step.
 #[test]
-#[ignore = "unfinished (issue 18): written, not yet run to the end once"]
 fn kill_9_of_each_loop_operator_is_reported_and_the_next_run_starts_clean() {
     let tmp = tempfile::tempdir().unwrap();
     let flow = tmp.path().join("loop.yaml");
@@ -248,7 +243,94 @@ fn a_stateless_node_restarts_on_failure_until_its_limit() {
     );
 }
 
-unsafe extern "C" {
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, sig: i32) -> i32;
+/// Caps the size of any file process `pid` writes at `bytes` (prlimit(2) RLIMIT_FSIZE, soft
+/// limit only): what a full disk does to the next write, for that process alone.
+fn limit_file_size(pid: u32, bytes: u64) {
+    let mut old = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: prlimit(2) reads and writes the two rlimit structs given.
+    unsafe {
+        assert_eq!(
+            libc::prlimit(pid as i32, libc::RLIMIT_FSIZE, std::ptr::null(), &mut old),
+            0
+        );
+        let new = libc::rlimit {
+            rlim_cur: bytes,
+            rlim_max: old.rlim_max,
+        };
+        assert_eq!(
+            libc::prlimit(pid as i32, libc::RLIMIT_FSIZE, &new, std::ptr::null_mut()),
+            0,
+            "prlimit {pid}"
+        );
+    }
+}
+
+/// A full disk while recording: once the episode runs, the launcher (which writes the
+/// recording; its nodes keep their own limits) may write no file beyond 256 KiB more than the
+/// recording holds. The run stops within a bounded time with an error naming the file and the
+/// cause, leaves no process behind, and the recording reads back up to the cut.
+#[test]
+fn a_full_disk_while_recording_stops_the_run_with_a_clear_error_and_a_readable_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flow = tmp.path().join("full.yaml");
+    std::fs::write(&flow, harness::small_house_flow("dataflow.yaml", 200, &[])).unwrap();
+    let out_dir = tmp.path().join("run");
+    let mut child = spawn(
+        &[
+            "run",
+            flow.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+            "--no-eval",
+        ],
+        &root(),
+    );
+    let (lines, all) = follow_stderr(&mut child);
+    let deadline = Instant::now() + Duration::from_secs(180);
+    loop {
+        let line = lines
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .expect("the run never reached step 10");
+        if progress_step(&line).is_some_and(|s| s >= 10) {
+            break;
+        }
+    }
+    let path = out_dir.join("recording.mcap");
+    let frames_of = |rec: &activemap_runtime::record::Recording| {
+        rec.messages
+            .iter()
+            .filter(|m| m.topic == "sim/rgbd")
+            .count()
+    };
+    // What the file holds now (the recorder flushes every second) must survive the cut.
+    let size = std::fs::metadata(&path).unwrap().len();
+    let before = frames_of(&read_recording(&path).unwrap());
+    assert!(before > 0, "nothing recorded by step 10");
+    let limit = size + 256 * 1024;
+    limit_file_size(child.id(), limit);
+    let status = wait_exit(&mut child, Duration::from_secs(120));
+    let stderr = all.join().unwrap();
+    assert!(!status.success(), "the run succeeded on a full disk");
+    assert!(
+        stderr.contains(&format!("recording {}", path.display()))
+            && stderr.contains("the disk is full or a file-size limit was reached")
+            && stderr.contains("the run was stopped"),
+        "stderr:\n{stderr}"
+    );
+    let dir = out_dir.to_string_lossy().to_string();
+    assert!(
+        pids_with(&["node", &dir]).is_empty(),
+        "processes of the run were left behind"
+    );
+    assert!(std::fs::metadata(&path).unwrap().len() <= limit);
+    let rec = read_recording(&path).expect("the recording reads back");
+    assert!(rec.truncated, "a cut recording must say so");
+    let after = frames_of(&rec);
+    assert!(
+        after >= before,
+        "{after} frames read back, {before} were on disk before the disk filled"
+    );
 }

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read};
 use std::net::TcpStream;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -182,54 +182,13 @@ fn live_client(url: &str, topics: &[ViewTopic], deadline: Instant) -> BTreeMap<V
     got
 }
 
-/// A venv with the pinned Python MCAP reader, next to the test binary; `None` without python3.
+/// A venv with the pinned Python MCAP reader (see [`harness::python_venv`]).
 fn python_with_mcap() -> Option<PathBuf> {
-    if !Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-    {
-        eprintln!("skipping the Python reader check: python3 is not available");
-        return None;
-    }
-    let target = harness::exe()
-        .parent()
-        .and_then(Path::parent)
-        .expect("the binary lives in <target>/<profile>/")
-        .to_path_buf();
-    let venv = target.join("python-mcap-venv");
-    let python = venv.join("bin").join("python");
-    let run = |cmd: &mut Command, what: &str| {
-        let out = cmd.output().unwrap_or_else(|e| panic!("{what}: {e}"));
-        assert!(
-            out.status.success(),
-            "{what} failed:\n{}\n{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    if !python.exists() {
-        run(
-            Command::new("python3").args(["-m", "venv"]).arg(&venv),
-            "python3 -m venv",
-        );
-    }
-    let pinned = Command::new(&python)
-        .args([
-            "-c",
-            "import importlib.metadata as m, sys; sys.exit(m.version('mcap') != '1.6.0' or m.version('mcap-protobuf-support') != '0.6.0')",
-        ])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !pinned {
-        run(
-            Command::new(&python)
-                .args(["-m", "pip", "install", "--disable-pip-version-check"])
-                .args(PYTHON_PACKAGES),
-            "pip install mcap",
-        );
-    }
-    Some(python)
+    harness::python_venv(
+        "python-mcap-venv",
+        "import importlib.metadata as m, sys; sys.exit(m.version('mcap') != '1.6.0' or m.version('mcap-protobuf-support') != '0.6.0')",
+        &PYTHON_PACKAGES,
+    )
 }
 
 /// The Python side: every view channel's schema name and encoding, and one decoded message of
@@ -274,7 +233,6 @@ const SHOWN_BY_FBE: [ViewTopic; 11] = [
 ];
 
 #[test]
-#[ignore = "unfinished (issue 17): the client connects (subprotocol foxglove.sdk.v1) but sees no channel advertisement before the run ends; not yet diagnosed"]
 fn the_view_channels_stream_live_and_decode_from_the_recording_with_both_readers() {
     let tmp = tempfile::tempdir().unwrap();
     let flow = tmp.path().join("view.yaml");

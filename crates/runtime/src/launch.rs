@@ -367,10 +367,16 @@ pub fn run_local(
     } else {
         None
     };
-    let result = supervise(dataflow, opts, &run, &session, &stop);
+    let result = supervise(dataflow, opts, &run, &session, &stop, recorder.as_ref());
     let recording = match recorder {
         // Statistics only when a file was written (the live view alone records nothing).
-        Some(r) => r.finish()?.into_recorded(opts.record),
+        Some(r) => match r.finish() {
+            Ok(stats) => stats.into_recorded(opts.record),
+            Err(e) => {
+                let _ = zenoh::Wait::wait(session.close());
+                return Err(RuntimeError::Other(format!("{e}; the run was stopped")));
+            }
+        },
         None => None,
     };
     let _ = zenoh::Wait::wait(session.close());
@@ -393,6 +399,7 @@ fn supervise(
     run: &RunInfo,
     session: &zenoh::Session,
     stop: &AtomicBool,
+    recorder: Option<&Recorder>,
 ) -> Result<Supervised, RuntimeError> {
     let ready_sub = ZenohSubscriber::create(
         session,
@@ -533,6 +540,11 @@ fn supervise(
         }
         if let Some(report) = crashed {
             failure = Some(report);
+            break;
+        }
+        // A recorder that failed (e.g. a full disk) stops the run: nothing goes unrecorded.
+        if recorder.is_some_and(Recorder::failed) {
+            failure = Some("the recorder failed; stopping the run".into());
             break;
         }
         if nodes.values().all(|r| r.child.is_none()) {

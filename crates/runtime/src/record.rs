@@ -119,6 +119,13 @@ impl Recorder {
         machine: Option<&str>,
     ) -> Result<Self, RuntimeError> {
         let machine = machine.map(str::to_string);
+        // A file-size limit (`ulimit -f`) must make a write fail with EFBIG, reported below,
+        // rather than kill the launcher with SIGXFSZ and leave its nodes behind.
+        // SAFETY: setting a signal's disposition to "ignore" has no handler to race with.
+        unsafe {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+        }
+        let file = outputs.file.clone();
         let stop = Arc::new(AtomicBool::new(false));
         let (ready_tx, ready_rx) = std::sync::mpsc::sync_channel(1);
         let dataflow = dataflow.clone();
@@ -136,6 +143,10 @@ impl Recorder {
                     &stop2,
                     ready_tx,
                 )
+                .map_err(|e| match &file {
+                    Some(path) => RuntimeError::Other(format!("recording {}: {e}", path.display())),
+                    None => e,
+                })
             })
             .map_err(|e| RuntimeError::Other(format!("cannot start the recorder thread: {e}")))?;
         match ready_rx.recv_timeout(Duration::from_secs(30)) {
@@ -149,6 +160,14 @@ impl Recorder {
                 _ => Err(RuntimeError::Other("recorder did not start".into())),
             },
         }
+    }
+
+    /// True when the recorder thread ended before [`Self::finish`] asked it to: it failed (e.g.
+    /// the disk is full), and [`Self::finish`] returns the error. The launcher then stops the
+    /// run rather than go on unrecorded.
+    pub fn failed(&self) -> bool {
+        !self.stop.load(Ordering::Relaxed)
+            && self.thread.as_ref().is_some_and(JoinHandle::is_finished)
     }
 
     /// Drain what is in flight, finish the file and return the statistics.
@@ -167,7 +186,22 @@ enum Source {
 }
 
 fn mcap_err(e: mcap::McapError) -> RuntimeError {
-    RuntimeError::Other(format!("mcap: {e}"))
+    let mcap::McapError::Io(io) = &e else {
+        return RuntimeError::Other(format!("mcap: {e}"));
+    };
+    let full = matches!(
+        io.kind(),
+        std::io::ErrorKind::StorageFull
+            | std::io::ErrorKind::FileTooLarge
+            | std::io::ErrorKind::QuotaExceeded
+    );
+    let hint = if full {
+        " (the disk is full or a file-size limit was reached; the file keeps what was written \
+         before and reads back up to there)"
+    } else {
+        ""
+    };
+    RuntimeError::Other(format!("mcap: I/O error: {io}{hint}"))
 }
 
 fn now_ns() -> u64 {

@@ -34,6 +34,9 @@ pub enum LiveViewError {
 
 /// A running live view server with one channel per [`ViewTopic`].
 pub struct LiveView {
+    /// Held for the server's life: the server and the channels keep only weak references to
+    /// their context, and a dropped context advertises nothing to clients that connect.
+    _context: Arc<Context>,
     channels: BTreeMap<ViewTopic, Arc<RawChannel>>,
     server: Option<foxglove::WebSocketServerHandle>,
     runtime: Option<tokio::runtime::Runtime>,
@@ -98,6 +101,7 @@ impl LiveView {
             .map_err(|e| start_err(e.to_string()))?;
         let port = server.port();
         Ok(Self {
+            _context: context,
             channels,
             server: Some(server),
             runtime: Some(runtime),
@@ -186,5 +190,80 @@ mod tests {
         let err = LiveView::start(&taken).unwrap_err().to_string();
         assert!(err.contains(&taken), "{err}");
         first.stop();
+    }
+
+    /// A client speaking the Foxglove WebSocket protocol (`foxglove.sdk.v1`) to a live view:
+    /// it is told about every view channel with its schema, subscribes to one, and receives
+    /// exactly the bytes published on it afterwards (and nothing of the channel it did not ask
+    /// for).
+    #[test]
+    fn a_client_sees_every_channel_subscribes_and_receives_what_is_published() {
+        use tungstenite::Message;
+        use tungstenite::client::IntoClientRequest;
+
+        let live = LiveView::start("127.0.0.1:0").unwrap();
+        let mut request = live.url().into_client_request().unwrap();
+        request
+            .headers_mut()
+            .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+        let (mut socket, response) = tungstenite::connect(request).unwrap();
+        assert_eq!(
+            response.headers()["Sec-WebSocket-Protocol"],
+            "foxglove.sdk.v1"
+        );
+        if let tungstenite::stream::MaybeTlsStream::Plain(s) = socket.get_ref() {
+            s.set_read_timeout(Some(std::time::Duration::from_secs(10)))
+                .unwrap();
+        }
+        // serverInfo, then the advertisement of all twelve channels.
+        let mut channel_of = BTreeMap::new();
+        while channel_of.len() < ViewTopic::ALL.len() {
+            let Message::Text(text) = socket.read().unwrap() else {
+                continue;
+            };
+            let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            if v["op"] != "advertise" {
+                continue;
+            }
+            for ch in v["channels"].as_array().unwrap() {
+                let topic = ViewTopic::from_topic(ch["topic"].as_str().unwrap()).unwrap();
+                assert_eq!(ch["encoding"], VIEW_ENCODING);
+                assert_eq!(ch["schemaName"], topic.schema().name);
+                channel_of.insert(topic, ch["id"].as_u64().unwrap());
+            }
+        }
+        assert_eq!(live.clients(), 1);
+        let subscribe = serde_json::json!({
+            "op": "subscribe",
+            "subscriptions": [{ "id": 7, "channelId": channel_of[&ViewTopic::EstimatedPose] }],
+        });
+        socket.send(Message::text(subscribe.to_string())).unwrap();
+        // The subscription takes effect asynchronously: publish until the message arrives.
+        if let tungstenite::stream::MaybeTlsStream::Plain(s) = socket.get_ref() {
+            s.set_read_timeout(Some(std::time::Duration::from_millis(200)))
+                .unwrap();
+        }
+        let payload: Vec<u8> = (0..=255).collect();
+        for attempt in 0.. {
+            assert!(attempt < 100, "nothing arrived on the subscription");
+            for (topic, time) in [(ViewTopic::Log, 1), (ViewTopic::EstimatedPose, 42)] {
+                live.publish(&ViewMessage {
+                    topic,
+                    log_time_ns: time,
+                    data: payload.clone(),
+                });
+            }
+            let Ok(Message::Binary(data)) = socket.read() else {
+                continue;
+            };
+            // Message data: opcode 1, subscription id, log time, payload.
+            assert_eq!(data[0], 1);
+            assert_eq!(u32::from_le_bytes(data[1..5].try_into().unwrap()), 7);
+            assert_eq!(u64::from_le_bytes(data[5..13].try_into().unwrap()), 42);
+            assert_eq!(&data[13..], payload.as_slice());
+            break;
+        }
+        let _ = socket.close(None);
+        live.stop();
     }
 }
