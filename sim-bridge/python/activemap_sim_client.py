@@ -24,8 +24,9 @@ Scenes (``config.scene``):
 
 Config keys (the node's ``config:`` in the dataflow): ``scene`` ("box"), ``width``/``height``
 (64), ``hfov_deg`` (90), ``max_steps`` (2000; ``--max-steps`` overrides), ``forward_step``
-(0.05 m), ``turn_deg`` (5), ``log`` (optional path: one JSON line per frame sent and per action
-received).
+(0.05 m), ``turn_deg`` (5), ``seed`` (0), ``noise`` (``none``; the built-in simulator's syntax
+and models, see :mod:`activemap_noise`), ``lockstep`` (must be true), ``log`` (optional path:
+one JSON line per frame sent and per action received). Any other key is refused, naming it.
 """
 
 import json
@@ -38,6 +39,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import activemap_bridge as codec  # noqa: E402
+import activemap_noise as noise  # noqa: E402
 
 STEP_SECONDS = 0.1
 CAMERA_HEIGHT = 0.88
@@ -190,7 +192,8 @@ class BoxRoomSimulator:
     ``forward_step`` metres along the heading unless the agent's cylinder would overlap a wall or
     box (then it stays: no sliding), ``turn_left``/``turn_right`` turn by ``turn_deg``."""
 
-    def __init__(self, width=64, height=64, hfov_deg=90.0, forward_step=0.05, turn_deg=5.0):
+    def __init__(self, width=64, height=64, hfov_deg=90.0, forward_step=0.05, turn_deg=5.0, actuation=None):
+        self.actuation = actuation
         self.scene = BoxRoomScene()
         self.camera = RayCastCamera(width, height, hfov_deg)
         self.width, self.height = width, height
@@ -205,15 +208,24 @@ class BoxRoomSimulator:
 
     def step(self, action):
         """Applies ``forward``, ``turn_left`` or ``turn_right``; returns True on a collision."""
+        wrap = lambda a: (a + math.pi) % (2.0 * math.pi) - math.pi  # noqa: E731
         if action == "forward":
-            nx = self.x + self.forward_step * math.cos(self.yaw)
-            ny = self.y + self.forward_step * math.sin(self.yaw)
-            if self.scene.blocked(nx, ny):
-                return True
-            self.x, self.y = nx, ny
+            distance, dyaw = (self.actuation.forward(self.forward_step) if self.actuation
+                              else (self.forward_step, 0.0))
+            # Along the chord of the arc: the old heading plus half the heading change.
+            along = self.yaw + 0.5 * dyaw
+            nx = self.x + distance * math.cos(along)
+            ny = self.y + distance * math.sin(along)
+            blocked = self.scene.blocked(nx, ny)
+            if not blocked:
+                self.x, self.y = nx, ny
+            if dyaw != 0.0:
+                self.yaw = wrap(self.yaw + dyaw)
+            return blocked
         elif action in ("turn_left", "turn_right"):
             sign = 1.0 if action == "turn_left" else -1.0
-            self.yaw = (self.yaw + sign * self.turn + math.pi) % (2.0 * math.pi) - math.pi
+            angle = self.actuation.turn(self.turn) if self.actuation else self.turn
+            self.yaw = wrap(self.yaw + sign * angle)
         else:
             raise ValueError(f"unknown action {action!r}")
         return False
@@ -298,8 +310,48 @@ def _matrix_from_quaternion(q):
     ]
 
 
+#: The config keys this client reads.
+CONFIG_KEYS = ("scene", "width", "height", "hfov_deg", "max_steps", "forward_step", "turn_deg",
+               "seed", "noise", "lockstep", "log")
+
+
+class NoisySensor:
+    """A simulator whose ``render`` gets the sensor noise of ``sensor`` (an
+    :class:`activemap_noise.SensorNoise`); everything else is the simulator's."""
+
+    def __init__(self, sim, sensor):
+        self._sim, self._sensor = sim, sensor
+
+    def __getattr__(self, name):
+        return getattr(self._sim, name)
+
+    def render(self):
+        rgb, depth = self._sim.render()
+        return self._sensor.apply(rgb, depth, self._sim.width)
+
+
 def make_simulator(config):
-    """The simulator a node config asks for (``scene: box`` or ``scene: habitat:<file>``)."""
+    """The simulator a node config asks for (``scene: box`` or ``scene: habitat:<file>``), with
+    the configured noise. Unknown keys and bad values are errors naming the key."""
+    unknown = sorted(set(config) - set(CONFIG_KEYS))
+    if unknown:
+        raise ValueError(
+            f"config: unknown key(s) {', '.join(unknown)}; this client reads {', '.join(CONFIG_KEYS)} "
+            "(placement keys such as up_axis, transform and floor, and robot, are the built-in "
+            "simulator's: see sim-bridge/BRIDGE.md)")
+    if config.get("lockstep", True) is not True:
+        raise ValueError("config lockstep: this client runs lockstep only (one frame per action)")
+    seed = config.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"config seed: expected an integer >= 0, got {seed!r}")
+    noise_config = noise.parse_noise(config.get("noise"))
+    sensor = noise.SensorNoise(noise_config, seed)
+    actuation = noise.ActuationNoise(noise_config, seed)
+    sim = _make_clean_simulator(config, actuation if actuation.active() else None)
+    return NoisySensor(sim, sensor) if sensor.active() else sim
+
+
+def _make_clean_simulator(config, actuation):
     scene = config.get("scene", "box")
     kwargs = dict(
         width=int(config.get("width", 64)),
@@ -311,8 +363,11 @@ def make_simulator(config):
     if kwargs["width"] < 1 or kwargs["height"] < 1:
         raise ValueError(f"config width/height must be >= 1, got {kwargs['width']}x{kwargs['height']}")
     if scene == "box":
-        return BoxRoomSimulator(**kwargs)
+        return BoxRoomSimulator(actuation=actuation, **kwargs)
     if scene.startswith("habitat:"):
+        if actuation is not None:
+            raise ValueError("config noise.actuation: not supported with habitat-sim here; use its own "
+                             "noisy actions (habitat_sim.agent.controls.pyrobot_noisy_controls)")
         return HabitatSimAdapter(scene[len("habitat:"):], **kwargs)
     raise ValueError(f"config scene must be 'box' or 'habitat:<file>', got {scene!r}")
 

@@ -24,7 +24,7 @@ fn python_with_zenoh() -> Option<PathBuf> {
 }
 
 /// The reference loop with the Python client as `sim` (no evaluator: the box room has no
-/// ground-truth scene for it).
+/// ground-truth scene for it), with the `realistic` sensor and actuation noise (seeded).
 fn bridge_flow(python: &Path, log: &Path) -> String {
     let client = harness::root().join("sim-bridge/python/activemap_sim_client.py");
     let reference =
@@ -39,7 +39,7 @@ fn bridge_flow(python: &Path, log: &Path) -> String {
   - id: sim
     path: \"{}\"
     args: [\"{}\"]
-    config: {{ scene: box, width: 64, height: 64, hfov_deg: 90, max_steps: {STEPS}, log: \"{}\" }}
+    config: {{ scene: box, width: 64, height: 64, hfov_deg: 90, max_steps: {STEPS}, seed: 3, noise: realistic, log: \"{}\" }}
     outputs:
       - {{ id: rgbd, type: RgbdFrame }}
       - {{ id: true_pose, type: TruePose }}

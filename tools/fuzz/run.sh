@@ -5,6 +5,9 @@
 #
 #   tools/fuzz/run.sh [SECONDS_PER_TARGET] [TARGET...]
 #
+# With RUNS=N in the environment a target also stops after N executions (issue 18's bar is
+# 10^6 executions or 10 minutes, whichever comes first: RUNS=1000000 tools/fuzz/run.sh 600).
+#
 # Needs a nightly toolchain and cargo-fuzz (`cargo +nightly install cargo-fuzz --locked`).
 # New crashes land in fuzz/artifacts/<target>/; minimise one with
 # `cargo +nightly fuzz tmin -s none <target> <file>`, save it under
@@ -31,7 +34,7 @@ for target in "${targets[@]}"; do
     before=$(find "artifacts/${target}" -type f 2>/dev/null | wc -l)
     echo "== ${target}: ${seconds} s"
     nice -n 19 cargo +nightly fuzz run "${flags[@]}" "${target}" -- \
-        -max_total_time="${seconds}" -jobs=1 -workers=1 -timeout=10 -rss_limit_mb=2048 \
+        -max_total_time="${seconds}" ${RUNS:+-runs="${RUNS}"} -jobs=1 -workers=1 -timeout=10 -rss_limit_mb=2048 \
         -print_final_stats=1 >"${log}" 2>&1
     status=$?
     # With -jobs, libFuzzer's own output goes to fuzz-<job>.log in the working directory.

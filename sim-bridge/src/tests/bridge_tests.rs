@@ -160,3 +160,117 @@ fn python_client_ray_caster_matches_the_rust_renderer() {
         );
     }
 }
+
+/// The Python client's noise (`python/activemap_noise.py`) against the Rust model: the
+/// `realistic` preset equals [`crate::NoiseConfig::realistic`] value for value; on flat depth
+/// images (seeded) the spread of the readings is σ0 + c2·z² at 1, 2 and 4 m and their mean z,
+/// the dropout rate is the configured 1 %, readings beyond the maximum range are 0, about half
+/// the pixels beside a depth step are dropped, the colour spread is σ = 2 levels, and the
+/// actuation spreads are the configured ones; bad values are refused naming the field.
+#[test]
+fn python_noise_matches_the_rust_model() {
+    let Some(_) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let code = r#"
+import array, json, math, activemap_noise as n
+
+def moments(xs):
+    m = sum(xs) / len(xs)
+    return m, math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
+
+cfg = n.parse_noise("realistic")
+out = {"preset": cfg, "depth": {}}
+w = 100
+for z in (1.0, 2.0, 4.0, 12.0):
+    flat = array.array("f", [z] * w * w).tobytes()
+    rgb, d = n.SensorNoise(cfg, 7).apply(bytes([128]) * 3 * w * w, flat, w)
+    v = array.array("f"); v.frombytes(d)
+    valid = [x for x in v if x > 0]
+    m, s = moments(valid) if len(valid) > 1 else (0.0, 0.0)
+    out["depth"][str(z)] = {"valid": len(valid) / len(v), "mean": m, "std": s}
+    if z == 1.0:
+        out["rgb_std"] = moments(list(rgb))[1]
+no_dropout = n.parse_noise({"preset": "realistic", "depth": {"dropout": 0}})
+step = array.array("f", [1.0 if x < w // 2 else 2.0 for _ in range(w) for x in range(w)]).tobytes()
+_, d = n.SensorNoise(no_dropout, 9).apply(bytes(3 * w * w), step, w)
+v = array.array("f"); v.frombytes(d)
+beside = [v[y * w + x] for y in range(w) for x in (w // 2 - 1, w // 2)]
+inside = [v[y * w + x] for y in range(w) for x in range(w) if x not in (w // 2 - 1, w // 2)]
+out["edge_dropped"] = sum(1 for x in beside if x == 0) / len(beside)
+out["inside_dropped"] = sum(1 for x in inside if x == 0) / len(inside)
+a = n.ActuationNoise(cfg, 5)
+fwd = [a.forward(0.05) for _ in range(20000)]
+out["forward"] = moments([f[0] for f in fwd])
+out["heading_deg"] = moments([math.degrees(f[1]) for f in fwd])
+out["turn_deg"] = moments([math.degrees(a.turn(math.radians(5.0))) for _ in range(20000)])
+errors = []
+for bad in ["loud", {"depth": {"sigma": 1}}, {"depth": {"dropout": 2}}, {"rgb": {"sigma": "x"}},
+            {"depth": {"min_range": 3, "max_range": 2}}, {"wind": {}}]:
+    try:
+        n.parse_noise(bad)
+        errors.append("accepted")
+    except n.NoiseConfigError as e:
+        errors.append(str(e))
+out["errors"] = errors
+print(json.dumps(out))
+"#;
+    let out: serde_json::Value = serde_json::from_str(&run_python(code, dir.path())).unwrap();
+    let rust = serde_json::to_value(crate::NoiseConfig::realistic()).unwrap();
+    assert_eq!(
+        out["preset"], rust,
+        "the Python preset differs from the Rust one"
+    );
+    let depth = crate::DepthNoise::REALISTIC;
+    let f = |v: &serde_json::Value| v.as_f64().unwrap();
+    for z in [1.0, 2.0, 4.0] {
+        let s = &out["depth"][format!("{z:?}")];
+        let sigma = depth.sigma_at(z);
+        // 10⁴ pixels: the spread within 5 %, the mean within 4 standard errors.
+        assert!(
+            (f(&s["std"]) / sigma - 1.0).abs() < 0.05,
+            "z {z}: {s}, σ {sigma}"
+        );
+        assert!((f(&s["mean"]) - z).abs() < 4.0 * sigma / 99.0, "z {z}: {s}");
+        assert!(
+            (f(&s["valid"]) - (1.0 - depth.dropout)).abs() < 0.004,
+            "z {z}: {s}"
+        );
+    }
+    assert_eq!(f(&out["depth"]["12.0"]["valid"]), 0.0, "beyond max_range");
+    assert!(
+        (f(&out["edge_dropped"]) - depth.edge_dropout).abs() < 0.12,
+        "{out}"
+    );
+    assert_eq!(f(&out["inside_dropped"]), 0.0, "{out}");
+    // round(σ·n) has variance σ² + 1/12.
+    let rgb = (crate::ColourNoise::REALISTIC.sigma.powi(2) + 1.0 / 12.0).sqrt();
+    assert!((f(&out["rgb_std"]) / rgb - 1.0).abs() < 0.05, "{out}");
+    let act = crate::ActuationNoise::REALISTIC;
+    let spread = |key: &str, mean: f64, sigma: f64| {
+        let (m, s) = (f(&out[key][0]), f(&out[key][1]));
+        assert!(
+            (s / sigma - 1.0).abs() < 0.03,
+            "{key}: σ {s}, expected {sigma}"
+        );
+        assert!((m - mean).abs() < 4.0 * sigma / 141.0, "{key}: mean {m}");
+    };
+    spread("forward", 0.05, act.forward_sigma(0.05));
+    spread("heading_deg", 0.0, act.heading_sigma_deg);
+    spread("turn_deg", 5.0, act.turn_sigma_deg);
+    let errors: Vec<&str> = out["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e.as_str().unwrap())
+        .collect();
+    for (error, names) in errors.iter().zip([
+        "unknown preset 'loud'",
+        "noise.depth: unknown field `sigma`",
+        "noise.depth.dropout",
+        "noise.rgb.sigma: expected a number",
+        "noise.depth.max_range",
+        "noise: unknown key `wind`",
+    ]) {
+        assert!(error.contains(names), "{error:?} does not name {names:?}");
+    }
+}
