@@ -305,10 +305,17 @@ fn a_full_disk_while_recording_stops_the_run_with_a_clear_error_and_a_readable_f
             .filter(|m| m.topic == "sim/rgbd")
             .count()
     };
-    // What the file holds now (the recorder flushes every second) must survive the cut.
-    let size = std::fs::metadata(&path).unwrap().len();
-    let before = frames_of(&read_recording(&path).unwrap());
-    assert!(before > 0, "nothing recorded by step 10");
+    // What the file holds once it has frames (the recorder flushes every second) must survive
+    // the cut.
+    let (size, before) = loop {
+        let size = std::fs::metadata(&path).unwrap().len();
+        let frames = frames_of(&read_recording(&path).unwrap());
+        if frames > 0 {
+            break (size, frames);
+        }
+        assert!(Instant::now() < deadline, "no frame reached the file");
+        std::thread::sleep(Duration::from_millis(200));
+    };
     let limit = size + 256 * 1024;
     limit_file_size(child.id(), limit);
     let status = wait_exit(&mut child, Duration::from_secs(120));

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use crate::RuntimeError;
 use crate::dataflow::{Dataflow, NodeImpl, RestartPolicy};
+use crate::finish_barrier::FinishBarrier;
 use crate::node::{RunInfo, control_key, logs_dir};
 use crate::progress::Progress;
 use crate::record::{Recorder, RecorderOutputs, RecorderStats};
@@ -334,6 +335,16 @@ pub fn run_local(
     };
     run.save(&opts.run_dir)?;
     let session = open_zenoh(&router)?;
+    // A distributed run's machines keep their routers up until all of them are done.
+    let finish_barrier = match &opts.machine {
+        Some(machine) => FinishBarrier::declare(
+            &session,
+            &run.run_id,
+            machine,
+            dataflow.machines.iter().map(|m| m.id.clone()),
+        )?,
+        None => None,
+    };
     let live = match &opts.view {
         Some(address) => {
             let live = activemap_view::LiveView::start(address)
@@ -368,6 +379,15 @@ pub fn run_local(
         None
     };
     let result = supervise(dataflow, opts, &run, &session, &stop, recorder.as_ref());
+    if let (Some(barrier), Ok((_, None, false))) = (&finish_barrier, &result) {
+        let gone = barrier.wait_for_others(&stop, |m| eprintln!("{m}"))?;
+        if !gone.is_empty() {
+            eprintln!(
+                "activemap: machine(s) {} ended without saying their nodes were done",
+                gone.join(", ")
+            );
+        }
+    }
     let recording = match recorder {
         // Statistics only when a file was written (the live view alone records nothing).
         Some(r) => match r.finish() {

@@ -83,6 +83,7 @@ pub mod daemon;
 pub mod dataflow;
 pub mod delta;
 mod error;
+mod finish_barrier;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod graph;
