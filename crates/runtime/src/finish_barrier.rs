@@ -172,3 +172,121 @@ impl FinishBarrier {
         self.alive.key_expr().as_str().len() - 1
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::launch::free_port;
+    use crate::transport::{ZenohSettings, open_zenoh};
+    use std::sync::Arc;
+
+    /// Two machines' routers on loopback, b connected to a (as a two-machine run).
+    fn two_routers() -> (zenoh::Session, zenoh::Session) {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port("127.0.0.1").unwrap());
+        let router = |listen: Vec<String>, connect: Vec<String>| {
+            open_zenoh(&ZenohSettings {
+                mode: "router".into(),
+                listen,
+                connect,
+                tls: None,
+            })
+            .unwrap()
+        };
+        let a = router(vec![endpoint.clone()], vec![]);
+        let b = router(vec![], vec![endpoint]);
+        (a, b)
+    }
+
+    fn machines() -> impl Iterator<Item = String> {
+        ["a", "b"].into_iter().map(String::from)
+    }
+
+    #[test]
+    fn a_single_machine_run_has_no_barrier() {
+        let (a, _b) = two_routers();
+        let only_a = FinishBarrier::declare(&a, "r1", "a", ["a".to_string()]).unwrap();
+        assert!(only_a.is_none());
+    }
+
+    /// Machine a, done first, waits until machine b says it is done too, and both go.
+    #[test]
+    fn a_finished_machine_waits_for_the_other_to_finish() {
+        let (a, b) = two_routers();
+        let barrier_a = FinishBarrier::declare(&a, "r2", "a", machines())
+            .unwrap()
+            .unwrap();
+        let barrier_b = FinishBarrier::declare(&b, "r2", "b", machines())
+            .unwrap()
+            .unwrap();
+        let b_done = Arc::new(AtomicBool::new(false));
+        let b_thread = {
+            let b_done = b_done.clone();
+            std::thread::spawn(move || {
+                // b's nodes run on for a while after a's have ended.
+                std::thread::sleep(Duration::from_millis(800));
+                b_done.store(true, Ordering::SeqCst);
+                barrier_b
+                    .wait_for_others(&AtomicBool::new(false), |_| {})
+                    .unwrap()
+            })
+        };
+        let said = std::sync::Mutex::new(Vec::new());
+        let gone = barrier_a
+            .wait_for_others(&AtomicBool::new(false), |m| said.lock().unwrap().push(m))
+            .unwrap();
+        assert!(b_done.load(Ordering::SeqCst), "a left before b was done");
+        assert!(gone.is_empty(), "{gone:?}");
+        assert!(b_thread.join().unwrap().is_empty());
+        let said = said.into_inner().unwrap();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(
+            said[0].contains("keeping its router up for `b`"),
+            "{said:?}"
+        );
+    }
+
+    /// A machine whose launcher is gone without a word (its token vanished) is not waited for,
+    /// and is named.
+    #[test]
+    fn a_machine_whose_launcher_vanished_is_not_waited_for() {
+        let (a, b) = two_routers();
+        let barrier_a = FinishBarrier::declare(&a, "r3", "a", machines())
+            .unwrap()
+            .unwrap();
+        let barrier_b = FinishBarrier::declare(&b, "r3", "b", machines())
+            .unwrap()
+            .unwrap();
+        let closer = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(500));
+            drop(barrier_b);
+            b.close().wait().unwrap();
+        });
+        let started = Instant::now();
+        let gone = barrier_a
+            .wait_for_others(&AtomicBool::new(false), |_| {})
+            .unwrap();
+        closer.join().unwrap();
+        assert_eq!(gone, vec!["b".to_string()]);
+        assert!(
+            started.elapsed() < UNSEEN_GRACE,
+            "waited out the grace instead"
+        );
+    }
+
+    /// A stop (Ctrl-C, `activemap stop`) ends the wait at once.
+    #[test]
+    fn a_stop_ends_the_wait() {
+        let (a, b) = two_routers();
+        let barrier_a = FinishBarrier::declare(&a, "r4", "a", machines())
+            .unwrap()
+            .unwrap();
+        let _barrier_b = FinishBarrier::declare(&b, "r4", "b", machines())
+            .unwrap()
+            .unwrap();
+        let stop = AtomicBool::new(true);
+        let started = Instant::now();
+        let gone = barrier_a.wait_for_others(&stop, |_| {}).unwrap();
+        assert!(gone.is_empty());
+        assert!(started.elapsed() < Duration::from_secs(2));
+    }
+}
