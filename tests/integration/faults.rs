@@ -88,10 +88,19 @@ fn wait_exit(child: &mut std::process::Child, timeout: Duration) -> std::process
     }
 }
 
-/// Runs the small loop, kills `node` with SIGKILL once the run reports step `at`, and checks
-/// the aftermath.
-fn kill_one(tmp: &Path, flow: &Path, node: &str, at: u64) {
-    let out_dir = tmp.join(format!("run-{node}"));
+/// Starts `activemap run FLOW --out OUT_DIR --no-eval` and returns once its progress reports
+/// step `at`: the child, its whole stderr (when it ends), and the 180 s deadline the wait ran
+/// under. `what` names the case in the failure message.
+fn run_until_step(
+    flow: &Path,
+    out_dir: &Path,
+    at: u64,
+    what: &str,
+) -> (
+    std::process::Child,
+    std::thread::JoinHandle<String>,
+    Instant,
+) {
     let mut child = spawn(
         &[
             "run",
@@ -107,11 +116,18 @@ fn kill_one(tmp: &Path, flow: &Path, node: &str, at: u64) {
     loop {
         let line = lines
             .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            .unwrap_or_else(|_| panic!("{node}: the run never reached step {at}"));
+            .unwrap_or_else(|_| panic!("{what}: the run never reached step {at}"));
         if progress_step(&line).is_some_and(|s| s >= at) {
-            break;
+            return (child, all, deadline);
         }
     }
+}
+
+/// Runs the small loop, kills `node` with SIGKILL once the run reports step `at`, and checks
+/// the aftermath.
+fn kill_one(tmp: &Path, flow: &Path, node: &str, at: u64) {
+    let out_dir = tmp.join(format!("run-{node}"));
+    let (mut child, all, _) = run_until_step(flow, &out_dir, at, node);
     let dir = out_dir.to_string_lossy().to_string();
     let pids = pids_with(&["node", &format!("--node {node} "), &dir]);
     let pids = if pids.is_empty() {
@@ -278,26 +294,7 @@ fn a_full_disk_while_recording_stops_the_run_with_a_clear_error_and_a_readable_f
     let flow = tmp.path().join("full.yaml");
     std::fs::write(&flow, harness::small_house_flow("dataflow.yaml", 200, &[])).unwrap();
     let out_dir = tmp.path().join("run");
-    let mut child = spawn(
-        &[
-            "run",
-            flow.to_str().unwrap(),
-            "--out",
-            out_dir.to_str().unwrap(),
-            "--no-eval",
-        ],
-        &root(),
-    );
-    let (lines, all) = follow_stderr(&mut child);
-    let deadline = Instant::now() + Duration::from_secs(180);
-    loop {
-        let line = lines
-            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
-            .expect("the run never reached step 10");
-        if progress_step(&line).is_some_and(|s| s >= 10) {
-            break;
-        }
-    }
+    let (mut child, all, deadline) = run_until_step(&flow, &out_dir, 10, "full disk");
     let path = out_dir.join("recording.mcap");
     let frames_of = |rec: &activemap_runtime::record::Recording| {
         rec.messages

@@ -201,6 +201,20 @@ mod tests {
         ["a", "b"].into_iter().map(String::from)
     }
 
+    /// Machines a and b of run `run_id`: their routers and their barriers.
+    fn two_machines(
+        run_id: &str,
+    ) -> (zenoh::Session, zenoh::Session, FinishBarrier, FinishBarrier) {
+        let (a, b) = two_routers();
+        let barrier = |session: &zenoh::Session, machine: &str| {
+            FinishBarrier::declare(session, run_id, machine, machines())
+                .unwrap()
+                .expect("two machines have a barrier")
+        };
+        let (barrier_a, barrier_b) = (barrier(&a, "a"), barrier(&b, "b"));
+        (a, b, barrier_a, barrier_b)
+    }
+
     #[test]
     fn a_single_machine_run_has_no_barrier() {
         let (a, _b) = two_routers();
@@ -211,13 +225,7 @@ mod tests {
     /// Machine a, done first, waits until machine b says it is done too, and both go.
     #[test]
     fn a_finished_machine_waits_for_the_other_to_finish() {
-        let (a, b) = two_routers();
-        let barrier_a = FinishBarrier::declare(&a, "r2", "a", machines())
-            .unwrap()
-            .unwrap();
-        let barrier_b = FinishBarrier::declare(&b, "r2", "b", machines())
-            .unwrap()
-            .unwrap();
+        let (_a, _b, barrier_a, barrier_b) = two_machines("r2");
         let b_done = Arc::new(AtomicBool::new(false));
         let b_thread = {
             let b_done = b_done.clone();
@@ -249,13 +257,7 @@ mod tests {
     /// and is named.
     #[test]
     fn a_machine_whose_launcher_vanished_is_not_waited_for() {
-        let (a, b) = two_routers();
-        let barrier_a = FinishBarrier::declare(&a, "r3", "a", machines())
-            .unwrap()
-            .unwrap();
-        let barrier_b = FinishBarrier::declare(&b, "r3", "b", machines())
-            .unwrap()
-            .unwrap();
+        let (_a, b, barrier_a, barrier_b) = two_machines("r3");
         let closer = std::thread::spawn(move || {
             std::thread::sleep(Duration::from_millis(500));
             drop(barrier_b);
@@ -276,13 +278,7 @@ mod tests {
     /// A stop (Ctrl-C, `activemap stop`) ends the wait at once.
     #[test]
     fn a_stop_ends_the_wait() {
-        let (a, b) = two_routers();
-        let barrier_a = FinishBarrier::declare(&a, "r4", "a", machines())
-            .unwrap()
-            .unwrap();
-        let _barrier_b = FinishBarrier::declare(&b, "r4", "b", machines())
-            .unwrap()
-            .unwrap();
+        let (_a, _b, barrier_a, _barrier_b) = two_machines("r4");
         let stop = AtomicBool::new(true);
         let started = Instant::now();
         let gone = barrier_a.wait_for_others(&stop, |_| {}).unwrap();

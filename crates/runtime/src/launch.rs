@@ -388,18 +388,12 @@ pub fn run_local(
             );
         }
     }
-    let recording = match recorder {
-        // Statistics only when a file was written (the live view alone records nothing).
-        Some(r) => match r.finish() {
-            Ok(stats) => stats.into_recorded(opts.record),
-            Err(e) => {
-                let _ = zenoh::Wait::wait(session.close());
-                return Err(RuntimeError::Other(format!("{e}; the run was stopped")));
-            }
-        },
-        None => None,
-    };
+    let finished = recorder.map(Recorder::finish).transpose();
     let _ = zenoh::Wait::wait(session.close());
+    // Statistics only when a file was written (the live view alone records nothing).
+    let recording = finished
+        .map_err(|e| RuntimeError::Other(format!("{e}; the run was stopped")))?
+        .and_then(|stats| stats.into_recorded(opts.record));
     let (nodes, failure, interrupted) = result?;
     Ok(RunReport {
         run_dir: opts.run_dir.clone(),
