@@ -66,6 +66,11 @@ enum Command {
         /// Do not write recording.mcap.
         #[arg(long)]
         no_record: bool,
+        /// How recording.mcap stores the Gaussian maps: `regenerated` (their digests only;
+        /// `activemap replay` remakes them by replaying the mapper, with this build) or `full`
+        /// (every map, delta-encoded; a larger file).
+        #[arg(long, value_name = "MODE", default_value = "regenerated")]
+        record_maps: record::MapRecording,
         /// Serve the run live to Foxglove over its WebSocket protocol, on HOST:PORT (default
         /// 127.0.0.1:8765, loopback; another host only when named here).
         #[arg(long, value_name = "HOST:PORT", num_args = 0..=1,
@@ -357,6 +362,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             out,
             max_steps,
             no_record,
+            record_maps,
             view,
             no_eval,
             eval_views,
@@ -368,6 +374,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             });
             let outputs = Outputs {
                 record: !no_record,
+                record_maps,
                 view,
             };
             return run(&file, &set.set, out, max_steps, outputs, None, eval);
@@ -397,6 +404,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
                     max_steps,
                     Outputs {
                         record: !no_record,
+                        record_maps: record::MapRecording::default(),
                         view: None,
                     },
                     Some((machine, run_id)),
@@ -511,6 +519,8 @@ fn real_main() -> anyhow::Result<ExitCode> {
 struct Outputs {
     /// Write recording.mcap.
     record: bool,
+    /// How it stores the Gaussian maps.
+    record_maps: record::MapRecording,
     /// Serve the live view on this address.
     view: Option<String>,
 }
@@ -552,6 +562,7 @@ fn run(
     );
     opts.max_steps = max_steps;
     opts.record = outputs.record;
+    opts.record_maps = outputs.record_maps;
     opts.view = outputs.view;
     opts.progress = true;
     if let Some((machine, run_id)) = distributed {
@@ -698,11 +709,12 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     // A node that talks to the outside world (the LLM planner) is served the recorded answers.
     let mut spec = spec.clone();
     spec.config = activemap_operators::replay_config(op, &spec.config, recording_path, node);
+    let producers = replay_producers(&flow, recording_path);
     let record::StreamedReplay {
         report,
         inputs,
         truncated,
-    } = record::replay_recording(reader, &spec, implementation.replay)?;
+    } = record::replay_recording(reader, &spec, implementation.replay, &producers)?;
     if truncated {
         eprintln!(
             "warning: the recording ends early (its writer was killed); replaying what it holds"
@@ -722,6 +734,37 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// Every built-in operator output of `flow`, as a producer that can remake the payloads the
+/// recording holds as digests (the maps of `--record-maps regenerated`).
+fn replay_producers(flow: &Dataflow, recording_path: &Path) -> record::Producers {
+    let mut producers = record::Producers::new();
+    for node in &flow.nodes {
+        let NodeImpl::Operator(op) = &node.implementation else {
+            continue;
+        };
+        let Some(replay) = activemap_operators::find(op)
+            .and_then(|r| r.implementation)
+            .map(|i| i.replay)
+        else {
+            continue;
+        };
+        let mut spec = node.clone();
+        spec.config =
+            activemap_operators::replay_config(op, &node.config, recording_path, &node.id);
+        for output in &node.outputs {
+            producers.insert(
+                format!("{}/{}", node.id, output.name),
+                record::Producer {
+                    spec: spec.clone(),
+                    port: output.name.clone(),
+                    replay,
+                },
+            );
+        }
+    }
+    producers
 }
 
 fn bench_transport(args: &TransportArgs) -> anyhow::Result<()> {

@@ -303,8 +303,9 @@ impl<'a> GaussianMapMut<'a> {
                 ),
             });
         }
-        buf[..core::mem::size_of::<GaussianMapHeader>()]
-            .copy_from_slice(bytemuck::bytes_of(&header));
+        let header_len = core::mem::size_of::<GaussianMapHeader>();
+        buf[..header_len].copy_from_slice(bytemuck::bytes_of(&header));
+        layout.zero_padding(buf, header_len);
         let mut rest = &mut buf[layout.offsets[0]..];
         let mut consumed = layout.offsets[0];
         let mut sections: Vec<&'a mut [u8]> = Vec::with_capacity(6);
@@ -350,14 +351,15 @@ mod tests {
     }
 
     /// Encoding, in-place writing and decoding agree byte for byte, ids and keyframe
-    /// included; the view of an aligned payload borrows the ids.
+    /// included; the view of an aligned payload borrows the ids. Written in place into a buffer
+    /// full of old bytes (a reused shared-memory sample), the padding still comes out zero.
     #[test]
     fn round_trip_and_in_place_agree() {
         let map = sample(5);
         let bytes = map.encode().unwrap();
         assert_eq!(GaussianMap::decode(&bytes).unwrap(), map);
         let header = GaussianMapHeader::new(3.5, 11, 5, Some(9));
-        let mut storage = vec![0u64; header.payload_len().unwrap() / 8];
+        let mut storage = vec![0xA5A5_A5A5_A5A5_A5A5u64; header.payload_len().unwrap() / 8];
         let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut storage);
         let m = GaussianMapMut::init(buf, header).unwrap();
         m.means.copy_from_slice(&map.means);

@@ -56,6 +56,19 @@ impl Layout {
     pub fn range(&self, i: usize) -> core::ops::Range<usize> {
         self.offsets[i]..self.offsets[i] + self.lengths[i]
     }
+
+    /// Zero the padding of `buf` (a payload of this layout whose header is `header_len` bytes):
+    /// after the header, between sections and after the last. Producers write in place into
+    /// reused shared-memory samples, whose old bytes would otherwise leak into the padding and
+    /// make equal payloads differ byte for byte (and break bit-exact replay).
+    pub fn zero_padding(&self, buf: &mut [u8], header_len: usize) {
+        let mut end = header_len;
+        for (&offset, &length) in self.offsets.iter().zip(&self.lengths) {
+            buf[end..offset].fill(0);
+            end = offset + length;
+        }
+        buf[end..self.total].fill(0);
+    }
 }
 
 /// Checked `a * b * c` in usize.

@@ -146,6 +146,7 @@ impl<'a> RgbdFrameMut<'a> {
         }
         let header_len = core::mem::size_of::<RgbdFrameHeader>();
         buf[..header_len].copy_from_slice(bytemuck::bytes_of(&header));
+        layout.zero_padding(buf, header_len);
         let (_, rest) = buf.split_at_mut(layout.offsets[0]);
         let (rgb, rest) = rest.split_at_mut(layout.offsets[1] - layout.offsets[0]);
         let rgb = &mut rgb[..layout.lengths[0]];
@@ -247,8 +248,9 @@ mod tests {
     fn in_place_write_matches_owned_encoding() {
         let frame = sample(5, 3);
         let len = frame.header.payload_len().unwrap();
-        // u64 backing storage guarantees the 8-byte alignment a shared-memory sample has.
-        let mut storage = vec![0u64; len / 8];
+        // u64 backing storage guarantees the 8-byte alignment a shared-memory sample has; its
+        // old bytes (a reused sample) must not survive in the padding after the 45 RGB bytes.
+        let mut storage = vec![0xA5A5_A5A5_A5A5_A5A5u64; len / 8];
         let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut storage);
         let view = RgbdFrameMut::init(buf, frame.header).unwrap();
         view.rgb.copy_from_slice(&frame.rgb);

@@ -29,6 +29,8 @@ pub struct LaunchOptions {
     pub max_steps: Option<u64>,
     /// Write `recording.mcap`.
     pub record: bool,
+    /// How the recording stores Gaussian maps (`--record-maps`).
+    pub record_maps: crate::record::MapRecording,
     /// Serve the view channels live over the Foxglove WebSocket protocol on this `HOST:PORT`
     /// (`--view`).
     pub view: Option<String>,
@@ -56,6 +58,7 @@ impl LaunchOptions {
             exe,
             max_steps: None,
             record: true,
+            record_maps: crate::record::MapRecording::default(),
             view: None,
             progress: false,
             startup_timeout: Duration::from_secs(60),
@@ -369,6 +372,7 @@ pub fn run_local(
             RecorderOutputs {
                 file: opts.record.then(|| opts.run_dir.join("recording.mcap")),
                 live,
+                maps: opts.record_maps,
             },
             dataflow,
             &run,

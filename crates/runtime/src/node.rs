@@ -843,9 +843,15 @@ mod tests {
             msgs.push(("s/sum", false, 3, counter(3, sums[2])));
             msgs.push(("s/sum", false, 4, counter(0, sums[3])));
             let path = dir.path().join("rec.mcap");
-            crate::record::write_test_recording(&path, src, None, &msgs);
+            crate::record::write_test_recording(&path, src, None, &msgs, &[]);
             let reader = crate::record::RecordingReader::open(&path).unwrap();
-            crate::record::replay_recording(reader, spec, replay_operator::<Summer>).unwrap()
+            crate::record::replay_recording(
+                reader,
+                spec,
+                replay_operator::<Summer>,
+                &Default::default(),
+            )
+            .unwrap()
         };
         let good = run([10, 30, 60, -1]);
         assert_eq!(good.inputs, 4);
@@ -855,5 +861,108 @@ mod tests {
         let bad = run([10, 31, 60, -1]);
         assert_eq!(bad.report.per_port["sum"], (3, 4, 4));
         assert!(!bad.report.all_match());
+    }
+
+    /// A chain x → a → b → c of running sums (scales 1, 1, 2, 10), where a's and b's outputs are
+    /// recorded as digests only: replaying c must remake b/sum by replaying b, whose inputs are
+    /// remade by replaying a on x's recorded outputs, and check each against its digest.
+    #[test]
+    fn replay_regenerates_inputs_recorded_as_digests() {
+        use crate::record::{self, Producer, Producers, RecordingReader};
+        let catalog = summer_catalog();
+        let src = "nodes:\n\
+          - { id: x, operator: summer, config: { scale: 1 }, inputs: { in: c/sum } }\n\
+          - { id: a, operator: summer, config: { scale: 1 }, inputs: { in: x/sum } }\n\
+          - { id: b, operator: summer, config: { scale: 2 }, inputs: { in: a/sum } }\n\
+          - { id: c, operator: summer, config: { scale: 10 }, inputs: { in: b/sum } }\n";
+        let flow = Dataflow::parse("t.yaml", src, PathBuf::new(), &catalog).unwrap();
+        let counter = |seq: u64, value: i64| Counter { seq, value }.to_bytes().unwrap();
+        // Worked by hand: a sums x's 1, 2, 3 and sends -1 (seq 0) at its stop; b doubles and
+        // sums a's, c multiplies b's by ten and sums.
+        let a_out = [(1, 1), (2, 3), (3, 6), (0, -1)];
+        let b_out = [(1, 2), (2, 8), (3, 20), (0, 18), (0, -1)];
+        let c_out = [(1, 20), (2, 100), (3, 300), (0, 480), (0, 470), (0, -1)];
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, b_values: &[(u64, i64)], digests: &[&str]| {
+            let mut msgs = Vec::new();
+            let mut stream = |topic: &'static str, values: &[(u64, i64)]| {
+                for (n, &(seq, v)) in values.iter().enumerate() {
+                    msgs.push((topic, false, n as u64 + 1, counter(seq, v)));
+                }
+                msgs.push((topic, false, values.len() as u64 + 1, Vec::new()));
+            };
+            stream("x/sum", &[(1, 1), (2, 2), (3, 3)]);
+            stream("a/sum", &a_out);
+            stream("b/sum", b_values);
+            stream("c/sum", &c_out);
+            let path = dir.path().join(name);
+            record::write_test_recording(&path, src, None, &msgs, digests);
+            path
+        };
+        let producers: Producers = ["x", "a", "b", "c"]
+            .iter()
+            .map(|id| {
+                let spec = flow.node(id).unwrap().clone();
+                let producer = Producer {
+                    spec,
+                    port: "sum".into(),
+                    replay: replay_operator::<Summer>,
+                };
+                (format!("{id}/sum"), producer)
+            })
+            .collect();
+        let replay = |path: &std::path::Path, node: &str, producers: &Producers| {
+            let reader = RecordingReader::open(path).unwrap();
+            let spec = flow.node(node).unwrap();
+            record::replay_recording(reader, spec, replay_operator::<Summer>, producers)
+        };
+
+        // Two levels of regeneration, every output of c matched.
+        let good = write("good.mcap", &b_out, &["a/sum", "b/sum"]);
+        let r = replay(&good, "c", &producers).unwrap();
+        assert_eq!(r.report.per_port["sum"], (6, 6, 6));
+        assert_eq!(r.inputs, 6);
+        // The producer itself is compared with the digests of its outputs.
+        let r = replay(&good, "b", &producers).unwrap();
+        assert_eq!(r.report.per_port["sum"], (5, 5, 5));
+        // Read without producers, a digest channel yields its 24-byte digests.
+        let rec = record::read_recording(&good).unwrap();
+        let b: Vec<_> = rec.messages.iter().filter(|m| m.topic == "b/sum").collect();
+        assert_eq!(b.len(), 6);
+        for (m, &(seq, v)) in b.iter().zip(&b_out) {
+            assert!(m.digest_only);
+            assert_eq!(
+                record::parse_digest(&m.bytes),
+                Some(record::digest(&counter(seq, v)))
+            );
+        }
+        assert!(b[5].bytes.is_empty() && !b[5].digest_only);
+        assert!(
+            rec.messages
+                .iter()
+                .filter(|m| m.topic == "x/sum")
+                .all(|m| !m.digest_only)
+        );
+        // Without a producer, c cannot be fed: a clear error naming the channel.
+        let e = replay(&good, "c", &Producers::new())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`b/sum` was recorded as digests"), "{e}");
+
+        // A recorded digest the producer does not reproduce: named, message and channel.
+        let wrong = [(1, 2), (2, 9), (3, 20), (0, 18), (0, -1)];
+        let bad = write("bad.mcap", &wrong, &["a/sum", "b/sum"]);
+        let e = replay(&bad, "c", &producers).unwrap_err().to_string();
+        assert!(
+            e.contains("message 2 of `b/sum`") && e.contains("differs from the recorded digest"),
+            "{e}"
+        );
+        let r = replay(&bad, "b", &producers).unwrap();
+        assert_eq!(r.report.per_port["sum"], (4, 5, 5));
+
+        // Every channel a digest: remaking b/sum needs a/sum, x/sum, c/sum, then b/sum again.
+        let cyclic = write("cyclic.mcap", &b_out, &["x/sum", "a/sum", "b/sum", "c/sum"]);
+        let e = replay(&cyclic, "c", &producers).unwrap_err().to_string();
+        assert!(e.contains("depends on itself"), "{e}");
     }
 }

@@ -47,10 +47,51 @@ pub const LARGE_ENCODING: &str = "activemap/repr-c";
 /// payload.
 pub const DELTA_ENCODING: &str = "activemap/repr-c-delta";
 
+/// Message encoding of a channel recorded as digests only: each payload is stored as its length
+/// (u64, little endian) and 128-bit hash (u128, little endian), 24 bytes. Readers that need the
+/// payloads regenerate them by replaying the channel's producer on its own recorded inputs
+/// ([`Producer`]) and check each against its digest. The recorder uses it for the Gaussian maps
+/// of built-in operators ([`MapRecording::Regenerated`]).
+pub const DIGEST_ENCODING: &str = "activemap/digest-v1";
+
 /// True for the encodings of the exact (replay) channels; false for the view channels, which
 /// readers of this module skip.
 pub fn is_replay_encoding(encoding: &str) -> bool {
-    encoding.starts_with(SMALL_ENCODING) || encoding == LARGE_ENCODING || encoding == DELTA_ENCODING
+    encoding.starts_with(SMALL_ENCODING)
+        || encoding == LARGE_ENCODING
+        || encoding == DELTA_ENCODING
+        || encoding == DIGEST_ENCODING
+}
+
+/// How the recorder stores the Gaussian maps of built-in operators (`--record-maps`).
+///
+/// Maps are most of a recording's bytes (the README's main episode: 312 of 375 MB stored in
+/// full), and they are a deterministic function of the mapper's recorded inputs, so by default
+/// only their digests are written and readers remake them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum MapRecording {
+    /// Each map's length and 128-bit hash only ([`DIGEST_ENCODING`]); `activemap replay`
+    /// regenerates the maps by replaying the mapper on its recorded inputs and checks every one
+    /// against its digest. Replay then costs the mapper's time, and needs the same build (a
+    /// build whose mapper computes differently is told so at the first map).
+    #[default]
+    Regenerated,
+    /// Every map, delta-encoded against the previous one ([`DELTA_ENCODING`]): larger files
+    /// whose maps read back without rerunning anything (e.g. to replay with another build).
+    Full,
+}
+
+impl std::str::FromStr for MapRecording {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "regenerated" => Ok(Self::Regenerated),
+            "full" => Ok(Self::Full),
+            _ => Err(format!(
+                "`{s}` is not a map recording mode (`regenerated` or `full`)"
+            )),
+        }
+    }
 }
 
 /// Target uncompressed size of one chunk of a recording, in bytes.
@@ -99,6 +140,8 @@ pub struct RecorderOutputs {
     pub file: Option<std::path::PathBuf>,
     /// The live view to feed (`--view`), if any.
     pub live: Option<activemap_view::LiveView>,
+    /// How Gaussian maps are stored in the file.
+    pub maps: MapRecording,
 }
 
 /// A running recorder thread.
@@ -226,18 +269,35 @@ fn open_writer(file: File) -> Result<McapWriter, RuntimeError> {
         .map_err(mcap_err)
 }
 
-/// Write one message; `previous` is `Some` on a delta-encoded channel and holds its last
-/// non-empty payload. Returns the bytes written for the message.
+/// How a recorded channel stores its payloads.
+#[derive(Debug)]
+enum Stored {
+    /// As they are (small messages).
+    Plain,
+    /// Delta-encoded against the channel's last non-empty payload, held here.
+    Delta(Vec<u8>),
+    /// Their digests only ([`DIGEST_ENCODING`]).
+    Digest,
+}
+
+/// Write one message, stored as `stored` says. Returns the bytes written for the message.
 fn write_message(
     writer: &mut McapWriter,
     header: &mcap::records::MessageHeader,
     kind: MessageKind,
     bytes: &[u8],
-    previous: &mut Option<Vec<u8>>,
+    stored: &mut Stored,
     encoded: &mut Vec<u8>,
 ) -> Result<usize, mcap::McapError> {
-    let record: &[u8] = match previous {
-        Some(prev) => {
+    let record: &[u8] = match stored {
+        // The end-of-stream marker stays empty on every channel.
+        Stored::Digest if bytes.is_empty() => bytes,
+        Stored::Digest => {
+            encoded.clear();
+            encoded.extend_from_slice(&encode_digest(digest(bytes)));
+            encoded
+        }
+        Stored::Delta(prev) => {
             let base = (!prev.is_empty()).then_some(prev.as_slice());
             if kind == MessageKind::GaussianMap {
                 crate::delta::encode_map(base, bytes, encoded);
@@ -249,7 +309,7 @@ fn write_message(
             }
             encoded
         }
-        None => bytes,
+        Stored::Plain => bytes,
     };
     writer.write_to_known_channel(header, record)?;
     Ok(record.len())
@@ -262,10 +322,28 @@ struct RecordedTopic {
     channel: u16,
     source: Source,
     last_seq: u64,
-    /// `Some` on a delta-encoded channel: its last non-empty payload.
-    previous: Option<Vec<u8>>,
+    /// How its payloads are stored (a delta channel keeps its last payload here).
+    stored: Stored,
     /// Keyframe of the last map of this topic handed to the view.
     view_keyframe: Option<u64>,
+}
+
+/// How output `kind` of node `node` is stored: the Gaussian maps of a built-in operator as
+/// digests unless `maps` asks for them in full (an external executable's output cannot be
+/// regenerated), other large payloads delta-encoded, small messages as they are.
+fn stored_as(kind: MessageKind, node: &crate::dataflow::NodeSpec, maps: MapRecording) -> Stored {
+    let built_in = matches!(node.implementation, crate::dataflow::NodeImpl::Operator(_));
+    match kind.transport_class() {
+        TransportClass::SharedMemory
+            if kind == MessageKind::GaussianMap
+                && built_in
+                && maps == MapRecording::Regenerated =>
+        {
+            Stored::Digest
+        }
+        TransportClass::SharedMemory => Stored::Delta(Vec::new()),
+        TransportClass::Small => Stored::Plain,
+    }
 }
 
 fn record_loop(
@@ -277,7 +355,7 @@ fn record_loop(
     stop: &AtomicBool,
     ready: std::sync::mpsc::SyncSender<Result<(), String>>,
 ) -> Result<RecorderStats, RuntimeError> {
-    let RecorderOutputs { file, live } = outputs;
+    let RecorderOutputs { file, live, maps } = outputs;
     let setup = || -> Result<_, RuntimeError> {
         let mut writer = match &file {
             Some(path) => {
@@ -344,11 +422,10 @@ fn record_loop(
                             "schema_version".to_string(),
                             kind.schema_version().to_string(),
                         );
-                        let encoding = match kind.transport_class() {
-                            TransportClass::SharedMemory => DELTA_ENCODING.to_string(),
-                            TransportClass::Small => {
-                                format!("{SMALL_ENCODING}{}", kind.schema_version())
-                            }
+                        let encoding = match stored_as(kind, n, maps) {
+                            Stored::Digest => DIGEST_ENCODING.to_string(),
+                            Stored::Delta(_) => DELTA_ENCODING.to_string(),
+                            Stored::Plain => format!("{SMALL_ENCODING}{}", kind.schema_version()),
                         };
                         writer
                             .add_channel(schema_id, &topic, &encoding, &ch_meta)
@@ -373,17 +450,13 @@ fn record_loop(
                         DropPolicy::Block,
                     )?),
                 };
-                // Large channels keep their previous payload for the delta encoding.
-                let previous = (writer.is_some()
-                    && kind.transport_class() == TransportClass::SharedMemory)
-                    .then(Vec::<u8>::new);
                 sources.push(RecordedTopic {
                     topic,
                     kind,
                     channel,
                     source,
                     last_seq: 0,
-                    previous,
+                    stored: stored_as(kind, n, maps),
                     view_keyframe: None,
                 });
             }
@@ -501,7 +574,7 @@ fn record_loop(
                         &header,
                         rt.kind,
                         bytes,
-                        &mut rt.previous,
+                        &mut rt.stored,
                         &mut encoded,
                     ) {
                         Ok(written) => stats.written_bytes += written as u64,
@@ -576,8 +649,11 @@ pub struct RecordedMessage {
     pub topic: String,
     /// Producer sequence number (low 32 bits).
     pub seq: u64,
-    /// Payload (empty = end of stream).
+    /// Payload (empty = end of stream); with `digest_only`, the payload's 24-byte digest.
     pub bytes: Vec<u8>,
+    /// True for a message of a [`DIGEST_ENCODING`] channel that was not regenerated: `bytes`
+    /// holds the digest ([`parse_digest`]), not the payload.
+    pub digest_only: bool,
 }
 
 /// A recording read back.
@@ -601,8 +677,12 @@ pub struct MessageRef<'a> {
     pub topic: &'a str,
     /// Producer sequence number (low 32 bits).
     pub seq: u64,
-    /// Payload, delta encoding undone (empty = end of stream).
+    /// Payload, delta encoding undone or regenerated (empty = end of stream); with
+    /// `digest_only`, the payload's 24-byte digest.
     pub bytes: &'a [u8],
+    /// True for a message of a [`DIGEST_ENCODING`] channel the reader was not asked to
+    /// regenerate ([`RecordingReader::regenerate_with`]).
+    pub digest_only: bool,
 }
 
 impl MessageRef<'_> {
@@ -612,14 +692,185 @@ impl MessageRef<'_> {
             topic: self.topic.to_string(),
             seq: self.seq,
             bytes: self.bytes.to_vec(),
+            digest_only: self.digest_only,
         }
     }
+}
+
+/// A built-in operator that can remake the payloads of one of its outputs recorded as digests:
+/// its node spec (with any replay config applied), the output port and its replay entry point.
+#[derive(Clone)]
+pub struct Producer {
+    /// The producing node, as the recorded dataflow declares it.
+    pub spec: crate::dataflow::NodeSpec,
+    /// The output port whose payloads are remade.
+    pub port: String,
+    /// The operator's replay entry point.
+    pub replay: crate::node::ReplayFn,
+}
+
+/// The producers a reader may use, by topic (`node/output`).
+pub type Producers = BTreeMap<String, Producer>;
+
+/// Remakes the payloads of one digest channel: a thread replays the producer on its recorded
+/// inputs (from a second reader of the same file) and hands over the outputs of the port, in
+/// order, through a queue of two; each is checked against the recorded digest.
+struct Regenerator {
+    topic: String,
+    producer: String,
+    rx: Option<std::sync::mpsc::Receiver<Result<Vec<u8>, RuntimeError>>>,
+    /// Outputs of the port received so far (the n-th has sequence number n).
+    received: u64,
+    cancel: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Regenerator {
+    /// Start replaying `producer` on the recording at `path`; `stack` holds the topics being
+    /// regenerated by the readers above this one (a cycle is an error, not a hang).
+    fn start(
+        path: &Path,
+        topic: &str,
+        producer: &Producer,
+        producers: &Producers,
+        stack: &[String],
+    ) -> Result<Self, RuntimeError> {
+        if stack.iter().any(|t| t == topic) {
+            return Err(RuntimeError::Other(format!(
+                "{}: cannot regenerate `{topic}`: it depends on itself ({} → {topic})",
+                path.display(),
+                stack.join(" → ")
+            )));
+        }
+        let (tx, rx) = std::sync::mpsc::sync_channel(2);
+        let cancel = Arc::new(AtomicBool::new(false));
+        let producer_id = producer.spec.id.clone();
+        let (path, producer, producers) = (path.to_path_buf(), producer.clone(), producers.clone());
+        let mut stack = stack.to_vec();
+        stack.push(topic.to_string());
+        let stop = cancel.clone();
+        let thread = std::thread::Builder::new()
+            .name(format!("regenerate {topic}"))
+            .spawn(move || {
+                let run = || -> Result<(), RuntimeError> {
+                    let mut reader = RecordingReader::open(&path)?;
+                    reader.stack = stack;
+                    reader.only_topics(
+                        producer
+                            .spec
+                            .inputs
+                            .iter()
+                            .map(|i| format!("{}/{}", i.source_node, i.source_output))
+                            .collect(),
+                    );
+                    reader.regenerate_with(producers, BTreeSet::new());
+                    let max_steps = reader.max_steps();
+                    let mut emit = |port: &str, bytes: &[u8]| {
+                        if port == producer.port && !bytes.is_empty() {
+                            tx.send(Ok(bytes.to_vec())).map_err(|_| cancelled())?;
+                        }
+                        Ok(())
+                    };
+                    feed_inputs(
+                        &mut reader,
+                        &producer.spec,
+                        producer.replay,
+                        &mut emit,
+                        max_steps,
+                        |_| {},
+                        Some(&stop),
+                    )?;
+                    Ok(())
+                };
+                if let Err(e) = run()
+                    && !stop.load(Ordering::Relaxed)
+                {
+                    let _ = tx.send(Err(e));
+                }
+            })
+            .map_err(|e| RuntimeError::Other(format!("cannot start a regeneration thread: {e}")))?;
+        Ok(Self {
+            topic: topic.to_string(),
+            producer: producer_id,
+            rx: Some(rx),
+            received: 0,
+            cancel,
+            thread: Some(thread),
+        })
+    }
+
+    /// The regenerated payload recorded with sequence number `seq` (low 32 bits) and digest
+    /// `want`, checked against it. Outputs the recording lacks (a gap the recorder counted) are
+    /// skipped.
+    fn payload(&mut self, path: &Path, seq: u64, want: Digest) -> Result<Vec<u8>, RuntimeError> {
+        let rx = self.rx.as_ref().expect("receiver held until drop");
+        loop {
+            let bytes = match rx.recv() {
+                Ok(r) => r.map_err(|e| {
+                    RuntimeError::Other(format!(
+                        "{}: regenerating `{}` by replaying `{}`: {e}",
+                        path.display(),
+                        self.topic,
+                        self.producer
+                    ))
+                })?,
+                Err(_) => {
+                    return Err(RuntimeError::Other(format!(
+                        "{}: regenerating `{}`: the replay of `{}` made {} outputs, but the \
+                         recording has one with sequence number {seq}",
+                        path.display(),
+                        self.topic,
+                        self.producer,
+                        self.received
+                    )));
+                }
+            };
+            self.received += 1;
+            if self.received as u32 != seq as u32 {
+                continue;
+            }
+            let got = digest(&bytes);
+            if got != want {
+                return Err(RuntimeError::Other(format!(
+                    "{}: message {seq} of `{}`: the map regenerated by replaying `{}` differs from \
+                     the recorded digest ({} bytes recorded, {} regenerated): this build does \
+                     not reproduce the recorded run; record with `--record-maps full` to replay \
+                     across builds",
+                    path.display(),
+                    self.topic,
+                    self.producer,
+                    want.0,
+                    got.0
+                )));
+            }
+            return Ok(bytes);
+        }
+    }
+}
+
+impl Drop for Regenerator {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+        // Dropping the receiver unblocks a producer waiting to hand over an output.
+        self.rx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn cancelled() -> RuntimeError {
+    RuntimeError::Other("regeneration no longer needed".into())
 }
 
 /// What the reader keeps per channel: its last payload, which the next delta applies to.
 struct ChannelState {
     topic: String,
     delta: bool,
+    /// A [`DIGEST_ENCODING`] channel.
+    digest: bool,
+    /// Its regenerator, started at its first message when a producer is known.
+    regen: Option<Regenerator>,
     /// False for a view channel, which is never read.
     replay: bool,
     wanted: bool,
@@ -649,6 +900,12 @@ pub struct RecordingReader {
     done: bool,
     /// A message read ahead while looking for the metadata.
     pending: Option<Found>,
+    /// Producers that remake digest channels' payloads ([`Self::regenerate_with`]).
+    producers: Producers,
+    /// Digest channels yielded as digests even when a producer is known.
+    kept_as_digests: BTreeSet<String>,
+    /// Topics being regenerated by the readers above this one (cycle check).
+    stack: Vec<String>,
 }
 
 impl RecordingReader {
@@ -668,6 +925,9 @@ impl RecordingReader {
             truncated: false,
             done: false,
             pending: None,
+            producers: Producers::new(),
+            kept_as_digests: BTreeSet::new(),
+            stack: Vec::new(),
         };
         reader.pending = reader.advance(true)?;
         Ok(reader)
@@ -685,6 +945,17 @@ impl RecordingReader {
             self.pending = None;
         }
         self.topics = Some(topics);
+    }
+
+    /// Regenerate the payloads of the digest channels (maps recorded with
+    /// [`MapRecording::Regenerated`]) whose topic has a producer here: each is remade by
+    /// replaying the producer on its recorded inputs, on a thread of its own, and checked
+    /// against its digest; a mismatch is an error naming the topic and message. Other digest
+    /// channels, and those in `except`, yield their digests (`digest_only`). A producer whose
+    /// own inputs are digests has them regenerated the same way, with the same producers.
+    pub fn regenerate_with(&mut self, producers: Producers, except: BTreeSet<String>) {
+        self.producers = producers;
+        self.kept_as_digests = except;
     }
 
     /// The dataflow file text embedded at record time (empty if the file has none).
@@ -716,6 +987,7 @@ impl RecordingReader {
                 topic: &ch.topic,
                 seq,
                 bytes: if empty { &[] } else { &ch.last },
+                digest_only: ch.digest && ch.regen.is_none() && !empty,
             }
         }))
     }
@@ -781,6 +1053,8 @@ impl RecordingReader {
                     self.channels.entry(c.id).or_insert_with(|| ChannelState {
                         topic: c.topic.clone(),
                         delta: c.message_encoding == DELTA_ENCODING,
+                        digest: c.message_encoding == DIGEST_ENCODING,
+                        regen: None,
                         replay: ours,
                         wanted,
                         last: Vec::new(),
@@ -801,7 +1075,33 @@ impl RecordingReader {
                     if data.is_empty() {
                         return Ok(Some((id, seq, true)));
                     }
-                    if ch.delta {
+                    if ch.digest {
+                        let want = parse_digest(&data).ok_or_else(|| {
+                            RuntimeError::Other(format!(
+                                "{}: message {} of `{}`: a digest record of {} bytes, not 24",
+                                self.path.display(),
+                                header.sequence,
+                                ch.topic,
+                                data.len()
+                            ))
+                        })?;
+                        if ch.regen.is_none()
+                            && !self.kept_as_digests.contains(&ch.topic)
+                            && let Some(producer) = self.producers.get(&ch.topic)
+                        {
+                            ch.regen = Some(Regenerator::start(
+                                &self.path,
+                                &ch.topic,
+                                producer,
+                                &self.producers,
+                                &self.stack,
+                            )?);
+                        }
+                        ch.last = match &mut ch.regen {
+                            Some(regen) => regen.payload(&self.path, seq, want)?,
+                            None => data.to_vec(),
+                        };
+                    } else if ch.delta {
                         let base = (!ch.last.is_empty()).then_some(ch.last.as_slice());
                         ch.last = crate::delta::decode(base, &data).map_err(|e| {
                             RuntimeError::Other(format!(
@@ -924,9 +1224,26 @@ pub fn compare_outputs(
 }
 
 /// A payload as the streaming replay compares it: its length and a 128-bit SipHash-1-3.
-type Digest = (usize, u128);
+pub type Digest = (usize, u128);
 
-fn digest(bytes: &[u8]) -> Digest {
+/// The 24-byte record of a digest on a [`DIGEST_ENCODING`] channel.
+fn encode_digest((len, hash): Digest) -> [u8; 24] {
+    let mut out = [0u8; 24];
+    out[..8].copy_from_slice(&(len as u64).to_le_bytes());
+    out[8..].copy_from_slice(&hash.to_le_bytes());
+    out
+}
+
+/// The digest in a [`DIGEST_ENCODING`] record (`None` unless it is exactly 24 bytes).
+pub fn parse_digest(record: &[u8]) -> Option<Digest> {
+    let record: &[u8; 24] = record.try_into().ok()?;
+    let len = u64::from_le_bytes(record[..8].try_into().ok()?);
+    let hash = u128::from_le_bytes(record[8..].try_into().ok()?);
+    Some((usize::try_from(len).ok()?, hash))
+}
+
+/// The digest of `bytes` (what replay compares and [`DIGEST_ENCODING`] channels store).
+pub fn digest(bytes: &[u8]) -> Digest {
     use siphasher::sip128::Hasher128 as _;
     use std::hash::Hasher as _;
     let mut h =
@@ -966,16 +1283,20 @@ pub struct StreamedReplay {
     pub truncated: bool,
 }
 
-/// Replay node `spec` with `replay` on the recording `reader` is reading, streaming: each input
-/// is fed to the operator as it is read, and the node's outputs are compared with the recorded
-/// ones port by port, in order, on their length and 128-bit hash (a mismatch that keeps both
-/// length and hash has odds of about 2^-128). Memory holds the current message of each read
-/// channel and the hashes of outputs not yet paired, never the recording's payloads.
-pub fn replay_recording(
-    mut reader: RecordingReader,
+/// Feed node `spec` its recorded inputs from `reader`, input by input in recorded order, through
+/// `replay`; `on_message` sees every message the reader yields (the caller chooses which with
+/// [`RecordingReader::only_topics`]). An input recorded as a digest that the reader could not
+/// regenerate is an error naming it. With `cancel` set, the feed ends with an error at the next
+/// input. Returns the number of inputs fed.
+fn feed_inputs(
+    reader: &mut RecordingReader,
     spec: &crate::dataflow::NodeSpec,
     replay: crate::node::ReplayFn,
-) -> Result<StreamedReplay, RuntimeError> {
+    emit: &mut crate::node::OutputCallback<'_>,
+    max_steps: Option<u64>,
+    mut on_message: impl FnMut(&MessageRef<'_>),
+    cancel: Option<&AtomicBool>,
+) -> Result<usize, RuntimeError> {
     let mut ports_of: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for i in &spec.inputs {
         ports_of
@@ -983,28 +1304,15 @@ pub fn replay_recording(
             .or_default()
             .push(i.name.clone());
     }
-    let prefix = format!("{}/", spec.id);
-    let mut topics: BTreeSet<String> = ports_of.keys().cloned().collect();
-    topics.extend(spec.outputs.iter().map(|o| format!("{prefix}{}", o.name)));
-    reader.only_topics(topics);
-    let max_steps = reader.max_steps();
-    let matches = std::cell::RefCell::new(BTreeMap::<String, PortMatch>::new());
-    let record_output = |topic: &str, bytes: &[u8]| {
-        if let Some(port) = topic.strip_prefix(&prefix)
-            && !bytes.is_empty()
-        {
-            let mut matches = matches.borrow_mut();
-            let m = matches.entry(port.to_string()).or_default();
-            m.recorded.push_back(digest(bytes));
-            m.recorded_count += 1;
-            m.pair();
-        }
-    };
     let mut inputs = 0usize;
+    let mut queued: VecDeque<RecordedInput> = VecDeque::new();
+    // The input source borrows `inputs` mutably: its own scope ends the borrow.
     {
-        let mut queued: VecDeque<RecordedInput> = VecDeque::new();
         let mut source = std::iter::from_fn(|| {
             loop {
+                if cancel.is_some_and(|c| c.load(Ordering::Relaxed)) {
+                    return Some(Err(cancelled()));
+                }
                 if let Some(input) = queued.pop_front() {
                     inputs += 1;
                     return Some(Ok(input));
@@ -1014,8 +1322,18 @@ pub fn replay_recording(
                     Ok(None) => return None,
                     Err(e) => return Some(Err(e)),
                 };
-                record_output(m.topic, m.bytes);
-                for port in ports_of.get(m.topic).into_iter().flatten() {
+                on_message(&m);
+                let Some(ports) = ports_of.get(m.topic) else {
+                    continue;
+                };
+                if m.digest_only {
+                    return Some(Err(RuntimeError::Other(format!(
+                        "`{}` was recorded as digests (`--record-maps regenerated`) and its producer \
+                     cannot be replayed here, so node `{}` cannot be fed its input",
+                        m.topic, spec.id
+                    ))));
+                }
+                for port in ports {
                     queued.push_back(RecordedInput {
                         port: port.clone(),
                         seq: m.seq,
@@ -1024,19 +1342,89 @@ pub fn replay_recording(
                 }
             }
         });
-        let mut emit = |port: &str, bytes: &[u8]| {
+        replay(spec, &mut source, emit, max_steps)?;
+    }
+    Ok(inputs)
+}
+
+/// Replay node `spec` with `replay` on the recording `reader` is reading, streaming: each input
+/// is fed to the operator as it is read, and the node's outputs are compared with the recorded
+/// ones port by port, in order, on their length and 128-bit hash (a mismatch that keeps both
+/// length and hash has odds of about 2^-128); an output recorded as a digest is compared with
+/// it. Inputs recorded as digests are regenerated with `producers` (see
+/// [`RecordingReader::regenerate_with`]). Memory holds the current message of each read channel
+/// and the hashes of outputs not yet paired, never the recording's payloads.
+pub fn replay_recording(
+    mut reader: RecordingReader,
+    spec: &crate::dataflow::NodeSpec,
+    replay: crate::node::ReplayFn,
+    producers: &Producers,
+) -> Result<StreamedReplay, RuntimeError> {
+    let prefix = format!("{}/", spec.id);
+    let input_topics: BTreeSet<String> = spec
+        .inputs
+        .iter()
+        .map(|i| format!("{}/{}", i.source_node, i.source_output))
+        .collect();
+    let mut topics = input_topics;
+    topics.extend(spec.outputs.iter().map(|o| format!("{prefix}{}", o.name)));
+    reader.only_topics(topics);
+    // The node's own outputs are compared with their digests, never regenerated.
+    let own_outputs = spec
+        .outputs
+        .iter()
+        .map(|o| format!("{prefix}{}", o.name))
+        .collect();
+    reader.regenerate_with(producers.clone(), own_outputs);
+    let max_steps = reader.max_steps();
+    let matches = std::cell::RefCell::new(BTreeMap::<String, PortMatch>::new());
+    let record_output = |m: &MessageRef<'_>| -> Result<(), RuntimeError> {
+        if let Some(port) = m.topic.strip_prefix(&prefix)
+            && !m.bytes.is_empty()
+        {
+            let recorded = if m.digest_only {
+                parse_digest(m.bytes).ok_or_else(|| {
+                    RuntimeError::Other(format!("message {} of `{}`: bad digest", m.seq, m.topic))
+                })?
+            } else {
+                digest(m.bytes)
+            };
             let mut matches = matches.borrow_mut();
-            let m = matches.entry(port.to_string()).or_default();
-            m.produced.push_back(digest(bytes));
-            m.produced_count += 1;
-            m.pair();
-            Ok(())
-        };
-        replay(spec, &mut source, &mut emit, max_steps)?;
+            let pm = matches.entry(port.to_string()).or_default();
+            pm.recorded.push_back(recorded);
+            pm.recorded_count += 1;
+            pm.pair();
+        }
+        Ok(())
+    };
+    let mut bad_record = None;
+    let mut emit = |port: &str, bytes: &[u8]| {
+        let mut matches = matches.borrow_mut();
+        let m = matches.entry(port.to_string()).or_default();
+        m.produced.push_back(digest(bytes));
+        m.produced_count += 1;
+        m.pair();
+        Ok(())
+    };
+    let inputs = feed_inputs(
+        &mut reader,
+        spec,
+        replay,
+        &mut emit,
+        max_steps,
+        |m| {
+            if let Err(e) = record_output(m) {
+                bad_record.get_or_insert(e);
+            }
+        },
+        None,
+    )?;
+    if let Some(e) = bad_record {
+        return Err(e);
     }
     // The operator may stop before the end: count the recorded outputs left.
     while let Some(m) = reader.next_message()? {
-        record_output(m.topic, m.bytes);
+        record_output(&m)?;
     }
     let report = ReplayReport {
         per_port: matches
@@ -1053,13 +1441,15 @@ pub fn replay_recording(
 }
 
 /// Write a recording the way the recorder does (same writer options, metadata and encodings)
-/// from `(topic, large, seq, payload)` messages: for tests of the readers and the replay.
+/// from `(topic, large, seq, payload)` messages, the topics in `digests` stored as digests: for
+/// tests of the readers and the replay.
 #[cfg(test)]
 pub(crate) fn write_test_recording(
     path: &Path,
     dataflow_yaml: &str,
     max_steps: Option<u64>,
     messages: &[(&str, bool, u64, Vec<u8>)],
+    digests: &[&str],
 ) {
     let mut writer = open_writer(File::create(path).unwrap()).unwrap();
     let mut meta = BTreeMap::new();
@@ -1076,21 +1466,23 @@ pub(crate) fn write_test_recording(
     let schema = writer
         .add_schema("test", "activemap/text", b"test")
         .unwrap();
-    let mut channels: BTreeMap<&str, (u16, Option<Vec<u8>>)> = BTreeMap::new();
+    let mut channels: BTreeMap<&str, (u16, Stored)> = BTreeMap::new();
     let mut encoded = Vec::new();
     for (topic, large, seq, bytes) in messages {
-        let (id, previous) = match channels.get_mut(topic) {
+        let (id, stored) = match channels.get_mut(topic) {
             Some(c) => c,
             None => {
-                let encoding = if *large {
-                    DELTA_ENCODING.to_string()
+                let (encoding, stored) = if digests.contains(topic) {
+                    (DIGEST_ENCODING.to_string(), Stored::Digest)
+                } else if *large {
+                    (DELTA_ENCODING.to_string(), Stored::Delta(Vec::new()))
                 } else {
-                    format!("{SMALL_ENCODING}1")
+                    (format!("{SMALL_ENCODING}1"), Stored::Plain)
                 };
                 let id = writer
                     .add_channel(schema, topic, &encoding, &BTreeMap::new())
                     .unwrap();
-                channels.entry(topic).or_insert((id, large.then(Vec::new)))
+                channels.entry(topic).or_insert((id, stored))
             }
         };
         let header = mcap::records::MessageHeader {
@@ -1106,7 +1498,7 @@ pub(crate) fn write_test_recording(
         } else {
             MessageKind::Counter
         };
-        write_message(&mut writer, &header, kind, bytes, previous, &mut encoded).unwrap();
+        write_message(&mut writer, &header, kind, bytes, stored, &mut encoded).unwrap();
     }
     writer.finish().unwrap();
 }
@@ -1146,6 +1538,7 @@ mod tests {
                 topic: topic.to_string(),
                 seq: *seq,
                 bytes: bytes.clone(),
+                digest_only: false,
             })
             .collect()
     }
@@ -1155,7 +1548,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("rec.mcap");
         let messages = messages();
-        write_test_recording(&path, "nodes: []\n", Some(300), &messages);
+        write_test_recording(&path, "nodes: []\n", Some(300), &messages, &[]);
         let want = expected(&messages);
 
         let rec = read_recording(&path).unwrap();
@@ -1193,7 +1586,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("rec.mcap");
         let messages = messages();
-        write_test_recording(&path, "nodes: []\n", None, &messages);
+        write_test_recording(&path, "nodes: []\n", None, &messages, &[]);
         let want = expected(&messages);
         let full = std::fs::read(&path).unwrap();
         let cut = dir.path().join("cut.mcap");
