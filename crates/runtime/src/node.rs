@@ -239,8 +239,8 @@ pub type ReplayFn = fn(
     Option<u64>,
 ) -> Result<(), RuntimeError>;
 
-/// Run operator `O` alone on recorded inputs (in order, pulled from `inputs` one at a time) and
-/// hand each output to `emit` as it is sent; `max_steps` is the recorded run's `--max-steps`,
+/// Run operator `O` alone on recorded inputs (in order, pulled from `inputs` one at a time, after
+/// one firing of each declared timer) and hand each output to `emit` as it is sent; `max_steps` is the recorded run's `--max-steps`,
 /// which the operator sees as it did then. An error from `inputs` or `emit` ends the replay with
 /// that error.
 pub fn replay_operator<O: Operator>(
@@ -256,6 +256,16 @@ pub fn replay_operator<O: Operator>(
     };
     let mut op: O = make_operator(spec, &outputs, &mut sink, max_steps)?;
     let mut timing = StageTiming::default();
+    // Timer events are not recorded. Each declared timer fires once before the first input:
+    // that is what starts a lockstep source (the simulator renders its first frame on its
+    // start timer, then one per action), and a node whose timers only flush early changes
+    // nothing by it. A node driven by periodic timers does not replay faithfully.
+    for timer in &spec.timers {
+        let event = Event::Timer { name: &timer.name };
+        if dispatch(&mut op, spec, &outputs, &mut sink, None, event, &mut timing)? == Flow::Stop {
+            return Ok(());
+        }
+    }
     for input in inputs {
         let input = input?;
         let Some(in_spec) = spec.inputs.iter().find(|i| i.name == input.port) else {

@@ -6,9 +6,12 @@
 //! any gap is counted and reported per topic.
 //!
 //! Large payloads are stored delta-encoded against the previous payload of their channel
-//! ([`crate::delta`], encoding [`DELTA_ENCODING`]): the map is published every frame but changes
-//! only at keyframes. [`read_recording`] gives back every payload byte for byte, and still reads
-//! recordings of plain [`LARGE_ENCODING`] channels.
+//! ([`crate::delta`], encoding [`DELTA_ENCODING`]). The Gaussian maps of built-in operators are
+//! stored by default as digests only ([`DIGEST_ENCODING`], [`MapRecording`]): they are a
+//! deterministic function of the mapper's recorded inputs, so a reader that needs them
+//! regenerates them by replaying the mapper ([`RecordingReader::regenerate_with`]) and checks
+//! each against its digest. [`read_recording`] gives back every other payload byte for byte, and
+//! still reads recordings of plain [`LARGE_ENCODING`] channels.
 //!
 //! On top of that the file is chunked and each chunk is zstd-compressed (lossless, so replay stays
 //! bit-exact): chunks of [`CHUNK_SIZE`] uncompressed bytes, closed at least every
