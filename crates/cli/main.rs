@@ -313,12 +313,30 @@ fn load(file: &Path, overrides: &[Override]) -> anyhow::Result<Dataflow> {
 }
 
 fn main() -> ExitCode {
+    keep_freed_memory();
     match real_main() {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Tunes glibc's allocator for this program's pattern: per-frame buffers of a few MB (renders,
+/// Fisher passes, maps) allocated and freed over and over. By default glibc serves them with
+/// fresh mmaps or trims the freed heap, so each is faulted in and zeroed by the kernel again:
+/// 13 % of the Fisher scorer's samples in `perf` were the kernel clearing pages. Blocks below
+/// 32 MiB now come from the heap, and up to 1 GiB of freed heap is kept for reuse. Measured:
+/// the main loop 15 % faster (`run dataflow.yaml --no-record --max-steps 400`, median of 3
+/// alternated runs, 27.1 s against 31.9 s). Peak memory is unchanged (a freed block is reused,
+/// not added to); memory freed after a peak is kept.
+fn keep_freed_memory() {
+    #[cfg(target_env = "gnu")]
+    // SAFETY: mallopt only sets allocator parameters; it is called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
     }
 }
 

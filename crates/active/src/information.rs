@@ -270,17 +270,19 @@ impl Frustum {
 
 /// The Gaussians of `map` at `indices`, in that order.
 pub fn subset<T: Real>(map: &Gaussians<T>, indices: &[u32]) -> Gaussians<T> {
-    let mut out = Gaussians::<T>::new();
-    for &i in indices {
-        let i = i as usize;
-        out.means.push(map.means[i]);
-        out.sh_dc.push(map.sh_dc[i]);
-        out.rotations.push(map.rotations[i]);
-        out.opacity_logits.push(map.opacity_logits[i]);
-        out.log_scales.push(map.log_scales[i]);
-        out.flags.push(map.flags[i]);
+    // Gathered array by array into exact-size vectors: a view culls in ~80k Gaussians, and
+    // growing six vectors by push cost reallocations, copies and fresh pages every view.
+    fn gather<V: Copy>(from: &[V], indices: &[u32]) -> Vec<V> {
+        indices.iter().map(|&i| from[i as usize]).collect()
     }
-    out
+    Gaussians {
+        means: gather(&map.means, indices),
+        sh_dc: gather(&map.sh_dc, indices),
+        rotations: gather(&map.rotations, indices),
+        opacity_logits: gather(&map.opacity_logits, indices),
+        log_scales: gather(&map.log_scales, indices),
+        flags: gather(&map.flags, indices),
+    }
 }
 
 /// The Fisher information of the view from `world_from_camera` (`T_world_camera`) on `map`
