@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use activemap_runtime::dataflow::{Dataflow, NodeImpl, Override};
+use activemap_runtime::dataflow::{Dataflow, NodeImpl, NodeSpec, Override};
 use activemap_runtime::graph::{GraphFormat, render};
 use activemap_runtime::launch::{LaunchOptions, NodeExit, run_local};
 use activemap_runtime::node::{NodeSetup, RunInfo, install_stop_signals};
@@ -724,9 +724,7 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     let implementation = activemap_operators::find(op)
         .and_then(|r| r.implementation)
         .with_context(|| format!("operator `{op}` is not built in this version"))?;
-    // A node that talks to the outside world (the LLM planner) is served the recorded answers.
-    let mut spec = spec.clone();
-    spec.config = activemap_operators::replay_config(op, &spec.config, recording_path, node);
+    let spec = replay_spec(spec, op, recording_path);
     let producers = replay_producers(&flow, recording_path);
     let record::StreamedReplay {
         report,
@@ -754,6 +752,14 @@ fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
     })
 }
 
+/// Node `node` (operator `op`) as replay runs it: a node that talks to the outside world (the
+/// LLM planner) is served the recorded answers.
+fn replay_spec(node: &NodeSpec, op: &str, recording_path: &Path) -> NodeSpec {
+    let mut spec = node.clone();
+    spec.config = activemap_operators::replay_config(op, &node.config, recording_path, &node.id);
+    spec
+}
+
 /// Every built-in operator output of `flow`, as a producer that can remake the payloads the
 /// recording holds as digests (the maps of `--record-maps regenerated`).
 fn replay_producers(flow: &Dataflow, recording_path: &Path) -> record::Producers {
@@ -768,9 +774,7 @@ fn replay_producers(flow: &Dataflow, recording_path: &Path) -> record::Producers
         else {
             continue;
         };
-        let mut spec = node.clone();
-        spec.config =
-            activemap_operators::replay_config(op, &node.config, recording_path, &node.id);
+        let spec = replay_spec(node, op, recording_path);
         for output in &node.outputs {
             producers.insert(
                 format!("{}/{}", node.id, output.name),

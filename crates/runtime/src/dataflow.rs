@@ -128,6 +128,13 @@ pub struct InputSpec {
     pub loc: Loc,
 }
 
+impl InputSpec {
+    /// The topic it reads, `node/output` (a recording's channel name).
+    pub fn source_topic(&self) -> String {
+        format!("{}/{}", self.source_node, self.source_output)
+    }
+}
+
 /// One output of a node.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OutputSpec {

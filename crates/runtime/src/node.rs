@@ -240,8 +240,8 @@ pub type ReplayFn = fn(
 ) -> Result<(), RuntimeError>;
 
 /// Run operator `O` alone on recorded inputs (in order, pulled from `inputs` one at a time, after
-/// one firing of each declared timer) and hand each output to `emit` as it is sent; `max_steps` is the recorded run's `--max-steps`,
-/// which the operator sees as it did then. An error from `inputs` or `emit` ends the replay with
+/// one firing of each declared timer) and hand each output to `emit` as it is sent; `max_steps`
+/// is the recorded run's `--max-steps`, which the operator sees as it did then. An error from `inputs` or `emit` ends the replay with
 /// that error.
 pub fn replay_operator<O: Operator>(
     spec: &NodeSpec,

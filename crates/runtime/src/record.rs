@@ -397,6 +397,7 @@ fn record_loop(
             for o in &n.outputs {
                 let kind = o.kind;
                 let topic = format!("{}/{}", n.id, o.name);
+                let stored = stored_as(kind, n, maps);
                 let channel = match &mut writer {
                     Some(writer) => {
                         let schema_id = match schemas.get(&kind) {
@@ -425,7 +426,7 @@ fn record_loop(
                             "schema_version".to_string(),
                             kind.schema_version().to_string(),
                         );
-                        let encoding = match stored_as(kind, n, maps) {
+                        let encoding = match &stored {
                             Stored::Digest => DIGEST_ENCODING.to_string(),
                             Stored::Delta(_) => DELTA_ENCODING.to_string(),
                             Stored::Plain => format!("{SMALL_ENCODING}{}", kind.schema_version()),
@@ -459,7 +460,7 @@ fn record_loop(
                     channel,
                     source,
                     last_seq: 0,
-                    stored: stored_as(kind, n, maps),
+                    stored,
                     view_keyframe: None,
                 });
             }
@@ -772,7 +773,7 @@ impl Regenerator {
                             .spec
                             .inputs
                             .iter()
-                            .map(|i| format!("{}/{}", i.source_node, i.source_output))
+                            .map(|i| i.source_topic())
                             .collect(),
                     );
                     reader.regenerate_with(producers, BTreeSet::new());
@@ -789,7 +790,7 @@ impl Regenerator {
                         producer.replay,
                         &mut emit,
                         max_steps,
-                        |_| {},
+                        |_| Ok(()),
                         Some(&stop),
                     )?;
                     Ok(())
@@ -1166,7 +1167,7 @@ pub fn recorded_inputs(
     let mut out = Vec::new();
     for m in &recording.messages {
         for i in &spec.inputs {
-            if m.topic == format!("{}/{}", i.source_node, i.source_output) {
+            if m.topic == i.source_topic() {
                 out.push(RecordedInput {
                     port: i.name.clone(),
                     seq: m.seq,
@@ -1296,7 +1297,7 @@ pub struct StreamedReplay {
 
 /// Feed node `spec` its recorded inputs from `reader`, input by input in recorded order, through
 /// `replay`; `on_message` sees every message the reader yields (the caller chooses which with
-/// [`RecordingReader::only_topics`]). An input recorded as a digest that the reader could not
+/// [`RecordingReader::only_topics`]), and an error from it ends the feed. An input recorded as a digest that the reader could not
 /// regenerate is an error naming it. With `cancel` set, the feed ends with an error at the next
 /// input. Returns the number of inputs fed.
 fn feed_inputs(
@@ -1305,13 +1306,13 @@ fn feed_inputs(
     replay: crate::node::ReplayFn,
     emit: &mut crate::node::OutputCallback<'_>,
     max_steps: Option<u64>,
-    mut on_message: impl FnMut(&MessageRef<'_>),
+    mut on_message: impl FnMut(&MessageRef<'_>) -> Result<(), RuntimeError>,
     cancel: Option<&AtomicBool>,
 ) -> Result<usize, RuntimeError> {
     let mut ports_of: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for i in &spec.inputs {
         ports_of
-            .entry(format!("{}/{}", i.source_node, i.source_output))
+            .entry(i.source_topic())
             .or_default()
             .push(i.name.clone());
     }
@@ -1333,7 +1334,9 @@ fn feed_inputs(
                     Ok(None) => return None,
                     Err(e) => return Some(Err(e)),
                 };
-                on_message(&m);
+                if let Err(e) = on_message(&m) {
+                    return Some(Err(e));
+                }
                 let Some(ports) = ports_of.get(m.topic) else {
                     continue;
                 };
@@ -1372,20 +1375,15 @@ pub fn replay_recording(
     producers: &Producers,
 ) -> Result<StreamedReplay, RuntimeError> {
     let prefix = format!("{}/", spec.id);
-    let input_topics: BTreeSet<String> = spec
-        .inputs
-        .iter()
-        .map(|i| format!("{}/{}", i.source_node, i.source_output))
-        .collect();
-    let mut topics = input_topics;
-    topics.extend(spec.outputs.iter().map(|o| format!("{prefix}{}", o.name)));
-    reader.only_topics(topics);
-    // The node's own outputs are compared with their digests, never regenerated.
-    let own_outputs = spec
+    let own_outputs: BTreeSet<String> = spec
         .outputs
         .iter()
         .map(|o| format!("{prefix}{}", o.name))
         .collect();
+    let mut topics: BTreeSet<String> = spec.inputs.iter().map(|i| i.source_topic()).collect();
+    topics.extend(own_outputs.iter().cloned());
+    reader.only_topics(topics);
+    // The node's own outputs are compared with their digests, never regenerated.
     reader.regenerate_with(producers.clone(), own_outputs);
     let max_steps = reader.max_steps();
     let matches = std::cell::RefCell::new(BTreeMap::<String, PortMatch>::new());
@@ -1408,7 +1406,6 @@ pub fn replay_recording(
         }
         Ok(())
     };
-    let mut bad_record = None;
     let mut emit = |port: &str, bytes: &[u8]| {
         let mut matches = matches.borrow_mut();
         let m = matches.entry(port.to_string()).or_default();
@@ -1423,16 +1420,9 @@ pub fn replay_recording(
         replay,
         &mut emit,
         max_steps,
-        |m| {
-            if let Err(e) = record_output(m) {
-                bad_record.get_or_insert(e);
-            }
-        },
+        &record_output,
         None,
     )?;
-    if let Some(e) = bad_record {
-        return Err(e);
-    }
     // The operator may stop before the end: count the recorded outputs left.
     while let Some(m) = reader.next_message()? {
         record_output(&m)?;
