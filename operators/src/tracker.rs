@@ -16,7 +16,8 @@ use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
 };
 use activemap_slam::{
-    Frame, MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, TrackingStatus as SlamStatus,
+    Frame, KeyframeGraphConfig, MotionPrior, TrackedFrame, TrackingConfig, TrackingSession,
+    TrackingStatus as SlamStatus,
 };
 use activemap_splat::Gaussians;
 
@@ -60,6 +61,11 @@ pub struct Config {
     /// equal the mapper's `map_lag`.
     #[serde(default)]
     pub map_lag: u64,
+    /// The keyframe pose graph over the dense tracker's references
+    /// (`activemap_slam::KeyframeGraph`): loop closures correct every reference between the
+    /// loop's ends, not only the current pose.
+    #[serde(default)]
+    pub pose_graph: bool,
 }
 
 fn default_rereference() -> f64 {
@@ -88,6 +94,7 @@ impl Config {
             rereference_below: self.rereference_below,
             map_lag: self.map_lag,
             initial_pose: start_anchor(&self.robot),
+            pose_graph: self.pose_graph.then(KeyframeGraphConfig::default),
             ..TrackingConfig::default()
         };
         if let Some(d) = self.downscale {
@@ -151,9 +158,23 @@ impl Tracker {
         self.session.add_motion(step, motion);
     }
 
-    /// Tracks every frame whose inputs are complete, in order; returns their estimates.
+    /// Tracks every frame whose inputs are complete, in order; returns their estimates. Logs
+    /// each loop closure of the pose graph that moved a keyframe by a centimetre or more.
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<PoseEstimate>> {
-        Ok(self.session.process_ready()?.iter().map(estimate).collect())
+        let tracked = self.session.process_ready()?;
+        for t in &tracked {
+            if let Some(c) = t.loop_closure.filter(|c| c.largest_shift_m >= 0.01) {
+                eprintln!(
+                    "tracker: frame {}: loop closure ({} loop edge(s)); pose graph of {} keyframes \
+                     re-optimised, keyframes moved up to {:.1} cm",
+                    t.frame_id,
+                    c.loop_edges,
+                    c.keyframes,
+                    100.0 * c.largest_shift_m
+                );
+            }
+        }
+        Ok(tracked.iter().map(estimate).collect())
     }
 }
 
@@ -294,6 +315,7 @@ mod tests {
             max_iterations: None,
             rereference_below: default_rereference(),
             map_lag: 0,
+            pose_graph: false,
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);

@@ -84,6 +84,63 @@ pub fn adjoint(pose: &Isometry3<f64>) -> Matrix6<f64> {
     ad
 }
 
+/// Left Jacobian of SE(3) for τ = [ρ, θ]: `Exp(τ + ε) ≈ Exp(J_l(τ)·ε)·Exp(τ)` to first order in
+/// ε. Block form `[[V(θ), Q(ρ, θ)], [0, V(θ)]]` with `V` = [`so3_left_jacobian`] and `Q` the
+/// closed form of Barfoot, *State Estimation for Robotics* (2017), eq. 7.86 (series limits below
+/// 1e-4 rad). The pose graph needs it to linearise `Log` of a relative-pose error exactly.
+pub fn se3_left_jacobian(tau: &Vector6<f64>) -> Matrix6<f64> {
+    let rho = Vector3::new(tau[0], tau[1], tau[2]);
+    let theta = Vector3::new(tau[3], tau[4], tau[5]);
+    let v = so3_left_jacobian(&theta);
+    let q = se3_q(&rho, &theta);
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&v);
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&q);
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&v);
+    j
+}
+
+/// Inverse of [`se3_left_jacobian`]: `[[V⁻¹, −V⁻¹·Q·V⁻¹], [0, V⁻¹]]`.
+pub fn se3_left_jacobian_inv(tau: &Vector6<f64>) -> Matrix6<f64> {
+    let rho = Vector3::new(tau[0], tau[1], tau[2]);
+    let theta = Vector3::new(tau[3], tau[4], tau[5]);
+    let vi = so3_left_jacobian_inv(&theta);
+    let q = se3_q(&rho, &theta);
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&vi);
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-vi * q * vi));
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&vi);
+    j
+}
+
+/// Inverse right Jacobian of SE(3): `Log(Exp(τ)·Exp(ε)) ≈ τ + J_r⁻¹(τ)·ε`, with
+/// `J_r(τ) = J_l(−τ)`.
+pub fn se3_right_jacobian_inv(tau: &Vector6<f64>) -> Matrix6<f64> {
+    se3_left_jacobian_inv(&(-tau))
+}
+
+/// The off-diagonal block `Q(ρ, θ)` of [`se3_left_jacobian`] (Barfoot eq. 7.86).
+fn se3_q(rho: &Vector3<f64>, theta: &Vector3<f64>) -> Matrix3<f64> {
+    let angle = theta.norm();
+    let (p, t) = (hat(rho), hat(theta));
+    let (a, b, c) = if angle < 1e-4 {
+        // Limits of the three coefficients at θ → 0 (their next terms are O(θ²)).
+        (1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0)
+    } else {
+        let (s, co) = (angle.sin(), angle.cos());
+        let a2 = angle * angle;
+        (
+            (angle - s) / (a2 * angle),
+            (a2 + 2.0 * co - 2.0) / (2.0 * a2 * a2),
+            (2.0 * angle - 3.0 * s + angle * co) / (2.0 * a2 * a2 * angle),
+        )
+    };
+    0.5 * p
+        + a * (t * p + p * t + t * p * t)
+        + b * (t * t * p + p * t * t - 3.0 * t * p * t)
+        + c * (t * p * t * t + t * t * p * t)
+}
+
 /// Translation distance (metres) and rotation angle (radians) between two poses.
 pub fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     let delta = a.inverse() * b;
@@ -171,6 +228,45 @@ mod tests {
         for theta in [Vector3::new(0.1, 0.2, -0.3), Vector3::new(1e-8, 0.0, 0.0)] {
             let p = so3_left_jacobian(&theta) * so3_left_jacobian_inv(&theta);
             assert!((p - Matrix3::identity()).norm() < 1e-10);
+        }
+    }
+
+    /// The SE(3) Jacobians against central differences (f64): `Log(Exp(ε)·Exp(τ))` and
+    /// `Log(Exp(τ)·Exp(ε))` around ε = 0 give `J_l⁻¹` and `J_r⁻¹` column by column, at a large
+    /// and a near-zero rotation; `J_l·J_l⁻¹ = I`.
+    #[test]
+    fn se3_jacobians_match_finite_differences() {
+        for tau in [
+            Vector6::new(0.4, -0.7, 0.2, 0.9, -0.4, 0.6),
+            Vector6::new(-1.1, 0.3, 0.8, 2e-5, -1e-5, 3e-5),
+            Vector6::new(0.2, 0.1, -0.3, 0.0, 0.0, 0.0),
+        ] {
+            let h = 1e-6;
+            let mut left = Matrix6::zeros();
+            let mut right = Matrix6::zeros();
+            for k in 0..6 {
+                let mut e = Vector6::zeros();
+                e[k] = h;
+                let d_left =
+                    (log(&(exp(&e) * exp(&tau))) - log(&(exp(&-e) * exp(&tau)))) / (2.0 * h);
+                let d_right =
+                    (log(&(exp(&tau) * exp(&e))) - log(&(exp(&tau) * exp(&-e)))) / (2.0 * h);
+                left.set_column(k, &d_left);
+                right.set_column(k, &d_right);
+            }
+            let jl_inv = se3_left_jacobian_inv(&tau);
+            let jr_inv = se3_right_jacobian_inv(&tau);
+            assert!(
+                (left - jl_inv).norm() < 1e-7,
+                "J_l⁻¹ at {tau}: {left} vs {jl_inv}"
+            );
+            assert!(
+                (right - jr_inv).norm() < 1e-7,
+                "J_r⁻¹ at {tau}: {right} vs {jr_inv}"
+            );
+            let product = se3_left_jacobian(&tau) * jl_inv;
+            let off = (product - Matrix6::identity()).norm();
+            assert!(off < 1e-8, "J_l·J_l⁻¹ is {off} from I at {tau}");
         }
     }
 

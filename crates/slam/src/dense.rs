@@ -350,6 +350,10 @@ pub struct Aligned {
     /// Per reference (in the order given), the fraction of the frame's valid-depth pixels
     /// associated with it at the last linearisation.
     pub reference_inliers: Vec<f64>,
+    /// Gauss–Newton information of the image terms alone (no motion prior) at the last
+    /// linearisation, for a left perturbation of `T_ref0_cur` (the first reference's frame):
+    /// the pose graph's edge information ([`crate::pose_graph`]).
+    pub information: Matrix6<f64>,
 }
 
 /// Normal equations of one linearisation.
@@ -529,6 +533,7 @@ pub fn align_many(
         rms_distance: f64::NAN,
         converged: false,
         reference_inliers: vec![0.0; references.len()],
+        information: Matrix6::zeros(),
     };
     for (level_index, &factor) in config.pyramid.iter().enumerate() {
         let current = Level::new(&frame.downscale(factor), false);
@@ -558,6 +563,7 @@ pub fn align_many(
             if inliers < 6 {
                 break;
             }
+            out.information = n.h;
             let e = se3::log(&(t * predicted_rel.inverse()));
             for i in 0..6 {
                 n.h[(i, i)] += information[i];

@@ -58,4 +58,17 @@ impl SlamError {
             None => Ok(()),
         }
     }
+
+    /// The first `(field, value)` that is not finite and ≥ 0, as a [`SlamError::Config`]
+    /// naming it.
+    pub(crate) fn require_non_negative(fields: &[(&'static str, f64)]) -> Result<(), SlamError> {
+        match fields.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            Some(&(field, v)) => Err(SlamError::Config {
+                field,
+                value: v.to_string(),
+                reason: "must be finite and ≥ 0",
+            }),
+            None => Ok(()),
+        }
+    }
 }

@@ -89,7 +89,7 @@ impl GaussNewtonConfig {
             ("gauss_newton.convergence", self.convergence),
         ];
         SlamError::require_positive(&positive)?;
-        for (field, v) in [
+        SlamError::require_non_negative(&[
             ("gauss_newton.colour_weight", self.colour_weight),
             ("gauss_newton.depth_weight", self.depth_weight),
             (
@@ -100,16 +100,7 @@ impl GaussNewtonConfig {
                 "gauss_newton.prior_rotation_sigma",
                 self.prior_rotation_sigma,
             ),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(SlamError::Config {
-                    field,
-                    value: v.to_string(),
-                    reason: "must be finite and ≥ 0",
-                });
-            }
-        }
-        Ok(())
+        ])
     }
 }
 

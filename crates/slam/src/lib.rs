@@ -13,6 +13,9 @@
 //!   SPEC §5 belong to the Fisher scorer, `activemap_active::unknown`);
 //! - [`dense`], [`references`]: dense RGB-D alignment to keyframes, and which keyframes a
 //!   frame is aligned to (the newest, plus older ones of the same place);
+//! - [`pose_graph`]: a keyframe pose graph (relative-pose edges, Levenberg–Marquardt with
+//!   faer's sparse Cholesky), which the tracking session keeps over its references when
+//!   configured ([`KeyframeGraph`]);
 //! - [`session`]: the tracking session (prediction, lagged map snapshots, reference
 //!   keyframes, lost/skipped frames), as the `tracker` operator holds it;
 //! - [`mapping`]: the mapping session (keyframe rule, insertion, window optimisation in a
@@ -44,6 +47,7 @@ pub mod lockstep;
 pub mod loss;
 pub mod mapper;
 pub mod mapping;
+pub mod pose_graph;
 pub mod references;
 pub mod session;
 pub mod tracker;
@@ -56,6 +60,10 @@ pub use mapper::{Mapper, MapperConfig, MappingReport};
 pub use mapping::{
     BackgroundMapper, KeyframeEvent, KeyframeMapper, MappingConfig, PoseQuality, Snapshot,
 };
+pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
-pub use session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, required_snapshot};
+pub use session::{
+    GraphStats, KeyframeGraph, KeyframeGraphConfig, LoopClosure, MotionPrior, TrackedFrame,
+    TrackingConfig, TrackingSession, required_snapshot,
+};
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

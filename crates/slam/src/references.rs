@@ -179,6 +179,15 @@ impl References {
     /// The references to align a frame predicted at `predicted` to: the newest first, then up
     /// to `extra` older ones near the prediction, closest first. Empty before any `push`.
     pub fn select(&self, predicted: &Isometry3<f64>) -> Vec<&DenseReference> {
+        self.select_with_serials(predicted)
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect()
+    }
+
+    /// [`References::select`] with each reference's serial (the order it was pushed in,
+    /// from 0: the tracker's pose-graph node).
+    pub fn select_with_serials(&self, predicted: &Isometry3<f64>) -> Vec<(u64, &DenseReference)> {
         let Some(newest) = self.entries.last() else {
             return Vec::new();
         };
@@ -192,9 +201,29 @@ impl References {
             })
             .collect();
         older.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        std::iter::once(&newest.reference)
-            .chain(older.into_iter().take(self.config.extra).map(|(_, _, r)| r))
+        std::iter::once((newest.serial, &newest.reference))
+            .chain(
+                older
+                    .into_iter()
+                    .take(self.config.extra)
+                    .map(|(_, serial, r)| (serial, r)),
+            )
             .collect()
+    }
+
+    /// The serial the next [`References::push`] gives.
+    pub fn next_serial(&self) -> u64 {
+        self.next_serial
+    }
+
+    /// Replaces the pose of every kept reference for which `pose_of(serial)` gives one (the
+    /// pose graph's corrected estimates).
+    pub fn update_poses(&mut self, pose_of: impl Fn(u64) -> Option<Isometry3<f64>>) {
+        for e in &mut self.entries {
+            if let Some(p) = pose_of(e.serial) {
+                e.reference.pose = p;
+            }
+        }
     }
 }
 

@@ -21,14 +21,16 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
-use activemap_geometry::Isometry3;
+use activemap_geometry::{Isometry3, se3};
 use activemap_splat::Gaussians;
+use nalgebra::{Matrix6, Vector6};
 
-use crate::dense::DenseReference;
+use crate::dense::{DenseReference, align};
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::loss::Residuals;
 use crate::mapper::{drop_non_finite, finite_mask};
+use crate::pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 use crate::references::{ReferenceConfig, References};
 use crate::tracker::{TrackerConfig, TrackingStatus, track};
 
@@ -65,6 +67,262 @@ pub struct TrackingConfig {
     pub map_lag: u64,
     /// `T_world_camera` of the first usable frame (the world is anchored there).
     pub initial_pose: Isometry3<f64>,
+    /// The keyframe pose graph over the references (`None`: off, the references keep the
+    /// poses they were tracked at). See [`KeyframeGraph`].
+    pub pose_graph: Option<KeyframeGraphConfig>,
+}
+
+/// Settings of the tracker's keyframe pose graph ([`KeyframeGraph`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeGraphConfig {
+    /// The solver.
+    pub solver: PoseGraphConfig,
+    /// A loop edge is left out when its measurement disagrees with the graph's current
+    /// estimate by more than this translation, metres (a wrong association), ...
+    pub max_loop_disagreement_m: f64,
+    /// ... or by more than this rotation, radians.
+    pub max_loop_disagreement_rad: f64,
+    /// Standard deviations of the weak prior added to every edge's information, metres and
+    /// radians: it keeps a pair that the images leave unconstrained in some direction (a bare
+    /// wall) from making the normal equations singular.
+    pub edge_floor_sigmas: [f64; 2],
+    /// The graph is re-optimised only when a new loop edge disagrees with it by at least this
+    /// translation, metres, ...
+    pub optimise_above_m: f64,
+    /// ... or this rotation, radians. Smaller disagreements stay in the graph as edges and
+    /// count at the next optimisation.
+    pub optimise_above_rad: f64,
+    /// Gauss–Newton iterations per pyramid level of a loop edge's pairwise alignment. It
+    /// starts at the joint estimate, already close: a few iterations per level suffice, and
+    /// with noisy depth nearly every frame becomes a keyframe with one or two loop edges, so
+    /// the tracker's full budget per edge would make tracking half again as slow.
+    pub edge_iterations_per_level: usize,
+    /// An older reference gets a new loop edge only once this many keyframes have passed since
+    /// its last one: consecutive keyframes aligned to the same old reference measure nearly
+    /// the same thing (their errors are correlated, so each added edge would overstate the
+    /// information), and each edge costs an alignment.
+    pub loop_edge_spacing: u64,
+}
+
+impl Default for KeyframeGraphConfig {
+    fn default() -> Self {
+        Self {
+            // Plain least squares: measured on the box room's full turn, a Huber kernel took
+            // the loop edge for the outlier (the chain before it had locked onto a wrong
+            // association with high confidence) and undid most of the correction.
+            solver: PoseGraphConfig {
+                huber: f64::INFINITY,
+                ..PoseGraphConfig::default()
+            },
+            max_loop_disagreement_m: 0.3,
+            max_loop_disagreement_rad: 10f64.to_radians(),
+            edge_floor_sigmas: [0.5, 0.5],
+            optimise_above_m: 0.005,
+            optimise_above_rad: 0.25f64.to_radians(),
+            edge_iterations_per_level: 3,
+            loop_edge_spacing: 5,
+        }
+    }
+}
+
+impl KeyframeGraphConfig {
+    /// Checks ranges; names the offending field.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        self.solver.validate()?;
+        SlamError::require_positive(&[
+            (
+                "pose_graph.max_loop_disagreement_m",
+                self.max_loop_disagreement_m,
+            ),
+            (
+                "pose_graph.max_loop_disagreement_rad",
+                self.max_loop_disagreement_rad,
+            ),
+            ("pose_graph.edge_floor_sigmas[0]", self.edge_floor_sigmas[0]),
+            ("pose_graph.edge_floor_sigmas[1]", self.edge_floor_sigmas[1]),
+        ])?;
+        if self.edge_iterations_per_level == 0 {
+            return Err(SlamError::Config {
+                field: "pose_graph.edge_iterations_per_level",
+                value: "0".into(),
+                reason: "must be at least 1",
+            });
+        }
+        SlamError::require_non_negative(&[
+            ("pose_graph.optimise_above_m", self.optimise_above_m),
+            ("pose_graph.optimise_above_rad", self.optimise_above_rad),
+        ])
+    }
+}
+
+/// The tracker's keyframe pose graph (issue 16; [`crate::pose_graph`]): one node per reference
+/// keyframe (node = the reference's serial), an edge from each reference a new keyframe was
+/// aligned to (the newest one: odometry; older ones of the same place: loop closures), each
+/// measured by aligning the new keyframe to that reference alone ([`align`]) with the
+/// alignment's information. When a loop edge joins that disagrees with the graph (by
+/// `optimise_above_m` / `optimise_above_rad`), the graph is optimised, every kept reference
+/// takes its corrected pose, and so does the new keyframe (the frame's published estimate),
+/// so later frames aligned to them no longer inherit the drift of their time. The map does
+/// not follow yet: Gaussians stay where the mapper put them.
+#[derive(Debug, Clone)]
+pub struct KeyframeGraph {
+    config: KeyframeGraphConfig,
+    graph: PoseGraph,
+    /// Loop edges added / refused by the disagreement gate, optimisations run.
+    stats: GraphStats,
+    /// Per older reference (serial): the node of its latest loop edge.
+    last_loop: BTreeMap<u64, u64>,
+}
+
+/// A loop closure: the pose graph took new loop edges and was re-optimised.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopClosure {
+    /// Loop edges the new keyframe added.
+    pub loop_edges: usize,
+    /// Keyframes (nodes) in the graph.
+    pub keyframes: usize,
+    /// Largest move of a keyframe's camera centre by the optimisation, metres.
+    pub largest_shift_m: f64,
+}
+
+/// Counters of a [`KeyframeGraph`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GraphStats {
+    /// Odometry edges (to the newest reference).
+    pub odometry_edges: usize,
+    /// Loop edges (to older references) added.
+    pub loop_edges: usize,
+    /// Loop edges refused: the pairwise alignment failed or disagreed beyond the gate.
+    pub refused_edges: usize,
+    /// Optimisations run.
+    pub optimisations: usize,
+}
+
+impl KeyframeGraph {
+    /// An empty graph.
+    pub fn new(config: KeyframeGraphConfig) -> Result<Self, SlamError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            graph: PoseGraph::new(),
+            stats: GraphStats::default(),
+            last_loop: BTreeMap::new(),
+        })
+    }
+
+    /// The graph.
+    pub fn graph(&self) -> &PoseGraph {
+        &self.graph
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> GraphStats {
+        self.stats
+    }
+
+    /// The weak prior added to every edge's information.
+    fn floor(&self) -> Matrix6<f64> {
+        let [t, r] = self.config.edge_floor_sigmas;
+        let (it, ir) = (1.0 / (t * t), 1.0 / (r * r));
+        Matrix6::from_diagonal(&Vector6::new(it, it, it, ir, ir, ir))
+    }
+
+    /// Adds the keyframe `frame` (tracking resolution) tracked at `pose` as node `serial`,
+    /// with an edge from each of `aligned_to` (serial and reference; the first is the newest),
+    /// optimises when a loop edge joined, and returns the keyframe's corrected pose. When the
+    /// frame was aligned to the newest reference alone, that alignment (`joint_information`)
+    /// is the odometry edge's measurement, and no alignment is repeated.
+    fn add_keyframe(
+        &mut self,
+        serial: u64,
+        frame: &Frame,
+        pose: Isometry3<f64>,
+        aligned_to: &[(u64, &DenseReference)],
+        joint_information: &Matrix6<f64>,
+        tracking: &TrackerConfig,
+    ) -> Result<(Isometry3<f64>, Option<LoopClosure>), SlamError> {
+        let node = self.graph.add_node(pose)?;
+        if node as u64 != serial {
+            return Err(SlamError::Input {
+                what: "pose graph node",
+                reason: format!("node {node} for reference serial {serial}"),
+            });
+        }
+        let mut loops = 0;
+        let mut worth_solving = false;
+        for (k, (from, reference)) in aligned_to.iter().enumerate() {
+            if k > 0
+                && self
+                    .last_loop
+                    .get(from)
+                    .is_some_and(|&last| serial < last + self.config.loop_edge_spacing)
+            {
+                continue;
+            }
+            let (aligned, information, usable) = if aligned_to.len() == 1 {
+                (pose, *joint_information, true)
+            } else {
+                let dense = crate::dense::DenseConfig {
+                    iterations_per_level: self.config.edge_iterations_per_level,
+                    ..tracking.dense.clone()
+                };
+                let a = align(&dense, reference, frame, &pose)?;
+                let usable = a.inlier_fraction >= tracking.lost_min_coverage
+                    && a.rms_distance <= tracking.dense.lost_max_rms;
+                (a.pose, a.information, usable)
+            };
+            let measured = se3::normalized(&(reference.pose.inverse() * aligned));
+            let from = *from as usize;
+            // The odometry edge (k = 0) is kept whatever the pair's quality: the joint
+            // alignment accepted this frame, and the chain must stay connected. A loop edge
+            // must be a good alignment that roughly agrees with the graph as it stands.
+            if k > 0 {
+                let current = self.graph.pose(from).inverse() * pose;
+                let (dt, da) = se3::pose_error(&current, &measured);
+                if !usable
+                    || dt > self.config.max_loop_disagreement_m
+                    || da > self.config.max_loop_disagreement_rad
+                {
+                    self.stats.refused_edges += 1;
+                    continue;
+                }
+                worth_solving |=
+                    dt >= self.config.optimise_above_m || da >= self.config.optimise_above_rad;
+            }
+            let ad = se3::adjoint(&measured);
+            let information = ad.transpose() * information * ad + self.floor();
+            self.graph.add_edge(Edge {
+                from,
+                to: node,
+                measured,
+                information,
+            })?;
+            if k == 0 {
+                self.stats.odometry_edges += 1;
+            } else {
+                self.last_loop.insert(from as u64, serial);
+                self.stats.loop_edges += 1;
+                loops += 1;
+            }
+        }
+        let mut closure = None;
+        if loops > 0 && worth_solving {
+            let before = self.graph.poses().to_vec();
+            self.graph.optimise(&self.config.solver)?;
+            self.stats.optimisations += 1;
+            let largest_shift_m = before
+                .iter()
+                .zip(self.graph.poses())
+                .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
+                .fold(0.0, f64::max);
+            closure = Some(LoopClosure {
+                loop_edges: loops,
+                keyframes: self.graph.len(),
+                largest_shift_m,
+            });
+        }
+        Ok((self.graph.pose(node), closure))
+    }
 }
 
 impl Default for TrackingConfig {
@@ -77,6 +335,7 @@ impl Default for TrackingConfig {
             rereference_below: 0.85,
             map_lag: 0,
             initial_pose: Isometry3::identity(),
+            pose_graph: None,
         }
     }
 }
@@ -92,6 +351,9 @@ impl TrackingConfig {
                 value: self.rereference_below.to_string(),
                 reason: "must be in [0, 1]",
             });
+        }
+        if let Some(g) = &self.pose_graph {
+            g.validate()?;
         }
         if !finite_pose(&self.initial_pose) {
             return Err(SlamError::Input {
@@ -120,6 +382,8 @@ pub struct TrackedFrame {
     pub iterations: usize,
     /// Wall time of tracking this frame, seconds (reporting only; never affects a result).
     pub seconds: f64,
+    /// The loop closure this frame (a new keyframe) brought to the pose graph, if any.
+    pub loop_closure: Option<LoopClosure>,
 }
 
 /// Whether every component of a pose is finite.
@@ -148,6 +412,8 @@ pub struct TrackingSession {
     /// The dense tracker's reference keyframes (past tracked frames at their estimates); empty
     /// until the world is anchored.
     references: References,
+    /// The keyframe pose graph, when configured.
+    graph: Option<KeyframeGraph>,
 }
 
 impl TrackingSession {
@@ -156,6 +422,11 @@ impl TrackingSession {
         config.validate()?;
         Ok(Self {
             references: References::new(config.references.clone())?,
+            graph: config
+                .pose_graph
+                .clone()
+                .map(KeyframeGraph::new)
+                .transpose()?,
             pose: config.initial_pose,
             config,
             maps: BTreeMap::new(),
@@ -185,6 +456,11 @@ impl TrackingSession {
     /// The reference keyframes kept so far.
     pub fn references(&self) -> &References {
         &self.references
+    }
+
+    /// The keyframe pose graph, when configured.
+    pub fn keyframe_graph(&self) -> Option<&KeyframeGraph> {
+        self.graph.as_ref()
     }
 
     /// Stores an RGB-D frame to track.
@@ -262,19 +538,35 @@ impl TrackingSession {
                 residuals: Residuals::default(),
                 iterations: 0,
                 seconds: 0.0,
+                loop_closure: None,
             };
             match map {
                 None => match frame.usability() {
                     // Anchor the world at the first usable frame.
-                    Ok(()) => self.references.push(DenseReference::new(
-                        &small,
-                        predicted,
-                        &self.config.tracker.dense,
-                    )),
+                    Ok(()) => {
+                        if let Some(graph) = &mut self.graph {
+                            let serial = self.references.next_serial();
+                            graph.add_keyframe(
+                                serial,
+                                &small,
+                                predicted,
+                                &[],
+                                &Matrix6::zeros(),
+                                &self.config.tracker,
+                            )?;
+                        }
+                        self.references.push(DenseReference::new(
+                            &small,
+                            predicted,
+                            &self.config.tracker.dense,
+                        ))
+                    }
                     Err(reason) => estimate.status = TrackingStatus::Skipped(reason),
                 },
                 Some(map) => {
-                    let references = self.references.select(&predicted);
+                    let selected = self.references.select_with_serials(&predicted);
+                    let references: Vec<&DenseReference> =
+                        selected.iter().map(|(_, r)| *r).collect();
                     let t = track(
                         &self.config.tracker,
                         &map,
@@ -283,18 +575,33 @@ impl TrackingSession {
                         self.exposure,
                         &references,
                     )?;
+                    let mut pose = t.pose;
                     if t.status == TrackingStatus::Ok {
                         self.velocity = self.pose.inverse() * t.pose;
                         self.exposure = t.exposure;
                         if t.reference_overlap < self.config.rereference_below {
+                            if let Some(graph) = &mut self.graph {
+                                let serial = self.references.next_serial();
+                                (pose, estimate.loop_closure) = graph.add_keyframe(
+                                    serial,
+                                    &small,
+                                    t.pose,
+                                    &selected,
+                                    &t.dense_information,
+                                    &self.config.tracker,
+                                )?;
+                                let optimised = graph.graph().poses();
+                                self.references
+                                    .update_poses(|s| optimised.get(s as usize).copied());
+                            }
                             self.references.push(DenseReference::new(
                                 &small,
-                                t.pose,
+                                pose,
                                 &self.config.tracker.dense,
                             ));
                         }
                     }
-                    estimate.pose = t.pose;
+                    estimate.pose = pose;
                     estimate.status = t.status;
                     estimate.residuals = t.residuals;
                     estimate.iterations = t.iterations;
@@ -402,6 +709,90 @@ mod tests {
         session.add_motion(1, MotionPrior::Relative(nan));
         assert!(session.process_ready().is_err());
     }
+    /// The keyframe pose graph on a full turn in place in the box room (64×64), with a
+    /// commanded turn 15 % short of the true one (a slipping wheel): coming back to the start,
+    /// the newest keyframe is aligned to the first one as well, the loop edge joins, the graph
+    /// is optimised, and the kept references take the corrected poses. Against the ray-cast
+    /// truth, the estimate with the graph is at least as good as without it, and the kept
+    /// references lie closer to the true centre (measured: 3.0 cm mean against 4.1 cm;
+    /// least squares spreads the loop's 6 cm disagreement over the chain rather than putting
+    /// it all on the one wrong association).
+    #[test]
+    fn the_pose_graph_closes_a_full_turn() {
+        use crate::dense::tests::{box_frame, camera_at};
+        use activemap_geometry::se3::pose_error;
+        let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
+        let step = 8f64.to_radians();
+        let frames = 50;
+        let truth: Vec<Isometry3<f64>> = (0..frames)
+            .map(|i| camera_at(0.2, -0.1, 0.3 + step * i as f64))
+            .collect();
+        let commanded = truth[0].inverse() * camera_at(0.2, -0.1, 0.3 + 0.85 * step);
+        let run = |graph: bool| {
+            let mut session = TrackingSession::new(TrackingConfig {
+                initial_pose: truth[0],
+                pose_graph: graph.then(KeyframeGraphConfig::default),
+                ..TrackingConfig::default()
+            })
+            .unwrap();
+            let mut worst: f64 = 0.0;
+            for (i, t) in truth.iter().enumerate() {
+                session.add_frame(i as u64, box_frame(k, t));
+                if i > 0 {
+                    session.add_motion(i as u64 - 1, MotionPrior::Relative(commanded));
+                    session.add_map(i as u64 - 1, Arc::new(Gaussians::new()));
+                }
+                let out = session.process_ready().unwrap();
+                assert_eq!(out.len(), 1);
+                assert_eq!(out[0].status, TrackingStatus::Ok, "frame {i}");
+                worst = worst.max(pose_error(&out[0].pose, t).0);
+            }
+            (session, worst)
+        };
+        let (plain, worst_plain) = run(false);
+        let (with_graph, worst_graph) = run(true);
+        assert!(plain.keyframe_graph().is_none());
+        let graph = with_graph.keyframe_graph().unwrap();
+        let stats = graph.stats();
+        assert!(
+            stats.loop_edges >= 1 && stats.optimisations >= 1,
+            "{stats:?}"
+        );
+        assert_eq!(
+            graph.graph().len(),
+            with_graph.references().next_serial() as usize
+        );
+        assert_eq!(
+            stats.odometry_edges,
+            graph.graph().len() - 1,
+            "one odometry edge per keyframe after the anchor"
+        );
+        // The kept references hold the graph's poses.
+        let poses = graph.graph().poses();
+        let kept = with_graph.references().poses();
+        assert!(kept.iter().all(|p| poses.contains(p)));
+        assert!(
+            worst_graph <= worst_plain + 1e-3,
+            "worst error {worst_graph} m with the graph, {worst_plain} m without"
+        );
+        // The camera turns in place: every reference's true centre is the start's. A wrong
+        // association halfway round (a corner of the symmetric room) shifts the chain by
+        // several centimetres; the loop closure brings the references in between back.
+        let centre_error = |session: &TrackingSession| {
+            let poses = session.references().poses();
+            poses
+                .iter()
+                .map(|p| (p.translation.vector - truth[0].translation.vector).norm())
+                .sum::<f64>()
+                / poses.len() as f64
+        };
+        let (before, after) = (centre_error(&plain), centre_error(&with_graph));
+        assert!(
+            after < 0.75 * before,
+            "mean reference error {after} m with the graph, {before} m without"
+        );
+    }
+
     /// Bad numbers (issue 18): the box room of the dense tracker's tests, 64×64.
     mod bad_numbers {
         use super::*;
