@@ -71,6 +71,9 @@ pub struct SlamArgs {
     /// LoCoBot-derived actuation noise, see `activemap_sim::noise`).
     #[arg(long, default_value = "none")]
     noise: String,
+    /// Overrides of the flow's node configs, e.g. `--set tracker.pose_graph=true`.
+    #[command(flatten)]
+    set: crate::Overrides,
 }
 
 /// Runs the SLAM benchmark on scripted loops.
@@ -91,9 +94,7 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
             ))
         })
         .collect::<anyhow::Result<Vec<(u32, usize)>>>()?;
-    let flow =
-        activemap_runtime::dataflow::Dataflow::load(&args.flow, &activemap_operators::catalog())
-            .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let flow = crate::load(&args.flow, &args.set.set)?;
     let (tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
         .with_context(|| format!("{}", args.flow.display()))?;
     let slam_for = |resolution: u32| {

@@ -291,13 +291,13 @@ struct TransportArgs {
 
 /// `--set` overrides of node configs, shared by the subcommands that read a dataflow file.
 #[derive(clap::Args)]
-struct Overrides {
+pub(crate) struct Overrides {
     /// Set a key of a node's `config:` (repeatable): NODE.KEY[.SUBKEY...]=VALUE, VALUE read as
     /// YAML (`--set sim.scene=house:3 --set sim.width=320`); missing keys are created. Only
     /// `config:` can be set, not inputs or other node keys. Checked like the file; the run
     /// folder's dataflow.yaml holds the effective values.
     #[arg(long = "set", value_name = "NODE.KEY=VALUE", value_parser = Override::parse)]
-    set: Vec<Override>,
+    pub(crate) set: Vec<Override>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -308,7 +308,7 @@ enum Format {
 
 /// Reads a dataflow file with `--set` overrides applied, validated against the operator catalog
 /// and across nodes (`activemap_operators::checks`).
-fn load(file: &Path, overrides: &[Override]) -> anyhow::Result<Dataflow> {
+pub(crate) fn load(file: &Path, overrides: &[Override]) -> anyhow::Result<Dataflow> {
     activemap_operators::checks::load_with(file, overrides).map_err(|d| anyhow::anyhow!("{d}"))
 }
 

@@ -167,9 +167,6 @@ pub struct TrackOutput {
     /// [`TrackerMethod::Dense`]: the fraction of the frame's valid-depth pixels associated
     /// with the reference keyframe (a falling overlap asks for a new reference); 1 otherwise.
     pub reference_overlap: f64,
-    /// [`TrackerMethod::Dense`]: the alignment's image information
-    /// ([`crate::dense::Aligned::information`]); zero otherwise.
-    pub dense_information: nalgebra::Matrix6<f64>,
 }
 
 /// Decides the status from residuals (see the module doc).
@@ -221,7 +218,6 @@ pub fn track(
         loss: f64::NAN,
         visible: vec![false; map.len()],
         reference_overlap: 0.0,
-        dense_information: nalgebra::Matrix6::zeros(),
     };
     if let Err(reason) = frame.usability() {
         return Ok(skipped(reason));
@@ -234,12 +230,10 @@ pub fn track(
     };
     let mut inlier_fraction = 1.0;
     let mut dense_status = None;
-    let mut dense_information = nalgebra::Matrix6::zeros();
     let (camera_from_world, exposure, iterations, converged) = match config.method {
         TrackerMethod::Dense if !references.is_empty() => {
             let a = align_many(&config.dense, references, frame, predicted_pose)?;
             inlier_fraction = a.inlier_fraction;
-            dense_information = a.information;
             dense_status = Some(
                 if a.inlier_fraction >= config.lost_min_coverage
                     && a.rms_distance <= config.dense.lost_max_rms
@@ -317,7 +311,6 @@ pub fn track(
         loss,
         visible: final_render.context.visible,
         reference_overlap: inlier_fraction,
-        dense_information,
     })
 }
 
