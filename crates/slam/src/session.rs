@@ -115,7 +115,8 @@ impl Default for KeyframeGraphConfig {
             edge_floor_sigmas: [0.5, 0.5],
             // Every loop edge, fully aligned, and a solve at each: the cheaper settings
             // (optimise above 5 mm / 0.25°, 3 iterations per level, an edge per old reference
-            // every 5 keyframes) brought the tracker's time back to that without a graph, but
+            // every 5 keyframes, and the odometry edge taken from the tracker's own alignment)
+            // brought the tracker's time back to about that without a graph, but
             // the furnished house's 2000-step FBE episode with the realistic preset (seed 1)
             // then ended at 11.7 cm ATE, against 3.2 cm with these defaults and 6–9 cm
             // without a graph. With noisy depth nearly every frame becomes a keyframe, so the
