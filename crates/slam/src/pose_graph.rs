@@ -193,8 +193,17 @@ impl PoseGraph {
 
     /// `(∂r/∂δ_i, ∂r/∂δ_j)` of `edge` at `poses` (see the module doc).
     pub fn jacobians_at(poses: &[Isometry3<f64>], edge: &Edge) -> (Matrix6<f64>, Matrix6<f64>) {
-        let r = Self::residual_at(poses, edge);
-        let to_j = se3::se3_right_jacobian_inv(&r) * se3::adjoint(&poses[edge.to].inverse());
+        Self::jacobians_with_residual(poses, edge, &Self::residual_at(poses, edge))
+    }
+
+    /// [`PoseGraph::jacobians_at`] given the edge's residual `r` at `poses` (computed once by
+    /// the caller that also needs it).
+    fn jacobians_with_residual(
+        poses: &[Isometry3<f64>],
+        edge: &Edge,
+        r: &Vector6<f64>,
+    ) -> (Matrix6<f64>, Matrix6<f64>) {
+        let to_j = se3::se3_right_jacobian_inv(r) * se3::adjoint(&poses[edge.to].inverse());
         (-to_j, to_j)
     }
 
@@ -282,7 +291,7 @@ impl PoseGraph {
             let chi2 = (r.transpose() * e.information * r)[0].max(0.0);
             let w = huber_weight(chi2, huber);
             let omega = e.information * w;
-            let (ji, jj) = Self::jacobians_at(&self.poses, e);
+            let (ji, jj) = Self::jacobians_with_residual(&self.poses, e, &r);
             let terms = [(e.from, ji), (e.to, jj)];
             for (a, ja) in &terms {
                 if *a == 0 {

@@ -255,6 +255,13 @@ impl KeyframeGraph {
         }
         let mut loops = 0;
         let mut worth_solving = false;
+        let dense = crate::dense::DenseConfig {
+            iterations_per_level: self
+                .config
+                .edge_iterations_per_level
+                .unwrap_or(tracking.dense.iterations_per_level),
+            ..tracking.dense.clone()
+        };
         for (k, (from, reference)) in aligned_to.iter().enumerate() {
             if k > 0
                 && self
@@ -264,13 +271,6 @@ impl KeyframeGraph {
             {
                 continue;
             }
-            let dense = crate::dense::DenseConfig {
-                iterations_per_level: self
-                    .config
-                    .edge_iterations_per_level
-                    .unwrap_or(tracking.dense.iterations_per_level),
-                ..tracking.dense.clone()
-            };
             let a = align(&dense, reference, frame, &pose)?;
             let usable = a.inlier_fraction >= tracking.lost_min_coverage
                 && a.rms_distance <= tracking.dense.lost_max_rms;
@@ -591,9 +591,12 @@ impl TrackingSession {
                                     &selected,
                                     &self.config.tracker,
                                 )?;
-                                let optimised = graph.graph().poses();
-                                self.references
-                                    .update_poses(|s| optimised.get(s as usize).copied());
+                                // Only a solve moves the kept references.
+                                if estimate.loop_closure.is_some() {
+                                    let optimised = graph.graph().poses();
+                                    self.references
+                                        .update_poses(|s| optimised.get(s as usize).copied());
+                                }
                             }
                             self.references.push(DenseReference::new(
                                 &small,
