@@ -12,7 +12,10 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
 };
 use activemap_schemas::{MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus};
-use activemap_slam::{BackgroundMapper, MappingConfig, PoseQuality, SlamConfig, Snapshot};
+use activemap_slam::{
+    BackgroundMapper, GraphLink, KeyframeCorrection, MappingConfig, PoseQuality, SlamConfig,
+    Snapshot,
+};
 
 use crate::Registered;
 use crate::convert::{map_header, pose_from_wire, slam_frame, write_map};
@@ -133,24 +136,51 @@ impl Mapper {
         self.session.add_frame(frame_id, frame);
     }
 
-    /// Stores the tracker's estimate of a frame.
+    /// Stores the tracker's estimate of a frame, with the pose-graph corrections it brought.
     pub fn add_pose(&mut self, estimate: PoseEstimate) -> anyhow::Result<()> {
         let pose = pose_from_wire(&estimate.t_world_camera)?;
+        let corrections = estimate
+            .keyframe_corrections
+            .iter()
+            .map(|c| {
+                Ok(KeyframeCorrection {
+                    frame_id: c.frame_id,
+                    correction: pose_from_wire(&c.correction).map_err(|e| {
+                        anyhow::anyhow!(
+                            "frame {}: the correction of keyframe {}: {e}",
+                            estimate.frame_id,
+                            c.frame_id
+                        )
+                    })?,
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
         let quality = match estimate.status {
             TrackingStatus::Ok => PoseQuality::Ok,
             TrackingStatus::Lost => PoseQuality::Lost,
             TrackingStatus::Skipped => PoseQuality::Skipped,
         };
+        let link = GraphLink {
+            anchor: estimate.graph_anchor,
+            corrections,
+        };
         self.session
-            .add_pose(estimate.frame_id, estimate.stamp, pose, quality);
+            .add_pose(estimate.frame_id, estimate.stamp, pose, quality, link);
         Ok(())
     }
 
     /// The snapshots finished so far (see [`BackgroundMapper::process_ready`]); logs each
-    /// keyframe, and the Gaussians it dropped for non-finite parameters.
+    /// keyframe, the Gaussians it dropped for non-finite parameters, and the Gaussians the
+    /// pose graph's corrections moved.
     pub fn process_ready(&mut self, drain: bool) -> anyhow::Result<Vec<Snapshot>> {
         let snapshots = self.session.process_ready(drain)?;
         for s in &snapshots {
+            if s.corrected > 0 {
+                eprintln!(
+                    "mapper: frame {}: pose-graph corrections moved {} Gaussians with their keyframes",
+                    s.frame_id, s.corrected
+                );
+            }
             if let Some(k) = &s.keyframe {
                 let r = k.report;
                 eprintln!(
@@ -176,9 +206,10 @@ impl Mapper {
     }
 
     /// The wire header of snapshot `s`, the snapshots being handed to it in order: its
-    /// `keyframe_id` is the newest keyframe among them so far.
+    /// `keyframe_id` is the newest snapshot among them so far at which the map changed (a
+    /// keyframe, or the pose graph's corrections).
     pub fn wire_header(&mut self, s: &Snapshot) -> activemap_schemas::GaussianMapHeader {
-        if s.keyframe.is_some() {
+        if s.keyframe.is_some() || s.corrected > 0 {
             self.last_keyframe = Some(s.frame_id);
         }
         map_header(&s.map, s.frame_id, s.stamp, self.last_keyframe)
@@ -282,6 +313,8 @@ pub(crate) mod tests {
                     residual_rgb: 0.0,
                     residual_depth: 0.0,
                     iterations: 0,
+                    graph_anchor: None,
+                    keyframe_corrections: Vec::new(),
                 };
                 (frame, estimate)
             })
@@ -293,10 +326,25 @@ pub(crate) mod tests {
     /// snapshot equals the map a synchronous mapper has after the same frames (the lag changes
     /// when a map is used, never what it holds), with the same stable ids (increasing, parallel
     /// to the map). On the wire each snapshot names the newest keyframe it includes: the frames
-    /// the synchronous mapper made keyframes.
+    /// the synchronous mapper made keyframes. Pose-graph corrections that come with frame 4's
+    /// estimate (moving the graph keyframe of frame 0, so every mapper keyframe) are applied
+    /// before frame 4 is mapped, exactly as the synchronous mapper applies them, and snapshot 4
+    /// says the map changed.
     #[test]
     fn background_snapshots_are_in_order_on_time_and_equal_the_synchronous_map() {
-        let frames = sequence(6);
+        let mut frames = sequence(6);
+        let correction = activemap_geometry::Isometry3::from_parts(
+            nalgebra::Translation3::new(0.02, 0.0, -0.01),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 1f64.to_radians(), 0.0),
+        );
+        // Every frame hangs on the graph keyframe of frame 0.
+        for (_, e) in &mut frames {
+            e.graph_anchor = Some(0);
+        }
+        frames[4].1.keyframe_corrections = vec![activemap_schemas::KeyframeCorrection {
+            frame_id: 0,
+            correction: pose_to_wire(&correction),
+        }];
         let config = Config {
             iterations: Some(5),
             window: None,
@@ -313,8 +361,16 @@ pub(crate) mod tests {
         let mut newest = None;
         for (k, (f, e)) in frames.iter().enumerate() {
             let pose = pose_from_wire(&e.t_world_camera).unwrap();
+            if !e.keyframe_corrections.is_empty() {
+                let corrections = [KeyframeCorrection {
+                    frame_id: 0,
+                    correction,
+                }];
+                assert!(core.apply_corrections(&corrections).unwrap() > 0);
+                newest = Some(k as u64);
+            }
             if core
-                .process(f.clone(), &pose, PoseQuality::Ok)
+                .process(Some(0), f.clone(), &pose, PoseQuality::Ok)
                 .unwrap()
                 .is_some()
             {
@@ -339,7 +395,7 @@ pub(crate) mod tests {
                     "frame {k}: snapshot {need} not out yet"
                 );
             }
-            mapper.add_pose(*e).unwrap();
+            mapper.add_pose(e.clone()).unwrap();
             got.extend(mapper.process_ready(false).unwrap());
         }
         got.extend(mapper.process_ready(true).unwrap());
@@ -347,6 +403,12 @@ pub(crate) mod tests {
         assert_eq!(frame_ids, (0..6).collect::<Vec<u64>>());
         for (k, (s, want)) in got.iter().zip(&expected).enumerate() {
             assert_eq!(s.map.len(), want.len(), "snapshot {}", s.frame_id);
+            assert_eq!(
+                s.corrected > 0,
+                k == 4,
+                "snapshot {k}: {} moved",
+                s.corrected
+            );
             assert_eq!(*s.ids, expected_ids[k], "ids of snapshot {k}");
             assert!(s.ids.windows(2).all(|w| w[0] < w[1]), "ids increase");
             let header = mapper.wire_header(s);

@@ -63,7 +63,9 @@ pub struct Config {
     pub map_lag: u64,
     /// The keyframe pose graph over the dense tracker's references
     /// (`activemap_slam::KeyframeGraph`): loop closures correct every reference between the
-    /// loop's ends, not only the current pose.
+    /// loop's ends, not only the current pose, and the estimate of the closing frame carries
+    /// each keyframe's correction (`keyframe_corrections`) so that the mapper moves its
+    /// keyframes and their Gaussians with them.
     #[serde(default)]
     pub pose_graph: bool,
 }
@@ -163,7 +165,11 @@ impl Tracker {
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<PoseEstimate>> {
         let tracked = self.session.process_ready()?;
         for t in &tracked {
-            if let Some(c) = t.loop_closure.filter(|c| c.largest_shift_m >= 0.01) {
+            if let Some(c) = t
+                .loop_closure
+                .as_ref()
+                .filter(|c| c.largest_shift_m >= 0.01)
+            {
                 eprintln!(
                     "tracker: frame {}: loop closure ({} loop edge(s)); pose graph of {} keyframes \
                      re-optimised, keyframes moved up to {:.1} cm",
@@ -192,6 +198,16 @@ pub fn estimate(t: &TrackedFrame) -> PoseEstimate {
         residual_rgb: t.residuals.photometric,
         residual_depth: t.residuals.depth_median,
         iterations: t.iterations as u32,
+        graph_anchor: t.graph_anchor,
+        keyframe_corrections: t
+            .loop_closure
+            .iter()
+            .flat_map(|c| &c.corrections)
+            .map(|c| activemap_schemas::KeyframeCorrection {
+                frame_id: c.frame_id,
+                correction: pose_to_wire(&c.correction),
+            })
+            .collect(),
     }
 }
 

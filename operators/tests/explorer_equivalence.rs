@@ -93,6 +93,8 @@ impl Pipeline {
             residual_rgb: 0.0,
             residual_depth: 0.0,
             iterations: 0,
+            graph_anchor: None,
+            keyframe_corrections: Vec::new(),
         });
         let camera = pose_from_wire(&estimate.t_world_camera).unwrap();
         let pose = planar_from_camera_pose(&camera);

@@ -101,8 +101,19 @@ pub enum TrackingStatus {
     Skipped,
 }
 
-/// The tracker's pose estimate for one frame (SPEC §4).
+/// How the tracker's keyframe pose graph moved the keyframe made from frame `frame_id` when it
+/// was re-optimised: the world-frame rigid motion `T_after · T_before⁻¹`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct KeyframeCorrection {
+    /// The frame the graph keyframe was made from.
+    pub frame_id: u64,
+    /// `T_after · T_before⁻¹` (world frame).
+    pub correction: Pose,
+}
+
+/// The tracker's pose estimate for one frame (SPEC §4). Version 2 added `graph_anchor` and
+/// `keyframe_corrections`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseEstimate {
     /// Frame the estimate belongs to.
     pub frame_id: u64,
@@ -118,8 +129,16 @@ pub struct PoseEstimate {
     pub residual_depth: f64,
     /// Optimiser iterations used.
     pub iterations: u32,
+    /// With the tracker's pose graph: the frame of the graph keyframe this estimate hangs on
+    /// (the newest one when the frame was tracked). `None` without the graph.
+    pub graph_anchor: Option<u64>,
+    /// When this frame closed a loop and the pose graph was re-optimised: the graph keyframes
+    /// that moved (beyond a small threshold) since their last correction, in frame order; the
+    /// mapper moves its keyframes hung on them, and their Gaussians, before mapping this frame.
+    /// Empty otherwise, and always without the graph.
+    pub keyframe_corrections: Vec<KeyframeCorrection>,
 }
-small_message!(PoseEstimate, 1);
+small_message!(PoseEstimate, 2);
 
 /// Ground-truth camera pose from the simulator. Evaluation-only: no operator of the loop may read it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

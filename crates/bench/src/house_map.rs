@@ -195,7 +195,7 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         let decision = explorer.step(&rgbd.depth, &k, &pose)?;
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, step as f64 * 0.1)?;
         let t = Instant::now();
-        let report = mapper.process(frame, &pose, PoseQuality::Ok)?;
+        let report = mapper.process(None, frame, &pose, PoseQuality::Ok)?;
         mapping_seconds += t.elapsed().as_secs_f64();
         if report.is_some() {
             let (means, opacities) = map_points(mapper.map());

@@ -116,7 +116,7 @@ fn run(config: &QualityConfig) -> QualityResult {
         let t = Instant::now();
         let cpu_start = process_cpu_seconds();
         let Some(report) = mapper
-            .process(frame, &pose, PoseQuality::Ok)
+            .process(None, frame, &pose, PoseQuality::Ok)
             .expect("mapping")
         else {
             continue;

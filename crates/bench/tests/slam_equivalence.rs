@@ -3,7 +3,8 @@
 //! configs (the repository's `dataflow.yaml`, map lag included), give bit-identical poses and
 //! maps. The operators are driven through their transport-free cores with every message
 //! converted as on the wire (poses as `PoseEstimate`, maps through the shared-memory layout),
-//! in the pipeline's lockstep order.
+//! in the pipeline's lockstep order. Once as the flow is, once with the tracker's pose graph on,
+//! whose corrections then travel in the estimates and move the mapper's Gaussians.
 
 mod common;
 
@@ -25,12 +26,30 @@ fn through_the_wire(map: &Gaussians<f32>, ids: &[u64], frame_id: u64) -> Gaussia
 
 #[test]
 fn the_scripted_loop_and_the_operators_give_bit_identical_poses_and_maps() {
-    let (tracker_config, mapper_config) = common::flow_slam_nodes();
+    let corrections = equivalence(false);
+    assert_eq!(corrections, 0, "no pose graph, no correction");
+}
+
+#[test]
+fn with_the_pose_graph_too() {
+    let corrections = equivalence(true);
+    assert!(
+        corrections > 0,
+        "the loop must close: no correction travelled"
+    );
+}
+
+/// Runs both and compares them; returns the number of keyframe corrections that travelled in
+/// the estimates.
+fn equivalence(pose_graph: bool) -> usize {
+    let (mut tracker_config, mapper_config) = common::flow_slam_nodes();
     assert!(
         tracker_config.map_lag > 0,
         "the flow maps in the background"
     );
-    let mut config = LoopConfig::new(64, 90, common::flow_slam_config());
+    tracker_config.pose_graph = pose_graph;
+    let slam = activemap_operators::mapper::slam_config(&tracker_config, &mapper_config).unwrap();
+    let mut config = LoopConfig::new(64, 90, slam);
     config.keep_trace = true;
     let (result, trace) = run_loop_traced(&config).unwrap();
     assert!(result.keyframes >= 4, "{result:?}");
@@ -54,8 +73,8 @@ fn the_scripted_loop_and_the_operators_give_bit_identical_poses_and_maps() {
             let out = tracker.process_ready().unwrap();
             if let Some(e) = out.last() {
                 assert_eq!(out.len(), 1);
-                mapper.add_pose(*e).unwrap();
-                estimates.push(*e);
+                mapper.add_pose(e.clone()).unwrap();
+                estimates.push(e.clone());
                 break;
             }
         }
@@ -87,4 +106,5 @@ fn the_scripted_loop_and_the_operators_give_bit_identical_poses_and_maps() {
     };
     assert_eq!(last_map.len(), trace.map.len());
     assert!(bits(&last_map) == bits(&trace.map), "the final maps differ");
+    estimates.iter().map(|e| e.keyframe_corrections.len()).sum()
 }

@@ -58,12 +58,13 @@ pub use keyframe::{KeyframeConfig, KeyframeDecision};
 pub use lockstep::{LockstepSlam, SlamConfig};
 pub use mapper::{Mapper, MapperConfig, MappingReport};
 pub use mapping::{
-    BackgroundMapper, KeyframeEvent, KeyframeMapper, MappingConfig, PoseQuality, Snapshot,
+    BackgroundMapper, GraphLink, KeyframeEvent, KeyframeMapper, MappingConfig, PoseQuality,
+    Snapshot, keyframe_moves,
 };
 pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
 pub use session::{
-    GraphStats, KeyframeGraph, KeyframeGraphConfig, LoopClosure, MotionPrior, TrackedFrame,
-    TrackingConfig, TrackingSession, required_snapshot,
+    GraphStats, KeyframeCorrection, KeyframeGraph, KeyframeGraphConfig, LoopClosure, MotionPrior,
+    TrackedFrame, TrackingConfig, TrackingSession, required_snapshot,
 };
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

@@ -27,6 +27,7 @@ use activemap_splat::Gaussians;
 
 use crate::error::SlamError;
 use crate::frame::Frame;
+use crate::mapping::GraphLink;
 use crate::mapping::{BackgroundMapper, KeyframeEvent, KeyframeMapper, MappingConfig};
 use crate::session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession};
 
@@ -121,6 +122,7 @@ impl LockstepSlam {
                     estimate.stamp,
                     estimate.pose,
                     estimate.status.into(),
+                    GraphLink::of(&estimate),
                 );
                 self.next += 1;
                 return Ok(estimate);

@@ -24,7 +24,11 @@
 //! (max scale ≤ `densify_split_scale`) and split in two (scales / 1.6, means sampled from the
 //! Gaussian) when large.
 //! Keyframe poses are the tracker's (they are not refined here); a non-finite pose is an input
-//! error. Gaussians with a NaN or infinite parameter are dropped before and after every
+//! error. When the tracker's pose graph corrects its keyframes, [`Mapper::move_keyframes`]
+//! moves each mapper keyframe rigidly, with every Gaussian anchored to it: a Gaussian's anchor
+//! is the keyframe whose insertion made it (clones and splits inherit their parent's), the
+//! same rule as submap-based loop closure, which moves each submap's Gaussians with its
+//! keyframe. Gaussians with a NaN or infinite parameter are dropped before and after every
 //! optimisation and counted ([`MappingReport::dropped_non_finite`]), so a snapshot of the map
 //! never carries them.
 
@@ -257,6 +261,8 @@ pub struct Mapper {
     config: MapperConfig,
     map: Gaussians<f32>,
     ids: Vec<u64>,
+    /// Per Gaussian (parallel to `map`): the index of the keyframe it is anchored to.
+    anchors: Vec<u32>,
     next_id: u64,
     adam: GaussianAdam,
     keyframes: Vec<Keyframe>,
@@ -273,6 +279,7 @@ impl Mapper {
             config,
             map: Gaussians::new(),
             ids: Vec::new(),
+            anchors: Vec::new(),
             next_id: 0,
             adam,
             keyframes: Vec::new(),
@@ -295,13 +302,69 @@ impl Mapper {
         &self.ids
     }
 
+    /// Per Gaussian (parallel to the map): the index into [`Mapper::keyframes`] of the keyframe
+    /// it is anchored to, the one whose insertion made it or its parent (an index equal to the
+    /// number of keyframes: inserted by [`Mapper::insert_from`] outside a keyframe).
+    pub fn anchors(&self) -> &[u32] {
+        &self.anchors
+    }
+
     /// The keyframes so far.
     pub fn keyframes(&self) -> &[Keyframe] {
         &self.keyframes
     }
 
-    /// Appends Gaussians keeping ids and optimiser state in step.
-    fn append(&mut self, added: &Gaussians<f32>) {
+    /// Moves keyframe `j` by the world-frame rigid motion `moves[j]` (its pose becomes
+    /// `moves[j] · pose`), and every Gaussian anchored to it with it (mean `R·μ + t`, rotation
+    /// `R·q`; scales, colours and opacities are unchanged, so a render from the moved pose
+    /// equals the render from the old one). One move per keyframe; an identity leaves a
+    /// keyframe alone. Fails, changing nothing, on a wrong count or a non-finite move. The
+    /// optimiser's moments stay as they are. Returns the number of Gaussians moved.
+    pub fn move_keyframes(&mut self, moves: &[Isometry3<f64>]) -> Result<usize, SlamError> {
+        if moves.len() != self.keyframes.len() {
+            return Err(SlamError::Input {
+                what: "keyframe moves",
+                reason: format!(
+                    "{} moves for {} keyframes",
+                    moves.len(),
+                    self.keyframes.len()
+                ),
+            });
+        }
+        if let Some(j) = moves.iter().position(|m| !crate::session::finite_pose(m)) {
+            return Err(SlamError::Input {
+                what: "keyframe moves",
+                reason: format!("the move of keyframe {j} is not finite"),
+            });
+        }
+        let moved: Vec<bool> = moves.iter().map(|m| *m != Isometry3::identity()).collect();
+        for (keyframe, m) in self.keyframes.iter_mut().zip(moves) {
+            keyframe.pose = activemap_geometry::se3::normalized(&(m * keyframe.pose));
+        }
+        let mut count = 0;
+        for (i, &anchor) in self.anchors.iter().enumerate() {
+            let a = anchor as usize;
+            if !moved.get(a).copied().unwrap_or(false) {
+                continue;
+            }
+            let m = &moves[a];
+            let mean = self.map.means[i].map(|v| v as f64);
+            let p = m * nalgebra::Point3::new(mean[0], mean[1], mean[2]);
+            self.map.means[i] = [p.x as f32, p.y as f32, p.z as f32];
+            let q = self.map.rotations[i].map(|v| v as f64);
+            let rotated =
+                m.rotation.quaternion() * nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]);
+            self.map.rotations[i] = [rotated.w, rotated.i, rotated.j, rotated.k].map(|v| v as f32);
+            count += 1;
+        }
+        Ok(count)
+    }
+
+    /// Appends Gaussians anchored to keyframe `anchors[i]`, keeping ids, anchors and optimiser
+    /// state in step.
+    fn append(&mut self, added: &Gaussians<f32>, anchors: &[u32]) {
+        debug_assert_eq!(added.len(), anchors.len());
+        self.anchors.extend_from_slice(anchors);
         self.map.extend_from(added);
         self.adam.grow(added.len());
         self.ids
@@ -316,6 +379,8 @@ impl Mapper {
         self.adam.retain(keep);
         let mut k = keep.iter();
         self.ids.retain(|_| *k.next().unwrap_or(&false));
+        let mut k = keep.iter();
+        self.anchors.retain(|_| *k.next().unwrap_or(&false));
         Ok(before - self.map.len())
     }
 
@@ -355,7 +420,8 @@ impl Mapper {
                 [g.scale; 3],
             );
         }
-        self.append(&added);
+        let anchor = self.keyframes.len() as u32;
+        self.append(&added, &vec![anchor; added.len()]);
         Ok(new.len())
     }
 
@@ -578,6 +644,7 @@ impl Mapper {
             .collect();
         let pruned = keep.iter().filter(|k| !**k).count();
         let mut added = Gaussians::<f32>::new();
+        let mut added_anchors = Vec::new();
         for i in 0..n {
             if n + added.len() >= cfg.max_gaussians {
                 break;
@@ -591,6 +658,7 @@ impl Mapper {
             }
             if max_scale(&self.map, i) <= cfg.densify_split_scale {
                 copy_gaussian(&self.map, i, &mut added);
+                added_anchors.push(self.anchors[i]);
             } else {
                 // Split: two samples from the Gaussian, scales / 1.6; the original goes.
                 keep[i] = false;
@@ -606,6 +674,7 @@ impl Mapper {
                     let z: [f64; 3] = [0; 3].map(|_| StandardNormal.sample(&mut self.rng));
                     let offset = rotation * Vector3::new(z[0] * s[0], z[1] * s[1], z[2] * s[2]);
                     copy_gaussian(&self.map, i, &mut added);
+                    added_anchors.push(self.anchors[i]);
                     let last = added.len() - 1;
                     for k in 0..3 {
                         added.means[last][k] += offset[k] as f32;
@@ -616,7 +685,7 @@ impl Mapper {
         }
         let densified = added.len();
         self.retain(&keep)?;
-        self.append(&added);
+        self.append(&added, &added_anchors);
         Ok((pruned, densified))
     }
 }
@@ -826,6 +895,117 @@ mod tests {
         map.log_scales[2][0] = f32::NAN;
         assert_eq!(drop_non_finite(&mut map).unwrap(), 1);
         assert_eq!(map.len(), mapper.map().len() - 1);
+    }
+
+    /// The Gaussians of `map` anchored to keyframe `anchor`.
+    fn anchored_to(mapper: &Mapper, anchor: u32) -> Gaussians<f32> {
+        let mut out = Gaussians::new();
+        for (i, a) in mapper.anchors().iter().enumerate() {
+            if *a == anchor {
+                copy_gaussian(mapper.map(), i, &mut out);
+            }
+        }
+        out
+    }
+
+    /// Moving a keyframe (the pose graph's correction) moves exactly the Gaussians anchored to
+    /// it, rigidly: rendered from the moved pose, they give the image they gave from the old
+    /// one (checked with random rotations and anisotropic scales, so that a wrong rotation
+    /// convention would show), while the other keyframe's Gaussians do not move at all. A
+    /// wrong count or a non-finite move is refused and changes nothing.
+    #[test]
+    fn moving_a_keyframe_moves_its_gaussians_rigidly() {
+        let mut mapper = Mapper::new(dense_config()).unwrap();
+        let wall = plane_frame(|_, _| 2.0);
+        let first = Isometry3::identity();
+        let second = Isometry3::translation(2.5, 0.0, 0.0);
+        mapper
+            .add_keyframe(wall.clone(), first, [0.0, 0.0])
+            .unwrap();
+        mapper
+            .add_keyframe(wall.clone(), second, [0.0, 0.0])
+            .unwrap();
+        assert_eq!(mapper.anchors().len(), mapper.map().len());
+        let counts = [0u32, 1].map(|a| mapper.anchors().iter().filter(|x| **x == a).count());
+        assert!(counts[0] > 100 && counts[1] > 100, "{counts:?}");
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for i in 0..mapper.map.len() {
+            mapper.map.rotations[i] = [0; 4].map(|_| rng.random_range(-1.0f32..1.0));
+            mapper.map.log_scales[i] = [0; 3].map(|_| rng.random_range(-4.5f32..-3.0));
+            // Off the plane, so that no two share a depth and rounding in the moved depths
+            // cannot swap their blending order.
+            mapper.map.means[i][2] += rng.random_range(-0.1f32..0.1);
+        }
+        let before = mapper.clone();
+        let refused = [
+            mapper.move_keyframes(&[Isometry3::identity()]),
+            mapper.move_keyframes(&[
+                Isometry3::identity(),
+                Isometry3::translation(f64::NAN, 0.0, 0.0),
+            ]),
+        ];
+        assert!(refused.iter().all(|r| r.is_err()));
+        assert_eq!(mapper.map().means, before.map().means);
+
+        let correction = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.07, -0.02, 0.05),
+            UnitQuaternion::from_euler_angles(0.03, -0.12, 0.05),
+        );
+        let moved = mapper
+            .move_keyframes(&[Isometry3::identity(), correction])
+            .unwrap();
+        assert_eq!(moved, counts[1]);
+        assert_eq!(mapper.keyframes()[0].pose, first);
+        let (dt, da) = activemap_geometry::se3::pose_error(
+            &mapper.keyframes()[1].pose,
+            &(correction * second),
+        );
+        assert!(dt < 1e-12 && da < 1e-12);
+        let unmoved = anchored_to(&mapper, 0);
+        assert_eq!(unmoved.means, anchored_to(&before, 0).means);
+        assert_eq!(unmoved.rotations, anchored_to(&before, 0).rotations);
+
+        let options = RenderOptions::default();
+        let k = wall.intrinsics;
+        let old = render(
+            &anchored_to(&before, 1),
+            &Camera::from_world_pose(k, &second),
+            &options,
+        )
+        .unwrap();
+        let new = render(
+            &anchored_to(&mapper, 1),
+            &Camera::from_world_pose(k, &(correction * second)),
+            &options,
+        )
+        .unwrap();
+        let covered = old.opacity.iter().filter(|o| **o > 0.5).count();
+        assert!(covered > 200, "{covered} pixels covered");
+        for p in 0..old.opacity.len() {
+            assert!((old.opacity[p] - new.opacity[p]).abs() < 1e-3, "pixel {p}");
+            assert!((old.depth[p] - new.depth[p]).abs() < 1e-3, "pixel {p}");
+            for c in 0..3 {
+                assert!(
+                    (old.colour[p][c] - new.colour[p][c]).abs() < 1e-3,
+                    "pixel {p}: {:?} {:?} opacity {} {}",
+                    old.colour[p],
+                    new.colour[p],
+                    old.opacity[p],
+                    new.opacity[p]
+                );
+            }
+        }
+        // The same rendering without moving the Gaussians differs: the check can fail.
+        let stale = render(
+            &anchored_to(&before, 1),
+            &Camera::from_world_pose(k, &(correction * second)),
+            &options,
+        )
+        .unwrap();
+        let differing = (0..old.depth.len())
+            .filter(|&p| (old.depth[p] - stale.depth[p]).abs() > 1e-2)
+            .count();
+        assert!(differing > 100, "{differing}");
     }
 
     /// A non-finite keyframe pose or exposure is an input error naming it, and the map is left

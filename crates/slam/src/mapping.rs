@@ -15,6 +15,12 @@
 //! Lost frames are not mapped (a frame the map cannot explain must not corrupt it), except
 //! that after `remap_after_lost` consecutive lost frames the frame is mapped at the tracker's
 //! pose, so the system cannot stay lost forever where the map has a hole.
+//!
+//! With the tracker's pose graph, each frame's estimate names the graph keyframe it hangs on
+//! and may bring corrections ([`GraphLink`]); the worker applies them before mapping that
+//! frame: each mapper keyframe moves with the graph keyframe its frame hung on
+//! ([`keyframe_moves`]), and its Gaussians with it ([`Mapper::move_keyframes`]). Being part of
+//! the frame's job, the corrections keep the snapshots deterministic.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -29,7 +35,7 @@ use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::keyframe::{KeyframeConfig, decide};
 use crate::mapper::{Mapper, MapperConfig, MappingReport};
-use crate::session::required_snapshot;
+use crate::session::{KeyframeCorrection, required_snapshot};
 use crate::tracker::{TrackerConfig, TrackingStatus};
 
 /// Settings of the mapping session.
@@ -128,6 +134,8 @@ pub struct KeyframeMapper {
     last: Option<LastKeyframe>,
     frames_since: usize,
     consecutive_lost: usize,
+    /// Per mapper keyframe: the graph keyframe its frame hung on ([`GraphLink::anchor`]).
+    keyframe_anchors: Vec<Option<u64>>,
     keyframes: usize,
 }
 
@@ -141,8 +149,33 @@ impl KeyframeMapper {
             last: None,
             frames_since: 0,
             consecutive_lost: 0,
+            keyframe_anchors: Vec::new(),
             keyframes: 0,
         })
+    }
+
+    /// Per keyframe, in order: the graph keyframe its frame hung on (`None` without a graph).
+    pub fn keyframe_anchors(&self) -> &[Option<u64>] {
+        &self.keyframe_anchors
+    }
+
+    /// Applies the tracker's pose-graph corrections (see the module doc): every keyframe, the
+    /// keyframe rule's last pose and the anchored Gaussians move. Returns the number of
+    /// Gaussians moved; fails, changing nothing, on corrections out of frame order or not
+    /// finite.
+    pub fn apply_corrections(
+        &mut self,
+        corrections: &[KeyframeCorrection],
+    ) -> Result<usize, SlamError> {
+        if corrections.is_empty() {
+            return Ok(0);
+        }
+        let moves = keyframe_moves(&self.keyframe_anchors, corrections)?;
+        let moved = self.mapper.move_keyframes(&moves)?;
+        if let (Some(last), Some(m)) = (&mut self.last, moves.last()) {
+            last.pose = activemap_geometry::se3::normalized(&(m * last.pose));
+        }
+        Ok(moved)
     }
 
     /// The settings.
@@ -187,9 +220,11 @@ impl KeyframeMapper {
     }
 
     /// Maps one frame at its estimate when it is a keyframe (see the module doc); returns what
-    /// the mapping did, `None` when the map is unchanged.
+    /// the mapping did, `None` when the map is unchanged. `graph_anchor`: the graph keyframe
+    /// the frame's estimate hangs on ([`GraphLink::anchor`]; `None` without a pose graph).
     pub fn process(
         &mut self,
+        graph_anchor: Option<u64>,
         frame: Frame,
         pose: &Isometry3<f64>,
         quality: PoseQuality,
@@ -237,8 +272,70 @@ impl KeyframeMapper {
         });
         self.frames_since = 0;
         self.keyframes += 1;
+        self.keyframe_anchors.push(graph_anchor);
         Ok(Some(report))
     }
+}
+
+/// What the tracker's pose graph tells the mapper with a frame's estimate.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GraphLink {
+    /// The graph keyframe (by frame) the estimate hangs on: the newest one when the frame was
+    /// tracked ([`crate::TrackedFrame::graph_anchor`]). `None` without a pose graph.
+    pub anchor: Option<u64>,
+    /// The graph keyframes moved since the mapper last heard of them, in frame order
+    /// ([`crate::LoopClosure::corrections`]); applied before the frame is mapped.
+    pub corrections: Vec<KeyframeCorrection>,
+}
+
+impl GraphLink {
+    /// The link of a tracked frame.
+    pub fn of(tracked: &crate::TrackedFrame) -> Self {
+        Self {
+            anchor: tracked.graph_anchor,
+            corrections: tracked
+                .loop_closure
+                .as_ref()
+                .map(|c| c.corrections.clone())
+                .unwrap_or_default(),
+        }
+    }
+}
+
+/// The world-frame move of each mapper keyframe under the pose-graph `corrections`
+/// (increasing frame ids): the correction of the graph keyframe its frame hung on
+/// (`keyframe_anchors`, in keyframe order), the identity when that one did not move or there
+/// is none. Fails on corrections out of order or not finite, naming the frame.
+pub fn keyframe_moves(
+    keyframe_anchors: &[Option<u64>],
+    corrections: &[KeyframeCorrection],
+) -> Result<Vec<Isometry3<f64>>, SlamError> {
+    for (k, c) in corrections.iter().enumerate() {
+        if k > 0 && c.frame_id <= corrections[k - 1].frame_id {
+            return Err(SlamError::Input {
+                what: "keyframe corrections",
+                reason: format!(
+                    "frame {} follows frame {}: not in increasing frame order",
+                    c.frame_id,
+                    corrections[k - 1].frame_id
+                ),
+            });
+        }
+        if !crate::session::finite_pose(&c.correction) {
+            return Err(SlamError::Input {
+                what: "keyframe corrections",
+                reason: format!("the correction of frame {} is not finite", c.frame_id),
+            });
+        }
+    }
+    Ok(keyframe_anchors
+        .iter()
+        .map(|anchor| {
+            anchor
+                .and_then(|a| corrections.binary_search_by_key(&a, |c| c.frame_id).ok())
+                .map_or(Isometry3::identity(), |i| corrections[i].correction)
+        })
+        .collect())
 }
 
 /// What mapping one frame did, when it was a keyframe.
@@ -266,10 +363,15 @@ pub struct Snapshot {
     pub ids: Arc<Vec<u64>>,
     /// Set when frame `frame_id` became a keyframe.
     pub keyframe: Option<KeyframeEvent>,
+    /// Gaussians moved by the pose-graph corrections that came with frame `frame_id` (0: the
+    /// corrections, if any, moved nothing). Like a keyframe, a non-zero count means the map
+    /// changed at this snapshot.
+    pub corrected: usize,
 }
 
 struct Job {
     frame_id: u64,
+    link: GraphLink,
     stamp: f64,
     frame: Frame,
     pose: Isometry3<f64>,
@@ -294,8 +396,16 @@ impl Worker {
                 let mut current_ids = Arc::new(core.mapper().ids().to_vec());
                 while let Ok(job) = job_rx.recv() {
                     let started = Instant::now();
+                    let mut corrected = 0;
                     let result = core
-                        .process(job.frame, &job.pose, job.quality)
+                        .apply_corrections(&job.link.corrections)
+                        .and_then(|moved| {
+                            if moved > 0 {
+                                current = Arc::new(core.map().clone());
+                                corrected = moved;
+                            }
+                            core.process(job.link.anchor, job.frame, &job.pose, job.quality)
+                        })
                         .map(|report| {
                             let keyframe = report.map(|report| {
                                 current = Arc::new(core.map().clone());
@@ -312,6 +422,7 @@ impl Worker {
                                 map: current.clone(),
                                 ids: current_ids.clone(),
                                 keyframe,
+                                corrected,
                             }
                         });
                     let failed = result.is_err();
@@ -382,13 +493,21 @@ impl Drop for Worker {
     }
 }
 
+/// A frame's estimate as the mapping session stores it until the frame is submitted.
+struct PoseEntry {
+    stamp: f64,
+    pose: Isometry3<f64>,
+    quality: PoseQuality,
+    link: GraphLink,
+}
+
 /// The mapping session (see the module doc): pairs frames with their estimates, feeds the
 /// worker in frame order and hands out the snapshots it finishes.
 pub struct BackgroundMapper {
     lag: u64,
     worker: Worker,
     frames: BTreeMap<u64, Frame>,
-    poses: BTreeMap<u64, (f64, Isometry3<f64>, PoseQuality)>,
+    poses: BTreeMap<u64, PoseEntry>,
     next_submit: u64,
     /// Newest frame id seen.
     newest_frame: Option<u64>,
@@ -417,15 +536,25 @@ impl BackgroundMapper {
         self.frames.insert(frame_id, frame);
     }
 
-    /// Stores the tracker's estimate of frame `frame_id` (taken at `stamp`).
+    /// Stores the tracker's estimate of frame `frame_id` (taken at `stamp`) with what its pose
+    /// graph said ([`GraphLink`]; the default without a graph).
     pub fn add_pose(
         &mut self,
         frame_id: u64,
         stamp: f64,
         pose: Isometry3<f64>,
         quality: PoseQuality,
+        link: GraphLink,
     ) {
-        self.poses.insert(frame_id, (stamp, pose, quality));
+        self.poses.insert(
+            frame_id,
+            PoseEntry {
+                stamp,
+                pose,
+                quality,
+                link,
+            },
+        );
     }
 
     /// Hands every frame whose estimate has arrived to the worker (in order), then returns the
@@ -437,13 +566,14 @@ impl BackgroundMapper {
         {
             let k = self.next_submit;
             let frame = self.frames.remove(&k).expect("present");
-            let (stamp, pose, quality) = self.poses.remove(&k).expect("present");
+            let entry = self.poses.remove(&k).expect("present");
             self.worker.submit(Job {
                 frame_id: k,
-                stamp,
+                link: entry.link,
+                stamp: entry.stamp,
                 frame,
-                pose,
-                quality,
+                pose: entry.pose,
+                quality: entry.quality,
             })?;
             self.next_submit += 1;
         }
@@ -474,5 +604,39 @@ impl BackgroundMapper {
     /// map and keyframes, for evaluation). Snapshots not yet collected are dropped.
     pub fn finish(self) -> Result<KeyframeMapper, SlamError> {
         self.worker.finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Translation3;
+
+    fn correction(frame_id: u64, x: f64) -> KeyframeCorrection {
+        KeyframeCorrection {
+            frame_id,
+            correction: Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), Default::default()),
+        }
+    }
+
+    /// Each mapper keyframe takes the correction of the graph keyframe its frame hung on; one
+    /// whose graph keyframe did not move, or without a graph, stays. Corrections out of frame
+    /// order, or not finite, are refused.
+    #[test]
+    fn each_keyframe_follows_the_graph_keyframe_it_hung_on() {
+        let corrections = [correction(2, 0.1), correction(7, 0.2), correction(9, 0.3)];
+        let anchors = [None, Some(0), Some(2), Some(2), Some(5), Some(7), Some(9)];
+        let moves = keyframe_moves(&anchors, &corrections).unwrap();
+        let x: Vec<f64> = moves.iter().map(|m| m.translation.x).collect();
+        assert_eq!(x, [0.0, 0.0, 0.1, 0.1, 0.0, 0.2, 0.3]);
+        assert!(keyframe_moves(&[], &corrections).unwrap().is_empty());
+        let swapped = [correction(7, 0.2), correction(2, 0.1)];
+        let e = keyframe_moves(&[Some(2)], &swapped)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("frame 2 follows frame 7"), "{e}");
+        let nan = [correction(2, f64::NAN)];
+        let e = keyframe_moves(&[Some(2)], &nan).unwrap_err().to_string();
+        assert!(e.contains("frame 2"), "{e}");
     }
 }

@@ -98,6 +98,14 @@ pub struct KeyframeGraphConfig {
     /// An older reference gets a new loop edge only once this many keyframes have passed since
     /// its last one (1: every time).
     pub loop_edge_spacing: u64,
+    /// A keyframe's correction goes to the mapper ([`LoopClosure::corrections`]) once the
+    /// keyframe has moved by at least this translation, metres, since its last correction
+    /// sent (or its creation), ...
+    pub correct_map_above_m: f64,
+    /// ... or this rotation, radians. Smaller moves accumulate until they pass, so the map
+    /// ends where the graph is to within these bounds, without moving every Gaussian of the
+    /// map at every solve.
+    pub correct_map_above_rad: f64,
 }
 
 impl Default for KeyframeGraphConfig {
@@ -125,6 +133,10 @@ impl Default for KeyframeGraphConfig {
             optimise_above_rad: 0.0,
             edge_iterations_per_level: None,
             loop_edge_spacing: 1,
+            // Well below the noise of a depth reading (σ 1.8 mm at 1 m with the realistic
+            // preset) and of a Gaussian's size.
+            correct_map_above_m: 1e-3,
+            correct_map_above_rad: 0.05f64.to_radians(),
         }
     }
 }
@@ -155,6 +167,11 @@ impl KeyframeGraphConfig {
         SlamError::require_non_negative(&[
             ("pose_graph.optimise_above_m", self.optimise_above_m),
             ("pose_graph.optimise_above_rad", self.optimise_above_rad),
+            ("pose_graph.correct_map_above_m", self.correct_map_above_m),
+            (
+                "pose_graph.correct_map_above_rad",
+                self.correct_map_above_rad,
+            ),
         ])
     }
 }
@@ -166,8 +183,9 @@ impl KeyframeGraphConfig {
 /// alignment's information. When a loop edge joins that disagrees with the graph (by
 /// `optimise_above_m` / `optimise_above_rad`), the graph is optimised, every kept reference
 /// takes its corrected pose, and so does the new keyframe (the frame's published estimate),
-/// so later frames aligned to them no longer inherit the drift of their time. The map does
-/// not follow yet: Gaussians stay where the mapper put them.
+/// so later frames aligned to them no longer inherit the drift of their time. The solve's
+/// move of every keyframe goes out with the frame ([`LoopClosure::corrections`]) so that the
+/// mapper moves its keyframes and their Gaussians with them ([`crate::KeyframeMapper`]).
 #[derive(Debug, Clone)]
 pub struct KeyframeGraph {
     config: KeyframeGraphConfig,
@@ -176,10 +194,27 @@ pub struct KeyframeGraph {
     stats: GraphStats,
     /// Per older reference (serial): the node of its latest loop edge.
     last_loop: BTreeMap<u64, u64>,
+    /// Per node: the id of the frame it was made from (increasing).
+    frame_ids: Vec<u64>,
+    /// Per node: its pose as the mapper knows it (at creation, then at its last correction).
+    published: Vec<Isometry3<f64>>,
+}
+
+/// How the pose graph moved the keyframe made from frame `frame_id` since the mapper last
+/// heard of it: the world-frame rigid motion `correction = T_after · T_before⁻¹` (so `T_after =
+/// correction · T_before`). Whatever was placed relative to that keyframe (the frames whose
+/// [`TrackedFrame::graph_anchor`] it is, and the mapper's Gaussians of their keyframes) moves
+/// with it by the same motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeyframeCorrection {
+    /// The frame the graph keyframe was made from.
+    pub frame_id: u64,
+    /// `T_after · T_before⁻¹`, world frame.
+    pub correction: Isometry3<f64>,
 }
 
 /// A loop closure: the pose graph took new loop edges and was re-optimised.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct LoopClosure {
     /// Loop edges the new keyframe added.
     pub loop_edges: usize,
@@ -187,6 +222,11 @@ pub struct LoopClosure {
     pub keyframes: usize,
     /// Largest move of a keyframe's camera centre by the optimisation, metres.
     pub largest_shift_m: f64,
+    /// The graph keyframes that have moved by more than `correct_map_above_m` /
+    /// `correct_map_above_rad` since their last correction, each with its move, in frame
+    /// order. The new keyframe is never among them: its corrected pose is the frame's
+    /// estimate.
+    pub corrections: Vec<KeyframeCorrection>,
 }
 
 /// Counters of a [`KeyframeGraph`].
@@ -211,6 +251,8 @@ impl KeyframeGraph {
             graph: PoseGraph::new(),
             stats: GraphStats::default(),
             last_loop: BTreeMap::new(),
+            frame_ids: Vec::new(),
+            published: Vec::new(),
         })
     }
 
@@ -231,16 +273,19 @@ impl KeyframeGraph {
         Matrix6::from_diagonal(&Vector6::new(it, it, it, ir, ir, ir))
     }
 
-    /// Adds the keyframe `frame` (tracking resolution) tracked at `pose` as node `serial`,
+    /// Adds the keyframe `frame` (frame `frame_id`, tracking resolution) tracked at `pose` as
+    /// node `serial`,
     /// with an edge from each of `aligned_to` (serial and reference; the first is the newest),
     /// optimises when a loop edge joined, and returns the keyframe's corrected pose. Every
     /// edge, the odometry one included, is measured by a pairwise alignment started at `pose`
     /// (reusing the tracker's joint alignment for the odometry edge when it had the newest
     /// reference alone was measured worse: its motion prior pulls the estimate toward the
     /// prediction, and the edge then carries that pull with the images' confidence).
+    #[allow(clippy::too_many_arguments)]
     fn add_keyframe(
         &mut self,
         serial: u64,
+        frame_id: u64,
         frame: &Frame,
         pose: Isometry3<f64>,
         aligned_to: &[(u64, &DenseReference)],
@@ -253,6 +298,16 @@ impl KeyframeGraph {
                 reason: format!("node {node} for reference serial {serial}"),
             });
         }
+        if self.frame_ids.last().is_some_and(|&last| frame_id <= last) {
+            return Err(SlamError::Input {
+                what: "pose graph node",
+                reason: format!(
+                    "frame {frame_id} is not after the previous keyframe's frame {:?}",
+                    self.frame_ids.last()
+                ),
+            });
+        }
+        self.frame_ids.push(frame_id);
         let mut loops = 0;
         let mut worth_solving = false;
         let dense = crate::dense::DenseConfig {
@@ -318,13 +373,38 @@ impl KeyframeGraph {
                 .zip(self.graph.poses())
                 .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
                 .fold(0.0, f64::max);
+            let mut corrections = Vec::new();
+            for (n, after) in self.graph.poses().iter().enumerate().take(node) {
+                let correction = se3::normalized(&(after * self.published[n].inverse()));
+                let (dt, da) = se3::pose_error(&self.published[n], after);
+                if dt >= self.config.correct_map_above_m || da >= self.config.correct_map_above_rad
+                {
+                    corrections.push(KeyframeCorrection {
+                        frame_id: self.frame_ids[n],
+                        correction,
+                    });
+                    self.published[n] = *after;
+                }
+            }
             closure = Some(LoopClosure {
                 loop_edges: loops,
                 keyframes: self.graph.len(),
                 largest_shift_m,
+                corrections,
             });
         }
+        self.published.push(self.graph.pose(node));
         Ok((self.graph.pose(node), closure))
+    }
+
+    /// The frame each graph keyframe (node) was made from, in node order.
+    pub fn keyframe_frames(&self) -> &[u64] {
+        &self.frame_ids
+    }
+
+    /// The frame of the newest graph keyframe (what the frames tracked now hang on).
+    pub fn newest_keyframe_frame(&self) -> Option<u64> {
+        self.frame_ids.last().copied()
     }
 }
 
@@ -387,6 +467,10 @@ pub struct TrackedFrame {
     pub seconds: f64,
     /// The loop closure this frame (a new keyframe) brought to the pose graph, if any.
     pub loop_closure: Option<LoopClosure>,
+    /// With the pose graph: the frame of the newest graph keyframe when this frame's estimate
+    /// was made (this frame's own when it became one), the keyframe whose corrections the
+    /// frame's estimate, and what the mapper builds from it, follow. `None` without the graph.
+    pub graph_anchor: Option<u64>,
 }
 
 /// Whether every component of a pose is finite.
@@ -542,6 +626,7 @@ impl TrackingSession {
                 iterations: 0,
                 seconds: 0.0,
                 loop_closure: None,
+                graph_anchor: None,
             };
             match map {
                 None => match frame.usability() {
@@ -551,6 +636,7 @@ impl TrackingSession {
                             let serial = self.references.next_serial();
                             graph.add_keyframe(
                                 serial,
+                                k,
                                 &small,
                                 predicted,
                                 &[],
@@ -586,6 +672,7 @@ impl TrackingSession {
                                 let serial = self.references.next_serial();
                                 (pose, estimate.loop_closure) = graph.add_keyframe(
                                     serial,
+                                    k,
                                     &small,
                                     t.pose,
                                     &selected,
@@ -612,6 +699,7 @@ impl TrackingSession {
                 }
             }
             estimate.seconds = start.elapsed().as_secs_f64();
+            estimate.graph_anchor = self.graph.as_ref().and_then(|g| g.newest_keyframe_frame());
             self.pose = estimate.pose;
             out.push(estimate);
             if k > 0 {
@@ -740,6 +828,8 @@ mod tests {
             })
             .unwrap();
             let mut worst: f64 = 0.0;
+            let mut mapper_view = BTreeMap::new();
+            let mut sent = 0;
             for (i, t) in truth.iter().enumerate() {
                 session.add_frame(i as u64, box_frame(k, t));
                 if i > 0 {
@@ -750,11 +840,61 @@ mod tests {
                 assert_eq!(out.len(), 1);
                 assert_eq!(out[0].status, TrackingStatus::Ok, "frame {i}");
                 worst = worst.max(pose_error(&out[0].pose, t).0);
+                match session.keyframe_graph() {
+                    Some(graph) => check_map_follows(graph, &out[0], &mut mapper_view),
+                    None => assert_eq!(out[0].graph_anchor, None),
+                }
+                sent += out[0]
+                    .loop_closure
+                    .as_ref()
+                    .map_or(0, |c| c.corrections.len());
             }
-            (session, worst)
+            (session, worst, sent)
         };
-        let (plain, worst_plain) = run(false);
-        let (with_graph, worst_graph) = run(true);
+        // What the mapper knows of each graph keyframe (by frame): its estimate when it was
+        // made, then moved by each correction sent. After every frame it must lie within the
+        // sending thresholds of the graph's pose, and the corrections name earlier keyframes
+        // only, in frame order.
+        fn check_map_follows(
+            graph: &KeyframeGraph,
+            out: &TrackedFrame,
+            mapper_view: &mut BTreeMap<u64, Isometry3<f64>>,
+        ) {
+            let frames = graph.keyframe_frames();
+            let newest = *frames.last().unwrap();
+            assert_eq!(out.graph_anchor, Some(newest), "frame {}", out.frame_id);
+            if newest == out.frame_id {
+                mapper_view.insert(newest, out.pose);
+            }
+            if let Some(c) = &out.loop_closure {
+                assert!(
+                    c.corrections
+                        .windows(2)
+                        .all(|w| w[0].frame_id < w[1].frame_id)
+                );
+                for k in &c.corrections {
+                    assert!(k.frame_id < out.frame_id);
+                    let known = mapper_view.get_mut(&k.frame_id).expect("a graph keyframe");
+                    *known = k.correction * *known;
+                }
+            }
+            let config = KeyframeGraphConfig::default();
+            for (n, f) in frames.iter().enumerate() {
+                let (dt, da) = pose_error(&mapper_view[f], &graph.graph().pose(n));
+                assert!(
+                    dt < config.correct_map_above_m + 1e-9
+                        && da < config.correct_map_above_rad + 1e-9,
+                    "frame {}: the mapper's keyframe {f} is {dt} m, {da} rad off the graph",
+                    out.frame_id
+                );
+            }
+        }
+        let (plain, worst_plain, _) = run(false);
+        let (with_graph, worst_graph, sent) = run(true);
+        assert!(
+            sent > 0,
+            "the loop closure moved no keyframe beyond the thresholds"
+        );
         assert!(plain.keyframe_graph().is_none());
         let graph = with_graph.keyframe_graph().unwrap();
         let stats = graph.stats();

@@ -37,6 +37,8 @@ fn pose(frame_id: u64, status: TrackingStatus) -> Vec<u8> {
         residual_rgb: 0.0,
         residual_depth: 0.0,
         iterations: 3,
+        graph_anchor: None,
+        keyframe_corrections: Vec::new(),
     }
     .encode()
 }
