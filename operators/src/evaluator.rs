@@ -34,7 +34,7 @@ use activemap_eval::run_folder::{
     Bev, BevCell, CoverageRow, FisherRow, LlmRecord, LlmSummary, RunFolder,
 };
 use activemap_eval::validity::{self, RunWarning};
-use activemap_eval::{AteOptions, ate, coverage_2d};
+use activemap_eval::{AteOptions, CorrectedTrajectory, ate, coverage_2d};
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::tum::Trajectory;
@@ -51,6 +51,7 @@ use activemap_schemas::{
 };
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
+use anyhow::Context as _;
 use nalgebra::Point2;
 
 use crate::Registered;
@@ -153,6 +154,8 @@ pub struct Evaluator {
     scale: u32,
     truth: Option<(CoverageTruth, PlanarPose, Isometry3<f64>)>,
     estimated: Trajectory,
+    /// The estimates moved by the pose graph's later corrections (when the graph is on).
+    corrected: CorrectedTrajectory,
     true_traj: Trajectory,
     coverage: Vec<CoverageRow>,
     grid: Option<PlanGrid>,
@@ -307,6 +310,9 @@ impl Evaluator {
         out.create()?;
         out.write_trajectory(RunFolder::TRAJECTORY_EST, &self.estimated)?;
         out.write_trajectory(RunFolder::TRAJECTORY_TRUE, &self.true_traj)?;
+        if let Some(corrected) = self.corrected.trajectory() {
+            out.write_trajectory(RunFolder::TRAJECTORY_FINAL, corrected)?;
+        }
         out.write_coverage(&self.coverage)?;
         if !self.fisher.is_empty() {
             out.write_fisher(&self.fisher)?;
@@ -324,10 +330,17 @@ impl Evaluator {
                 self.scale,
             ))?;
         }
-        let ate_m = if self.estimated.len() >= 3 {
-            Some(ate(&self.true_traj, &self.estimated, AteOptions::default())?.rmse)
-        } else {
-            None
+        let ate_of = |estimated: &Trajectory| -> anyhow::Result<Option<f64>> {
+            Ok(if estimated.len() >= 3 {
+                Some(ate(&self.true_traj, estimated, AteOptions::default())?.rmse)
+            } else {
+                None
+            })
+        };
+        let ate_m = ate_of(&self.estimated)?;
+        let ate_final_m = match self.corrected.trajectory() {
+            Some(t) => ate_of(t)?,
+            None => None,
         };
         let mut path_length_m = 0.0;
         for w in self.true_traj.poses.windows(2) {
@@ -342,6 +355,7 @@ impl Evaluator {
             steps: self.estimated.len() as u64,
             coverage: Some(self.coverage.last().map_or(0.0, |c| c.coverage)),
             ate_m,
+            ate_final_m,
             path_length_m,
             forward_actions,
             blocked_forwards: blocked,
@@ -366,7 +380,11 @@ impl Evaluator {
             summary.coverage.unwrap_or(0.0) * 100.0,
             summary
                 .ate_m
-                .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0)),
+                .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0))
+                + &summary.ate_final_m.map_or(String::new(), |a| format!(
+                    " ({:.2} cm after the pose graph's corrections)",
+                    a * 100.0
+                )),
             summary.path_length_m,
             summary.blocked_forwards,
             summary.forward_actions,
@@ -476,6 +494,7 @@ impl Operator for Evaluator {
             scale: config.bev_pixels_per_cell,
             truth: None,
             estimated: Trajectory::default(),
+            corrected: CorrectedTrajectory::default(),
             true_traj: Trajectory::default(),
             coverage: Vec::new(),
             grid: None,
@@ -498,8 +517,16 @@ impl Operator for Evaluator {
             Event::Input(input) => match input.port {
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
-                    self.estimated
-                        .push(e.stamp, pose_from_wire(&e.t_world_camera)?);
+                    let pose = pose_from_wire(&e.t_world_camera)?;
+                    let corrections = e
+                        .keyframe_corrections
+                        .iter()
+                        .map(|c| Ok((c.frame_id, pose_from_wire(&c.correction)?)))
+                        .collect::<anyhow::Result<Vec<_>>>()
+                        .with_context(|| format!("frame {}: keyframe corrections", e.frame_id))?;
+                    self.corrected
+                        .push(e.stamp, pose, e.graph_anchor, &corrections);
+                    self.estimated.push(e.stamp, pose);
                 }
                 "true_pose" => {
                     let t: TruePose = input.decode()?;
@@ -718,6 +745,7 @@ mod tests {
             scale: 3,
             truth: None,
             estimated,
+            corrected: CorrectedTrajectory::default(),
             true_traj,
             coverage: coverage.clone(),
             grid: Some(grid.clone()),
@@ -734,6 +762,23 @@ mod tests {
             start_depth: None,
         };
         let summary = ev.write_outputs().unwrap();
+        assert_eq!(run.read_summary().unwrap(), summary);
+        // No pose graph: no final trajectory, no final ATE.
+        assert!(!run.path(RunFolder::TRAJECTORY_FINAL).exists());
+        assert_eq!(summary.ate_final_m, None);
+        // With one (every estimate hung on keyframe 0, which the last one moves 1 m along
+        // y, onto the truth): the final trajectory is written, and its ATE is the truth's.
+        for k in 0..4 {
+            let x = 0.05 * k as f64;
+            let correction = (k == 3).then(|| (0, Isometry3::translation(0.0, 1.0, 0.0)));
+            let pose = Isometry3::translation(x, if k == 3 { 1.0 } else { 0.0 }, 0.0);
+            ev.corrected
+                .push(k as f64, pose, Some(0), correction.as_slice());
+        }
+        let summary = ev.write_outputs().unwrap();
+        let corrected = run.read_trajectory(RunFolder::TRAJECTORY_FINAL).unwrap();
+        assert!((corrected.poses[2].translation.y - 1.0).abs() < 1e-9);
+        assert!(summary.ate_final_m.unwrap() < 1e-9);
         assert_eq!(run.read_summary().unwrap(), summary);
         // No map arrived: an invalid run, and it says so.
         assert_eq!(summary.warnings.len(), 1);
@@ -829,6 +874,7 @@ mod tests {
             scale: 3,
             truth: Some((truth, PlanarPose::new(0.0, 0.0, 0.0), Isometry3::identity())),
             estimated,
+            corrected: CorrectedTrajectory::default(),
             true_traj,
             coverage: vec![CoverageRow {
                 step: 30,

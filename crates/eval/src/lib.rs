@@ -24,6 +24,7 @@
 pub mod ate;
 pub mod bench;
 pub mod completeness;
+pub mod corrected;
 pub mod coverage;
 pub mod depth;
 pub mod error;
@@ -44,6 +45,7 @@ pub(crate) mod testing;
 
 pub use ate::{AteOptions, AteResult, associate, ate, umeyama_se3};
 pub use completeness::{COMPLETENESS_THRESHOLD_M, PointGrid, completeness, sample_mesh_surface};
+pub use corrected::CorrectedTrajectory;
 pub use coverage::coverage_2d;
 pub use depth::depth_mae;
 pub use error::EvalError;

@@ -41,6 +41,9 @@ impl RunFolder {
     pub const TRAJECTORY_EST: &'static str = "trajectory_est.tum";
     /// True trajectory (TUM, world frame).
     pub const TRAJECTORY_TRUE: &'static str = "trajectory_true.tum";
+    /// With the tracker's pose graph: the estimated trajectory as the graph finally places it
+    /// (TUM, map frame; [`crate::CorrectedTrajectory`]). Absent without the graph.
+    pub const TRAJECTORY_FINAL: &'static str = "trajectory_final.tum";
     /// Final map (3DGS PLY, map frame, without unknown-space Gaussians).
     pub const MAP: &'static str = "map.ply";
     /// 2D coverage per step ([`CoverageRow`]).
@@ -431,8 +434,13 @@ pub struct Summary {
     pub steps: u64,
     /// Final 2D coverage in [0, 1] (`None`: not recorded).
     pub coverage: Option<f64>,
-    /// RMSE ATE after SE(3) alignment, metres (None with fewer than 3 poses).
+    /// RMSE ATE after SE(3) alignment, metres (None with fewer than 3 poses), of the online
+    /// estimates (each as the tracker published it at its step).
     pub ate_m: Option<f64>,
+    /// With the tracker's pose graph: the same ATE of the final trajectory, every estimate
+    /// moved by the graph's later corrections (`trajectory_final.tum`); `None` without the
+    /// graph (absent in older summaries).
+    pub ate_final_m: Option<f64>,
     /// Length of the true path, metres.
     pub path_length_m: f64,
     /// Forward actions whose result the true poses show (0 when the `action` input is not
@@ -551,6 +559,7 @@ impl Summary {
             ("steps", self.steps.to_string()),
             ("coverage", opt_real(self.coverage)),
             ("ate_m", opt_real(self.ate_m)),
+            ("ate_final_m", opt_real(self.ate_final_m)),
             ("path_length_m", real(self.path_length_m)),
             ("forward_actions", self.forward_actions.to_string()),
             ("blocked_forwards", self.blocked_forwards.to_string()),
@@ -1158,6 +1167,7 @@ mod tests {
             steps: 301,
             coverage: Some(0.875),
             ate_m: Some(0.0021),
+            ate_final_m: Some(0.0017),
             path_length_m: 7.25,
             forward_actions: 128,
             blocked_forwards: 2,
