@@ -375,12 +375,12 @@ impl Evaluator {
         summary.warnings = self.warnings(&summary);
         out.write_summary(&summary)?;
         eprintln!(
-            "evaluator: {} steps, coverage {:.1} %, ATE {} cm, path {:.2} m, {} of {} forward moves blocked → {}",
+            "evaluator: {} steps, coverage {:.1} %, ATE {}, path {:.2} m, {} of {} forward moves blocked → {}",
             summary.steps,
             summary.coverage.unwrap_or(0.0) * 100.0,
             summary
                 .ate_m
-                .map_or("n/a".into(), |a| format!("{:.2}", a * 100.0))
+                .map_or("n/a".into(), |a| format!("{:.2} cm", a * 100.0))
                 + &summary.ate_final_m.map_or(String::new(), |a| format!(
                     " ({:.2} cm after the pose graph's corrections)",
                     a * 100.0
