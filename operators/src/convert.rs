@@ -37,6 +37,42 @@ pub fn pose_to_wire(t: &Isometry3<f64>) -> Pose {
     }
 }
 
+/// The tracker's pose-graph corrections as they go on the wire (`PoseEstimate`).
+pub fn corrections_to_wire(
+    corrections: &[activemap_slam::KeyframeCorrection],
+) -> Vec<activemap_schemas::KeyframeCorrection> {
+    corrections
+        .iter()
+        .map(|c| activemap_schemas::KeyframeCorrection {
+            frame_id: c.frame_id,
+            correction: pose_to_wire(&c.correction),
+        })
+        .collect()
+}
+
+/// The pose-graph corrections an estimate carries; fails on a bad pose, naming the frame and
+/// the keyframe.
+pub fn corrections_from_wire(
+    estimate: &activemap_schemas::PoseEstimate,
+) -> anyhow::Result<Vec<activemap_slam::KeyframeCorrection>> {
+    estimate
+        .keyframe_corrections
+        .iter()
+        .map(|c| {
+            Ok(activemap_slam::KeyframeCorrection {
+                frame_id: c.frame_id,
+                correction: pose_from_wire(&c.correction).map_err(|e| {
+                    anyhow::anyhow!(
+                        "frame {}: the correction of keyframe {}: {e}",
+                        estimate.frame_id,
+                        c.frame_id
+                    )
+                })?,
+            })
+        })
+        .collect()
+}
+
 /// A wire pose as an isometry (renormalised unless already unit); fails on a non-finite or
 /// zero quaternion.
 pub fn pose_from_wire(p: &Pose) -> anyhow::Result<Isometry3<f64>> {

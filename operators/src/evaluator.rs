@@ -51,7 +51,6 @@ use activemap_schemas::{
 };
 use activemap_sim::NavigableMap;
 use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
-use anyhow::Context as _;
 use nalgebra::Point2;
 
 use crate::Registered;
@@ -518,12 +517,10 @@ impl Operator for Evaluator {
                 "pose" => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = pose_from_wire(&e.t_world_camera)?;
-                    let corrections = e
-                        .keyframe_corrections
-                        .iter()
-                        .map(|c| Ok((c.frame_id, pose_from_wire(&c.correction)?)))
-                        .collect::<anyhow::Result<Vec<_>>>()
-                        .with_context(|| format!("frame {}: keyframe corrections", e.frame_id))?;
+                    let corrections: Vec<_> = crate::convert::corrections_from_wire(&e)?
+                        .into_iter()
+                        .map(|c| (c.frame_id, c.correction))
+                        .collect();
                     self.corrected
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);

@@ -13,12 +13,11 @@ use activemap_runtime::{
 };
 use activemap_schemas::{MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus};
 use activemap_slam::{
-    BackgroundMapper, GraphLink, KeyframeCorrection, MappingConfig, PoseQuality, SlamConfig,
-    Snapshot,
+    BackgroundMapper, GraphLink, MappingConfig, PoseQuality, SlamConfig, Snapshot,
 };
 
 use crate::Registered;
-use crate::convert::{map_header, pose_from_wire, slam_frame, write_map};
+use crate::convert::{corrections_from_wire, map_header, pose_from_wire, slam_frame, write_map};
 
 pub use activemap_slam::required_snapshot;
 
@@ -139,22 +138,6 @@ impl Mapper {
     /// Stores the tracker's estimate of a frame, with the pose-graph corrections it brought.
     pub fn add_pose(&mut self, estimate: PoseEstimate) -> anyhow::Result<()> {
         let pose = pose_from_wire(&estimate.t_world_camera)?;
-        let corrections = estimate
-            .keyframe_corrections
-            .iter()
-            .map(|c| {
-                Ok(KeyframeCorrection {
-                    frame_id: c.frame_id,
-                    correction: pose_from_wire(&c.correction).map_err(|e| {
-                        anyhow::anyhow!(
-                            "frame {}: the correction of keyframe {}: {e}",
-                            estimate.frame_id,
-                            c.frame_id
-                        )
-                    })?,
-                })
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
         let quality = match estimate.status {
             TrackingStatus::Ok => PoseQuality::Ok,
             TrackingStatus::Lost => PoseQuality::Lost,
@@ -162,7 +145,7 @@ impl Mapper {
         };
         let link = GraphLink {
             anchor: estimate.graph_anchor,
-            corrections,
+            corrections: corrections_from_wire(&estimate)?,
         };
         self.session
             .add_pose(estimate.frame_id, estimate.stamp, pose, quality, link);
@@ -362,7 +345,7 @@ pub(crate) mod tests {
         for (k, (f, e)) in frames.iter().enumerate() {
             let pose = pose_from_wire(&e.t_world_camera).unwrap();
             if !e.keyframe_corrections.is_empty() {
-                let corrections = [KeyframeCorrection {
+                let corrections = [activemap_slam::KeyframeCorrection {
                     frame_id: 0,
                     correction,
                 }];

@@ -22,7 +22,7 @@ use activemap_slam::{
 use activemap_splat::Gaussians;
 
 use crate::Registered;
-use crate::convert::{pose_to_wire, read_map, slam_frame, start_anchor};
+use crate::convert::{corrections_to_wire, pose_to_wire, read_map, slam_frame, start_anchor};
 
 /// How the tracker predicts the next pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
@@ -201,13 +201,8 @@ pub fn estimate(t: &TrackedFrame) -> PoseEstimate {
         graph_anchor: t.graph_anchor,
         keyframe_corrections: t
             .loop_closure
-            .iter()
-            .flat_map(|c| &c.corrections)
-            .map(|c| activemap_schemas::KeyframeCorrection {
-                frame_id: c.frame_id,
-                correction: pose_to_wire(&c.correction),
-            })
-            .collect(),
+            .as_ref()
+            .map_or_else(Vec::new, |c| corrections_to_wire(&c.corrections)),
     }
 }
 

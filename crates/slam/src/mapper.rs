@@ -338,8 +338,10 @@ impl Mapper {
             });
         }
         let moved: Vec<bool> = moves.iter().map(|m| *m != Isometry3::identity()).collect();
-        for (keyframe, m) in self.keyframes.iter_mut().zip(moves) {
-            keyframe.pose = activemap_geometry::se3::normalized(&(m * keyframe.pose));
+        for ((keyframe, m), &moves_it) in self.keyframes.iter_mut().zip(moves).zip(&moved) {
+            if moves_it {
+                keyframe.pose = activemap_geometry::se3::normalized(&(m * keyframe.pose));
+            }
         }
         let mut count = 0;
         for (i, &anchor) in self.anchors.iter().enumerate() {

@@ -154,11 +154,6 @@ impl KeyframeMapper {
         })
     }
 
-    /// Per keyframe, in order: the graph keyframe its frame hung on (`None` without a graph).
-    pub fn keyframe_anchors(&self) -> &[Option<u64>] {
-        &self.keyframe_anchors
-    }
-
     /// Applies the tracker's pose-graph corrections (see the module doc): every keyframe, the
     /// keyframe rule's last pose and the anchored Gaussians move. Returns the number of
     /// Gaussians moved; fails, changing nothing, on corrections out of frame order or not
@@ -400,15 +395,16 @@ impl Worker {
                     let result = core
                         .apply_corrections(&job.link.corrections)
                         .and_then(|moved| {
-                            if moved > 0 {
-                                current = Arc::new(core.map().clone());
-                                corrected = moved;
-                            }
+                            corrected = moved;
                             core.process(job.link.anchor, job.frame, &job.pose, job.quality)
                         })
                         .map(|report| {
-                            let keyframe = report.map(|report| {
+                            // One copy of the map per change, made by the corrections, the
+                            // keyframe or both.
+                            if corrected > 0 || report.is_some() {
                                 current = Arc::new(core.map().clone());
+                            }
+                            let keyframe = report.map(|report| {
                                 current_ids = Arc::new(core.mapper().ids().to_vec());
                                 KeyframeEvent {
                                     keyframe: core.keyframes(),

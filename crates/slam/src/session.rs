@@ -183,9 +183,10 @@ impl KeyframeGraphConfig {
 /// alignment's information. When a loop edge joins that disagrees with the graph (by
 /// `optimise_above_m` / `optimise_above_rad`), the graph is optimised, every kept reference
 /// takes its corrected pose, and so does the new keyframe (the frame's published estimate),
-/// so later frames aligned to them no longer inherit the drift of their time. The solve's
-/// move of every keyframe goes out with the frame ([`LoopClosure::corrections`]) so that the
-/// mapper moves its keyframes and their Gaussians with them ([`crate::KeyframeMapper`]).
+/// so later frames aligned to them no longer inherit the drift of their time. The keyframes the
+/// solve moved beyond a small threshold go out with the frame ([`LoopClosure::corrections`])
+/// so that the mapper moves its keyframes and their Gaussians with them
+/// ([`crate::KeyframeMapper`]).
 #[derive(Debug, Clone)]
 pub struct KeyframeGraph {
     config: KeyframeGraphConfig,
@@ -274,14 +275,12 @@ impl KeyframeGraph {
     }
 
     /// Adds the keyframe `frame` (frame `frame_id`, tracking resolution) tracked at `pose` as
-    /// node `serial`,
-    /// with an edge from each of `aligned_to` (serial and reference; the first is the newest),
-    /// optimises when a loop edge joined, and returns the keyframe's corrected pose. Every
-    /// edge, the odometry one included, is measured by a pairwise alignment started at `pose`
-    /// (reusing the tracker's joint alignment for the odometry edge when it had the newest
-    /// reference alone was measured worse: its motion prior pulls the estimate toward the
-    /// prediction, and the edge then carries that pull with the images' confidence).
-    #[allow(clippy::too_many_arguments)]
+    /// node `serial`, with an edge from each of `aligned_to` (serial and reference; the first
+    /// is the newest), optimises when a loop edge joined, and returns the keyframe's corrected
+    /// pose. Every edge, the odometry one included, is measured by a pairwise alignment started
+    /// at `pose` (reusing the tracker's joint alignment for the odometry edge when it had the
+    /// newest reference alone was measured worse: its motion prior pulls the estimate toward
+    /// the prediction, and the edge then carries that pull with the images' confidence).
     fn add_keyframe(
         &mut self,
         serial: u64,
@@ -375,13 +374,12 @@ impl KeyframeGraph {
                 .fold(0.0, f64::max);
             let mut corrections = Vec::new();
             for (n, after) in self.graph.poses().iter().enumerate().take(node) {
-                let correction = se3::normalized(&(after * self.published[n].inverse()));
                 let (dt, da) = se3::pose_error(&self.published[n], after);
                 if dt >= self.config.correct_map_above_m || da >= self.config.correct_map_above_rad
                 {
                     corrections.push(KeyframeCorrection {
                         frame_id: self.frame_ids[n],
-                        correction,
+                        correction: se3::normalized(&(after * self.published[n].inverse())),
                     });
                     self.published[n] = *after;
                 }
@@ -397,14 +395,10 @@ impl KeyframeGraph {
         Ok((self.graph.pose(node), closure))
     }
 
-    /// The frame each graph keyframe (node) was made from, in node order.
+    /// The frame each graph keyframe (node) was made from, in node order (the last: the
+    /// keyframe the frames tracked now hang on).
     pub fn keyframe_frames(&self) -> &[u64] {
         &self.frame_ids
-    }
-
-    /// The frame of the newest graph keyframe (what the frames tracked now hang on).
-    pub fn newest_keyframe_frame(&self) -> Option<u64> {
-        self.frame_ids.last().copied()
     }
 }
 
@@ -699,7 +693,10 @@ impl TrackingSession {
                 }
             }
             estimate.seconds = start.elapsed().as_secs_f64();
-            estimate.graph_anchor = self.graph.as_ref().and_then(|g| g.newest_keyframe_frame());
+            estimate.graph_anchor = self
+                .graph
+                .as_ref()
+                .and_then(|g| g.keyframe_frames().last().copied());
             self.pose = estimate.pose;
             out.push(estimate);
             if k > 0 {
