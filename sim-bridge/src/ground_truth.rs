@@ -4,13 +4,32 @@
 
 use crate::navigation::{NavigableMap, Navigation};
 use crate::scene::Scene;
-use activemap_geometry::{Isometry3, PlanarPose, Point3, camera_pose_from_planar};
+use activemap_geometry::{Isometry3, PlanarPose, Point3, Vector3, camera_pose_from_planar};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// `n` points sampled uniformly over the mesh surface (area-weighted), seeded. Default use:
 /// ≈ 200 000 points, as Active-Neural-Mapping's completeness metric.
 pub fn surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<Point3<f64>> {
+    oriented_surface_samples(scene, n, seed)
+        .into_iter()
+        .map(|s| s.point)
+        .collect()
+}
+
+/// A mesh surface sample and the unit normal of the triangle it lies on (sign as the mesh's
+/// winding gives it, which scene files do not keep consistent).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceSample {
+    /// The point on the surface, world frame, metres.
+    pub point: Point3<f64>,
+    /// Unit normal of its triangle.
+    pub normal: Vector3<f64>,
+}
+
+/// [`surface_samples`] with each point's triangle normal (the same points for the same seed), so
+/// that completeness can be broken down by kind of surface (floor, walls by height, ceiling).
+pub fn oriented_surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<SurfaceSample> {
     let mut cumulative = Vec::with_capacity(scene.triangles.len());
     let mut total = 0.0;
     for t in &scene.triangles {
@@ -27,10 +46,21 @@ pub fn surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<Point3<f64>> {
             let i = cumulative
                 .partition_point(|&c| c <= r)
                 .min(cumulative.len() - 1);
-            let [a, b, c] = scene.corners(&scene.triangles[i]);
+            let triangle = &scene.triangles[i];
+            let [a, b, c] = scene.corners(triangle);
             let s = rng.random::<f64>().sqrt();
             let r2 = rng.random::<f64>();
-            Point3::from((1.0 - s) * a.coords + s * (1.0 - r2) * b.coords + s * r2 * c.coords)
+            SurfaceSample {
+                point: Point3::from(
+                    (1.0 - s) * a.coords + s * (1.0 - r2) * b.coords + s * r2 * c.coords,
+                ),
+                // A triangle of zero area is never drawn (its cumulative area equals the one
+                // before it), so the normal is defined.
+                normal: scene
+                    .scaled_normal(triangle)
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::z),
+            }
         })
         .collect()
 }

@@ -4,11 +4,12 @@
 //! threshold, so only the 27 cells around a sample can hold a point close enough.
 
 use crate::error::EvalError;
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
@@ -117,6 +118,17 @@ pub fn completeness(
     observed: &[Point3<f64>],
     threshold: f64,
 ) -> Result<f64, EvalError> {
+    let complete = complete_samples(truth_samples, observed, threshold)?;
+    Ok(complete.iter().filter(|&&c| c).count() as f64 / truth_samples.len() as f64)
+}
+
+/// Per sample of `truth_samples`: whether an `observed` point lies within `threshold` metres
+/// (inclusive). The flags behind [`completeness`] and [`completeness_by_surface`].
+pub fn complete_samples(
+    truth_samples: &[Point3<f64>],
+    observed: &[Point3<f64>],
+    threshold: f64,
+) -> Result<Vec<bool>, EvalError> {
     if truth_samples.is_empty() {
         return Err(EvalError::Empty {
             metric: "completeness",
@@ -125,11 +137,138 @@ pub fn completeness(
     }
     check_points("truth", truth_samples)?;
     let grid = PointGrid::new(observed, threshold)?;
-    let complete = truth_samples
+    Ok(truth_samples
         .par_iter()
-        .filter(|p| grid.has_neighbour(p))
-        .count();
-    Ok(complete as f64 / truth_samples.len() as f64)
+        .map(|p| grid.has_neighbour(p))
+        .collect())
+}
+
+/// The kind of surface a ground-truth sample lies on, for the completeness breakdown: where in
+/// the scene the unobserved surface is (a ground robot's camera sees the floor and the lower
+/// walls easily, the upper walls and the ceiling only from a distance).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SurfaceClass {
+    /// Horizontal (normal within 45° of vertical) and within [`FLOOR_BAND_M`] of the floor.
+    Floor,
+    /// Steeper than 45°, lower than 1 m above the floor (by the sample's height).
+    WallBelow1m,
+    /// Steeper than 45°, 1–2 m above the floor.
+    Wall1To2m,
+    /// Steeper than 45°, 2 m or more above the floor.
+    WallAbove2m,
+    /// Horizontal, neither floor nor ceiling: furniture tops and undersides, shelves, sills.
+    OtherHorizontal,
+    /// Horizontal and within [`FLOOR_BAND_M`] of the scene's top (the ceiling).
+    Ceiling,
+}
+
+/// How close to the floor (or to the scene's top) a horizontal sample counts as floor (ceiling),
+/// metres.
+pub const FLOOR_BAND_M: f64 = 0.15;
+
+impl SurfaceClass {
+    /// Every class, in the order the breakdown lists them.
+    pub const ALL: [SurfaceClass; 6] = [
+        SurfaceClass::Floor,
+        SurfaceClass::WallBelow1m,
+        SurfaceClass::Wall1To2m,
+        SurfaceClass::WallAbove2m,
+        SurfaceClass::OtherHorizontal,
+        SurfaceClass::Ceiling,
+    ];
+
+    /// The class of a sample at `point` with unit `normal` (either sign) in a scene whose floor
+    /// is at height `floor_z` and whose top is at `ceiling_z` (z up, metres).
+    pub fn of(point: &Point3<f64>, normal: &Vector3<f64>, floor_z: f64, ceiling_z: f64) -> Self {
+        let height = point.z - floor_z;
+        let horizontal = normal.z.abs() >= std::f64::consts::FRAC_1_SQRT_2;
+        if horizontal {
+            if height <= FLOOR_BAND_M {
+                SurfaceClass::Floor
+            } else if point.z >= ceiling_z - FLOOR_BAND_M {
+                SurfaceClass::Ceiling
+            } else {
+                SurfaceClass::OtherHorizontal
+            }
+        } else if height < 1.0 {
+            SurfaceClass::WallBelow1m
+        } else if height < 2.0 {
+            SurfaceClass::Wall1To2m
+        } else {
+            SurfaceClass::WallAbove2m
+        }
+    }
+
+    /// Words for tables.
+    pub fn label(self) -> &'static str {
+        match self {
+            SurfaceClass::Floor => "floor",
+            SurfaceClass::WallBelow1m => "walls < 1 m",
+            SurfaceClass::Wall1To2m => "walls 1–2 m",
+            SurfaceClass::WallAbove2m => "walls ≥ 2 m",
+            SurfaceClass::OtherHorizontal => "other horizontal",
+            SurfaceClass::Ceiling => "ceiling",
+        }
+    }
+}
+
+/// Completeness of one kind of surface.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceCompleteness {
+    /// The kind of surface.
+    pub surface: SurfaceClass,
+    /// Fraction of all ground-truth samples on this kind of surface (its share of the mesh area).
+    pub share: f64,
+    /// Fraction of this kind's samples that are complete; `None` when it has no sample.
+    pub completeness: Option<f64>,
+}
+
+/// Completeness broken down by [`SurfaceClass`]: each class's share of the mesh area and its
+/// own completeness, every class listed (in [`SurfaceClass::ALL`] order). `normals` and
+/// `complete` (from [`complete_samples`]) pair with `truth_samples`; `floor_z` and `ceiling_z`
+/// as in [`SurfaceClass::of`].
+pub fn completeness_by_surface(
+    truth_samples: &[Point3<f64>],
+    normals: &[Vector3<f64>],
+    complete: &[bool],
+    floor_z: f64,
+    ceiling_z: f64,
+) -> Result<Vec<SurfaceCompleteness>, EvalError> {
+    if normals.len() != truth_samples.len() || complete.len() != truth_samples.len() {
+        return Err(EvalError::InvalidParameter {
+            metric: "completeness",
+            detail: format!(
+                "{} normals and {} flags for {} ground-truth samples",
+                normals.len(),
+                complete.len(),
+                truth_samples.len()
+            ),
+        });
+    }
+    if truth_samples.is_empty() {
+        return Err(EvalError::Empty {
+            metric: "completeness",
+            detail: "no ground-truth sample point".into(),
+        });
+    }
+    let mut counts = [(0usize, 0usize); SurfaceClass::ALL.len()];
+    for ((p, n), done) in truth_samples.iter().zip(normals).zip(complete) {
+        let class = SurfaceClass::of(p, n, floor_z, ceiling_z);
+        let slot = &mut counts[class as usize];
+        slot.0 += 1;
+        slot.1 += usize::from(*done);
+    }
+    let total = truth_samples.len() as f64;
+    Ok(SurfaceClass::ALL
+        .iter()
+        .zip(counts)
+        .map(|(&surface, (samples, done))| SurfaceCompleteness {
+            surface,
+            share: samples as f64 / total,
+            completeness: (samples > 0).then(|| done as f64 / samples as f64),
+        })
+        .collect())
 }
 
 /// Draws `count` points uniformly on the surface of a triangle mesh (area-weighted triangle
@@ -213,6 +352,70 @@ mod tests {
         assert!((c - 0.08).abs() < 1e-12, "{c}");
         assert_eq!(completeness(&truth, &[], 0.05).unwrap(), 0.0);
         assert_eq!(completeness(&truth, &truth, 0.05).unwrap(), 1.0);
+    }
+
+    /// A 4 m × 4 m room 2.5 m high, sampled on a 5 cm lattice (cell centres): the shares are the
+    /// surfaces' areas over the 72 m² total, and a map that holds only the floor and the walls'
+    /// lowest metre completes exactly those classes. Either normal sign classifies alike.
+    #[test]
+    fn completeness_by_surface_in_a_box_room() {
+        let (side, height, step) = (4.0, 2.5, 0.05);
+        let cells = |length: f64| {
+            (0..(length / step).round() as usize).map(move |i| (i as f64 + 0.5) * step)
+        };
+        let mut samples = Vec::new();
+        let mut normals: Vec<Vector3<f64>> = Vec::new();
+        for x in cells(side) {
+            for y in cells(side) {
+                samples.push(Point3::new(x, y, 0.0));
+                normals.push(Vector3::z());
+                samples.push(Point3::new(x, y, height));
+                normals.push(-Vector3::z());
+            }
+        }
+        for u in cells(side) {
+            for z in cells(height) {
+                for (p, n) in [
+                    (Point3::new(u, 0.0, z), Vector3::y()),
+                    (Point3::new(u, side, z), -Vector3::y()),
+                    (Point3::new(0.0, u, z), Vector3::x()),
+                    (Point3::new(side, u, z), -Vector3::x()),
+                ] {
+                    samples.push(p);
+                    normals.push(n);
+                }
+            }
+        }
+        // A 3 cm threshold under the 5 cm lattice: each sample is complete by itself alone.
+        let observed: Vec<Point3<f64>> = samples.iter().filter(|p| p.z < 1.0).copied().collect();
+        let complete = complete_samples(&samples, &observed, 0.03).unwrap();
+        let rows = completeness_by_surface(&samples, &normals, &complete, 0.0, height).unwrap();
+        let expected = [
+            (SurfaceClass::Floor, 16.0, Some(1.0)),
+            (SurfaceClass::WallBelow1m, 16.0, Some(1.0)),
+            (SurfaceClass::Wall1To2m, 16.0, Some(0.0)),
+            (SurfaceClass::WallAbove2m, 8.0, Some(0.0)),
+            (SurfaceClass::OtherHorizontal, 0.0, None),
+            (SurfaceClass::Ceiling, 16.0, Some(0.0)),
+        ];
+        assert_eq!(rows.len(), expected.len());
+        for (row, (class, area, done)) in rows.iter().zip(expected) {
+            assert_eq!(row.surface, class);
+            assert!((row.share - area / 72.0).abs() < 1e-12, "{row:?}");
+            assert_eq!(row.completeness, done, "{row:?}");
+        }
+        // A table top is "other horizontal"; a steep roof panel near the top is a wall.
+        let table = SurfaceClass::of(&Point3::new(0.0, 0.0, 0.75), &-Vector3::z(), 0.0, height);
+        assert_eq!(table, SurfaceClass::OtherHorizontal);
+        let steep = Vector3::new(0.8, 0.0, 0.6);
+        assert_eq!(
+            SurfaceClass::of(&Point3::new(0.0, 0.0, 2.45), &steep, 0.0, height),
+            SurfaceClass::WallAbove2m
+        );
+        let e = completeness_by_surface(&samples, &normals[1..], &complete, 0.0, height)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("normals"), "{e}");
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! `"inf"` / `"-inf"` and read back from them. A run whose figures mean nothing (issue 16) carries
 //! its [`RunWarning`]s: `"valid": false` in the JSON, INVALID and struck figures in Markdown.
 
+use crate::completeness::SurfaceCompleteness;
 use crate::validity::RunWarning;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::collections::BTreeMap;
@@ -27,6 +28,10 @@ pub struct MetricsReport {
     pub completeness: Option<f64>,
     /// Seen / navigable floor area, fraction in [0, 1].
     pub coverage_2d: Option<f64>,
+    /// Completeness by kind of surface (floor, walls by height, ceiling, …): where the
+    /// unobserved surface lies; empty when completeness is missing (absent in older files).
+    #[serde(default)]
+    pub completeness_by_surface: Vec<SurfaceCompleteness>,
     /// Number of test views drawn; the image metrics average over those with a non-empty ground
     /// truth (`test_views − empty_truth_views`).
     pub test_views: usize,
@@ -118,6 +123,27 @@ impl MetricsReport {
             cell(self.completeness, 2, 100.0),
             cell(self.coverage_2d, 2, 100.0),
         ) + &foot
+            + &self.surface_markdown(&cell)
+    }
+
+    /// The completeness breakdown as a Markdown table under a heading (empty without one).
+    fn surface_markdown(&self, cell: &dyn Fn(Option<f64>, usize, f64) -> String) -> String {
+        if self.completeness_by_surface.is_empty() {
+            return String::new();
+        }
+        let mut text = String::from(
+            "\nCompleteness by surface (share = the surface's part of the mesh area):\n\n\
+             | surface | share (%) | completeness ↑ (%) |\n|---|---|---|\n",
+        );
+        for s in &self.completeness_by_surface {
+            text += &format!(
+                "| {} | {} | {} |\n",
+                s.surface.label(),
+                cell(Some(s.share), 1, 100.0),
+                cell(s.completeness, 1, 100.0)
+            );
+        }
+        text
     }
 
     /// Parses the JSON written by [`MetricsReport::to_json`].
@@ -201,6 +227,31 @@ mod tests {
         };
         assert!(
             paper.to_markdown().contains("| 23.28 |") && paper.to_markdown().contains("| 84.38 |")
+        );
+        assert!(!paper.to_markdown().contains("by surface"));
+        let broken_down = MetricsReport {
+            completeness_by_surface: vec![
+                SurfaceCompleteness {
+                    surface: crate::SurfaceClass::WallAbove2m,
+                    share: 0.25,
+                    completeness: Some(0.125),
+                },
+                SurfaceCompleteness {
+                    surface: crate::SurfaceClass::Ceiling,
+                    share: 0.0,
+                    completeness: None,
+                },
+            ],
+            ..paper
+        };
+        let md = broken_down.to_markdown();
+        assert!(
+            md.contains("| walls ≥ 2 m | 25.0 | 12.5 |\n| ceiling | 0.0 | — |\n"),
+            "{md}"
+        );
+        assert_eq!(
+            MetricsReport::from_json(&broken_down.to_json()).unwrap(),
+            broken_down
         );
         assert!(text.contains("\"valid\": true"), "{text}");
         let bad = text.replace("\"inf\"", "\"lots\"");

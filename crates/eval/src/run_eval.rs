@@ -36,7 +36,9 @@ use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::validity::{self, RunWarning};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
-use crate::{AteOptions, EvalError, ImageView, MetricsReport, ate, completeness};
+use crate::{
+    AteOptions, EvalError, ImageView, MetricsReport, ate, complete_samples, completeness_by_surface,
+};
 use activemap_geometry::RobotModel;
 use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
@@ -442,17 +444,28 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         );
     }
 
-    let samples =
-        activemap_sim::ground_truth::surface_samples(sim.scene(), options.completeness_samples, 0);
+    let (samples, normals): (Vec<_>, Vec<_>) =
+        activemap_sim::ground_truth::oriented_surface_samples(
+            sim.scene(),
+            options.completeness_samples,
+            0,
+        )
+        .into_iter()
+        .map(|s| (s.point, s.normal))
+        .unzip();
     let observed = map_points_in_world(&map, &to_map.inverse());
     if samples.is_empty() {
         report.mark_missing("completeness", "the scene mesh has no surface to sample");
     } else {
-        report.completeness = Some(completeness(
-            &samples,
-            &observed,
-            crate::COMPLETENESS_THRESHOLD_M,
-        )?);
+        let complete = complete_samples(&samples, &observed, crate::COMPLETENESS_THRESHOLD_M)?;
+        report.completeness =
+            Some(complete.iter().filter(|&&c| c).count() as f64 / samples.len() as f64);
+        let ceiling_z = samples
+            .iter()
+            .map(|p| p.z)
+            .fold(f64::NEG_INFINITY, f64::max);
+        report.completeness_by_surface =
+            completeness_by_surface(&samples, &normals, &complete, floor_z, ceiling_z)?;
     }
 
     report.coverage_2d = coverage

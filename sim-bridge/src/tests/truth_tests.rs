@@ -1,5 +1,5 @@
 use super::fixtures::*;
-use crate::ground_truth::{surface_samples, test_poses};
+use crate::ground_truth::{oriented_surface_samples, surface_samples, test_poses};
 use crate::navigation::{AgentShape, Navigation};
 use crate::noise::{DepthNoise, NoiseConfig};
 use crate::simulator::{SimConfig, Simulator};
@@ -23,6 +23,15 @@ fn surface_samples_are_on_the_surface_and_area_weighted() {
     // Expected fractions 4/28, 8/28, 16/28; binomial σ ≤ 0.003, allow 5σ.
     for (c, e) in counts.iter().zip([4.0 / 28.0, 8.0 / 28.0, 16.0 / 28.0]) {
         assert!((*c as f64 / n as f64 - e).abs() < 0.015, "{counts:?}");
+    }
+    // With normals: the same points, each normal the unit axis of the face it lies on.
+    let oriented = oriented_surface_samples(&scene, n, 11);
+    assert_eq!(oriented.iter().map(|s| s.point).collect::<Vec<_>>(), pts);
+    for s in &oriented {
+        let p = s.point;
+        let d = [p.x.min(4.0 - p.x), p.y.min(2.0 - p.y), p.z.min(1.0 - p.z)];
+        let axis = (0..3).min_by(|&a, &b| d[a].total_cmp(&d[b])).unwrap();
+        assert!((s.normal[axis].abs() - 1.0).abs() < 1e-12, "{s:?}");
     }
 }
 

@@ -17,10 +17,13 @@
 //! When two or more of the named policies of the paper's ablation ([`KNOWN_METHODS`]: `fbe`,
 //! `fisher_eig_only` = "w/o LLM & localisation", `fisher` = "w/o LLM") are among the methods,
 //! an ablation table lists their all-scene rows in that order, each with the paper's name.
+//!
+//! Under them, completeness by kind of surface (floor, walls by height, ceiling) per method says
+//! where the surface no method observed lies.
 
 use super::grid::{KNOWN_METHODS, KnownMethod};
 use super::runner::{CellOutcome, CellResult};
-use activemap_eval::MetricsReport;
+use activemap_eval::{MetricsReport, SurfaceClass};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 
@@ -352,6 +355,62 @@ fn notes(results: &[CellResult]) -> String {
     s
 }
 
+/// Where the unobserved surface lies, per method: the mean over its valid cells of each
+/// [`SurfaceClass`]'s completeness (%), under a row of the classes' mean share of the mesh
+/// area. Empty when no cell has the breakdown (runs evaluated before it existed).
+fn surface_table(results: &[CellResult]) -> String {
+    let with_breakdown: Vec<(&str, &MetricsReport)> = results
+        .iter()
+        .filter_map(|r| valid_metrics(r).map(|m| (r.cell.method.name.as_str(), m)))
+        .filter(|(_, m)| m.completeness_by_surface.len() == SurfaceClass::ALL.len())
+        .collect();
+    if with_breakdown.is_empty() {
+        return String::new();
+    }
+    let mean = |values: Vec<f64>| -> String {
+        if values.is_empty() {
+            "—".to_string()
+        } else {
+            format!(
+                "{:.1}",
+                100.0 * values.iter().sum::<f64>() / values.len() as f64
+            )
+        }
+    };
+    let mut s = String::from("| Method | Runs |");
+    for class in SurfaceClass::ALL {
+        let _ = write!(s, " {} |", class.label());
+    }
+    s += "\n|---|---|";
+    s += &"---|".repeat(SurfaceClass::ALL.len());
+    s += "\n| *share of the mesh area (%)* | |";
+    for i in 0..SurfaceClass::ALL.len() {
+        let shares = with_breakdown
+            .iter()
+            .map(|(_, m)| m.completeness_by_surface[i].share)
+            .collect();
+        let _ = write!(s, " {} |", mean(shares));
+    }
+    s += "\n";
+    for method in ordered(with_breakdown.iter().map(|(name, _)| *name)) {
+        let cells: Vec<&MetricsReport> = with_breakdown
+            .iter()
+            .filter(|(name, _)| *name == method)
+            .map(|(_, m)| *m)
+            .collect();
+        let _ = write!(s, "| {method} | {} |", cells.len());
+        for i in 0..SurfaceClass::ALL.len() {
+            let values = cells
+                .iter()
+                .filter_map(|m| m.completeness_by_surface[i].completeness)
+                .collect();
+            let _ = write!(s, " {} |", mean(values));
+        }
+        s += "\n";
+    }
+    s
+}
+
 /// The whole `results.md`: `heading` lines (settings, command), Table 1 layout, the ablation
 /// (when two or more of its policies ran), the per-scene table and the notes.
 pub fn markdown(heading: &str, results: &[CellResult]) -> String {
@@ -375,6 +434,14 @@ pub fn markdown(heading: &str, results: &[CellResult]) -> String {
         .map(|r| r.scene.clone().unwrap_or_default())
         .collect();
     s += &markdown_table(&rows, Some(("Scene", scenes)));
+    let surfaces = surface_table(results);
+    if !surfaces.is_empty() {
+        s += "\n## Completeness by surface (%, mean over valid runs)\n\n";
+        s += "Where the unobserved surface lies: horizontal = normal within 45° of vertical; \
+              floor and ceiling = horizontal within 15 cm of the floor or the scene's top; walls \
+              (everything steeper) by height above the floor.\n\n";
+        s += &surfaces;
+    }
     let n = notes(results);
     if !n.is_empty() {
         s += "\n## Notes\n\n";
@@ -525,6 +592,41 @@ mod tests {
             ["fbe", "all", "4", "4", "24", spread.as_str(), "2"]
         );
         assert_eq!(&f[7..10], ["", "", "0"]);
+    }
+
+    /// The surface table averages each class over the method's valid cells with a breakdown,
+    /// and is absent when no cell has one.
+    #[test]
+    fn completeness_by_surface_is_averaged_per_method() {
+        use activemap_eval::SurfaceCompleteness;
+        let mut r = results();
+        assert!(!markdown("", &r).contains("Completeness by surface"));
+        for (i, cell) in r.iter_mut().enumerate().take(2) {
+            if let CellOutcome::Ran(m) = &mut cell.outcome {
+                m.completeness_by_surface = SurfaceClass::ALL
+                    .iter()
+                    .map(|&surface| SurfaceCompleteness {
+                        surface,
+                        share: 1.0 / 6.0,
+                        // Floor 0.9 and 0.7; no ceiling sample in the first cell.
+                        completeness: match (surface, i) {
+                            (SurfaceClass::Ceiling, 0) => None,
+                            (SurfaceClass::Floor, _) => Some(0.9 - 0.2 * i as f64),
+                            _ => Some(0.25),
+                        },
+                    })
+                    .collect();
+            }
+        }
+        let md = markdown("", &r);
+        assert!(
+            md.contains("| *share of the mesh area (%)* | | 16.7 | 16.7 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| fbe | 2 | 80.0 | 25.0 | 25.0 | 25.0 | 25.0 | 25.0 |\n"),
+            "{md}"
+        );
     }
 
     #[test]
