@@ -44,6 +44,10 @@ pub struct Config {
     /// resolution, when absent).
     #[serde(default)]
     pub downscale: Option<usize>,
+    /// The depth term of the mapping loss: `rendered` (SPEC §4, `|D̂ − D|`) or
+    /// `opacity_weighted` (`|D̂ − o·D|`); library default when absent.
+    #[serde(default)]
+    pub depth_loss: Option<activemap_slam::loss::MappingDepth>,
 }
 
 impl Config {
@@ -64,6 +68,9 @@ impl Config {
         }
         if let Some(d) = self.downscale {
             config.downscale = d;
+        }
+        if let Some(d) = self.depth_loss {
+            config.mapper.depth_loss = d;
         }
         config
             .validate()
@@ -333,6 +340,7 @@ pub(crate) mod tests {
             window: None,
             map_lag: 2,
             keyframe_min_interval: None,
+            depth_loss: None,
             downscale: None,
         };
         // Reference: the same core run synchronously.

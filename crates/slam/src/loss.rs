@@ -124,12 +124,31 @@ pub fn tracking_loss(
     LossOutput { value, grads }
 }
 
-/// The mapping loss of SPEC §4 for one view and its image gradients.
+/// What the mapping loss's depth term compares with the reading `D`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MappingDepth {
+    /// `|D̂ − D|` with the un-normalised rendered depth `D̂ = Σ z·α·T` (SPEC §4, MonoGS). Where
+    /// the map is not yet opaque (`o < 1`), `D̂ = o·z̄` falls short of the reading, and the
+    /// gradient pushes the Gaussians back along the rays until `z̄ = D/o`: behind the surface
+    /// (the floor, seen at a grazing angle, sinks by centimetres).
+    #[default]
+    Rendered,
+    /// `|D̂ − o·D|` = `o·|z̄ − D|`: the opacity-weighted mean depth `z̄ = D̂/o` of what the
+    /// pixel composites is pulled onto the reading whatever the opacity, without dividing by a
+    /// small `o` (a deviation from SPEC §4, like the tracker's `normalise_depth`). The colour
+    /// term still drives the opacity up.
+    OpacityWeighted,
+}
+
+/// The mapping loss of SPEC §4 for one view and its image gradients; `depth` chooses the depth
+/// term ([`MappingDepth`]).
 pub fn mapping_loss(
     render: &Render<f32>,
     frame: &Frame,
     rgb_mask: &[bool],
     alpha: f32,
+    depth: MappingDepth,
 ) -> LossOutput {
     let n = frame.depth.len();
     let mut grads = PixelGrads::zeros(n);
@@ -146,9 +165,19 @@ pub fn mapping_loss(
         }
         let d = frame.depth[p];
         if d > MIN_DEPTH {
-            let r = render.depth[p] - d;
-            value += (depth_scale * r.abs()) as f64;
-            grads.depth[p] = depth_scale * sign(r);
+            match depth {
+                MappingDepth::Rendered => {
+                    let r = render.depth[p] - d;
+                    value += (depth_scale * r.abs()) as f64;
+                    grads.depth[p] = depth_scale * sign(r);
+                }
+                MappingDepth::OpacityWeighted => {
+                    let r = render.depth[p] - render.opacity[p] * d;
+                    value += (depth_scale * r.abs()) as f64;
+                    grads.depth[p] = depth_scale * sign(r);
+                    grads.opacity[p] = -depth_scale * sign(r) * d;
+                }
+            }
         }
     }
     LossOutput { value, grads }
@@ -204,5 +233,77 @@ pub fn residuals(render: &Render<f32>, frame: &Frame) -> Residuals {
         } else {
             depth_errors.len() as f64 / valid as f64
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use activemap_splat::bench::{camera, scene};
+    use activemap_splat::{RenderOptions, render};
+
+    /// Each depth term's image gradients (depth and opacity) equal central finite differences
+    /// of its value, at pixels away from a kink of |·|; the opacity-weighted term's value is
+    /// `o·|D̂/o − D|` and it is zero when the normalised depth meets the reading.
+    #[test]
+    fn mapping_depth_terms_match_finite_differences() {
+        let gaussians = scene(400);
+        let cam = camera(24);
+        let rendered = render(&gaussians, &cam, &RenderOptions::default()).unwrap();
+        let n = rendered.depth.len();
+        // A reading 10 % beyond the normalised render, and half the pixels 10 % short of it.
+        let depth: Vec<f32> = (0..n)
+            .map(|p| {
+                let o = rendered.opacity[p].max(1e-3);
+                rendered.depth[p] / o * if p % 2 == 0 { 1.1 } else { 0.9 }
+            })
+            .collect();
+        let frame = Frame::new(cam.intrinsics, rendered.colour.clone(), depth, 0.0).unwrap();
+        let mask = vec![false; n];
+        for term in [MappingDepth::Rendered, MappingDepth::OpacityWeighted] {
+            let value = |r: &Render<f32>| mapping_loss(r, &frame, &mask, 0.5, term).value;
+            let analytic = mapping_loss(&rendered, &frame, &mask, 0.5, term).grads;
+            let mut checked = 0;
+            for p in (0..n).filter(|&p| rendered.opacity[p] > 0.2 && frame.depth[p] > 0.5) {
+                let h = 1e-3f32;
+                let mut r = rendered.clone();
+                let fd = |r: &mut Render<f32>, set: &dyn Fn(&mut Render<f32>, f32)| {
+                    set(r, h);
+                    let up = value(r);
+                    set(r, -2.0 * h);
+                    let down = value(r);
+                    set(r, h);
+                    (up - down) / (2.0 * f64::from(h))
+                };
+                let d_depth = fd(&mut r, &|r, dh| r.depth[p] += dh);
+                let d_opacity = fd(&mut r, &|r, dh| r.opacity[p] += dh);
+                let tol = 1e-6 / n as f64 + 1e-3 * d_depth.abs().max(d_opacity.abs());
+                assert!(
+                    (d_depth - f64::from(analytic.depth[p])).abs() < tol,
+                    "{term:?} {p}"
+                );
+                assert!(
+                    (d_opacity - f64::from(analytic.opacity[p])).abs() < tol,
+                    "{term:?} {p}: {d_opacity} vs {}",
+                    analytic.opacity[p]
+                );
+                checked += 1;
+            }
+            assert!(checked > 50, "{checked}");
+        }
+        // A reading equal to the normalised depth costs nothing under the opacity-weighted term
+        // (up to f32 rounding), but the un-normalised term still charges (1 − o)·z.
+        let exact: Vec<f32> = (0..n)
+            .map(|p| rendered.depth[p] / rendered.opacity[p].max(1e-3))
+            .collect();
+        let frame = Frame::new(cam.intrinsics, rendered.colour.clone(), exact, 0.0).unwrap();
+        let weighted = mapping_loss(&rendered, &frame, &mask, 0.5, MappingDepth::OpacityWeighted);
+        let plain = mapping_loss(&rendered, &frame, &mask, 0.5, MappingDepth::Rendered);
+        assert!(
+            weighted.value < 1e-6 * plain.value,
+            "{} vs {}",
+            weighted.value,
+            plain.value
+        );
     }
 }

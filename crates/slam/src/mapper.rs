@@ -35,7 +35,7 @@
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::insert::{InsertConfig, sample_new_gaussians, unobserved_mask};
-use crate::loss::{mapping_loss, rgb_mask};
+use crate::loss::{MappingDepth, mapping_loss, rgb_mask};
 use activemap_geometry::Isometry3;
 use activemap_splat::{
     AdamConfig, Camera, FLAG_UNKNOWN_SPACE, GaussianAdam, Gaussians, Gradients, RenderOptions,
@@ -67,6 +67,8 @@ pub struct MapperConfig {
     pub coarse_iterations: usize,
     /// Weight α of the colour term of the mapping loss.
     pub alpha: f32,
+    /// The depth term of the mapping loss ([`MappingDepth`]).
+    pub depth_loss: MappingDepth,
     /// `Σ RGB` threshold of the colour mask.
     pub rgb_boundary: f32,
     /// Weight of the isotropic regulariser (10).
@@ -103,6 +105,7 @@ impl Default for MapperConfig {
             views_per_iteration: 3,
             coarse_iterations: 5,
             alpha: 0.95,
+            depth_loss: MappingDepth::default(),
             rgb_boundary: 0.01,
             isotropic_weight: 10.0,
             learning_rates: AdamConfig {
@@ -567,7 +570,13 @@ impl Mapper {
                 exclude_flags: FLAG_UNKNOWN_SPACE,
             };
             let rendered = render(&self.map, &camera, &options)?;
-            let loss = mapping_loss(&rendered, frame, mask, self.config.alpha);
+            let loss = mapping_loss(
+                &rendered,
+                frame,
+                mask,
+                self.config.alpha,
+                self.config.depth_loss,
+            );
             loss_sum += loss.value;
             let grads = backward(&self.map, &rendered, &loss.grads)?;
             let ndc = 0.5 * frame.width() as f64;
