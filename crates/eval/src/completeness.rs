@@ -118,8 +118,19 @@ pub fn completeness(
     observed: &[Point3<f64>],
     threshold: f64,
 ) -> Result<f64, EvalError> {
-    let complete = complete_samples(truth_samples, observed, threshold)?;
-    Ok(complete.iter().filter(|&&c| c).count() as f64 / truth_samples.len() as f64)
+    Ok(complete_fraction(&complete_samples(
+        truth_samples,
+        observed,
+        threshold,
+    )?))
+}
+
+/// The fraction of true flags of [`complete_samples`]: the completeness (0 for no sample).
+pub fn complete_fraction(complete: &[bool]) -> f64 {
+    if complete.is_empty() {
+        return 0.0;
+    }
+    complete.iter().filter(|&&c| c).count() as f64 / complete.len() as f64
 }
 
 /// Per sample of `truth_samples`: whether an `observed` point lies within `threshold` metres
@@ -236,7 +247,7 @@ pub fn completeness_by_surface(
     ceiling_z: f64,
 ) -> Result<Vec<SurfaceCompleteness>, EvalError> {
     if normals.len() != truth_samples.len() || complete.len() != truth_samples.len() {
-        return Err(EvalError::InvalidParameter {
+        return Err(EvalError::SizeMismatch {
             metric: "completeness",
             detail: format!(
                 "{} normals and {} flags for {} ground-truth samples",

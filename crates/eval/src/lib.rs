@@ -45,8 +45,8 @@ pub(crate) mod testing;
 
 pub use ate::{AteOptions, AteResult, associate, ate, umeyama_se3};
 pub use completeness::{
-    COMPLETENESS_THRESHOLD_M, PointGrid, SurfaceClass, SurfaceCompleteness, complete_samples,
-    completeness, completeness_by_surface, sample_mesh_surface,
+    COMPLETENESS_THRESHOLD_M, PointGrid, SurfaceClass, SurfaceCompleteness, complete_fraction,
+    complete_samples, completeness, completeness_by_surface, sample_mesh_surface,
 };
 pub use corrected::CorrectedTrajectory;
 pub use coverage::coverage_2d;

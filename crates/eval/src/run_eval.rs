@@ -37,7 +37,8 @@ use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::validity::{self, RunWarning};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
 use crate::{
-    AteOptions, EvalError, ImageView, MetricsReport, ate, complete_samples, completeness_by_surface,
+    AteOptions, EvalError, ImageView, MetricsReport, ate, complete_fraction, complete_samples,
+    completeness_by_surface,
 };
 use activemap_geometry::RobotModel;
 use activemap_geometry::{
@@ -458,8 +459,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         report.mark_missing("completeness", "the scene mesh has no surface to sample");
     } else {
         let complete = complete_samples(&samples, &observed, crate::COMPLETENESS_THRESHOLD_M)?;
-        report.completeness =
-            Some(complete.iter().filter(|&&c| c).count() as f64 / samples.len() as f64);
+        report.completeness = Some(complete_fraction(&complete));
         let ceiling_z = samples
             .iter()
             .map(|p| p.z)
