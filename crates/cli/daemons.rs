@@ -111,6 +111,17 @@ pub fn start(
     }
     let done = client.wait(&run_id, Duration::from_millis(250))?;
     print_entries(&done);
+    // A failed run also says so on stderr, machine by machine, with the launcher's reason (a
+    // node not ready in time, a crash and its log tail): the exit status alone names nothing.
+    for e in &done {
+        if let RunState::Failed(why) = &e.state {
+            eprintln!(
+                "error: run {run_id} failed on machine `{}`: {why} (its logs: {})",
+                e.machine,
+                activemap_runtime::node::logs_dir(&e.run_dir).display()
+            );
+        }
+    }
     Ok(done.iter().all(|e| e.state == RunState::Finished))
 }
 

@@ -204,8 +204,9 @@ fn long_lived_daemons_accept_a_flow_list_it_show_logs_and_go_down() {
         // Until both daemons listen, the client cannot connect or a machine does not answer.
         assert!(
             out.stderr.contains("no daemon answered") || out.stderr.contains("no daemon reachable"),
-            "start failed for another reason:\n{}",
-            out.stderr
+            "start failed for another reason:\n{}\n{}",
+            out.stderr,
+            out.stdout
         );
         std::thread::sleep(Duration::from_millis(250));
     }
@@ -390,6 +391,48 @@ fn daemons_refuse_exposed_listening_and_executables_outside_allow_exec() {
         "{}",
         out.stderr
     );
+
+    // An allowed node that fails: `start --wait` exits non-zero and names, on stderr, the run,
+    // the machine and the launcher's reason (the crash, with the node's name).
+    let failing = tools.join("fails.sh");
+    std::fs::write(&failing, "#!/bin/sh\necho 'cannot go on' >&2\nexit 3\n").unwrap();
+    std::fs::set_permissions(
+        &failing,
+        std::os::unix::fs::PermissionsExt::from_mode(0o755),
+    )
+    .unwrap();
+    let failing_flow = tmp.path().join("fails.yaml");
+    std::fs::write(
+        &failing_flow,
+        format!(
+            "machines:\n  - id: a\n    listen: [tcp/127.0.0.4:{}]\nnodes:\n  - id: quitter\n    path: {}\n    outputs: [{{ id: out, type: Counter }}]\n    deploy: {{ machine: a }}\n",
+            free_port("127.0.0.4"),
+            failing.display()
+        ),
+    )
+    .unwrap();
+    let failed = run(
+        &[
+            "start",
+            failing_flow.to_str().unwrap(),
+            "--connect",
+            &control,
+            "--run-id",
+            "quits",
+            "--wait",
+        ],
+        &root(),
+        Duration::from_secs(120),
+    );
+    assert!(!failed.status.success(), "{}", failed.stdout);
+    assert!(
+        failed.stderr.contains("run quits failed on machine `a`")
+            && failed.stderr.contains("node `quitter` crashed"),
+        "{}\n{}",
+        failed.stderr,
+        failed.stdout
+    );
+
     let down = run(
         &["down", "--connect", &control],
         &root(),
@@ -537,8 +580,9 @@ fn daemons_with_mutual_tls_run_a_flow_and_refuse_clients_without_a_valid_certifi
         }
         assert!(
             out.stderr.contains("no daemon answered") || out.stderr.contains("no daemon reachable"),
-            "start failed for another reason:\n{}",
-            out.stderr
+            "start failed for another reason:\n{}\n{}",
+            out.stderr,
+            out.stdout
         );
         std::thread::sleep(Duration::from_millis(250));
     }

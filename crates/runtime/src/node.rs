@@ -11,7 +11,7 @@ use activemap_schemas::{MessageKind, TransportClass};
 
 use crate::RuntimeError;
 use crate::catalog::config_from_value;
-use crate::dataflow::{Dataflow, NodeImpl, NodeSpec};
+use crate::dataflow::{Dataflow, DropPolicy, NodeImpl, NodeSpec};
 use crate::operator::{
     Context, Event, Flow, IDLE_SLEEP_MAX, IDLE_SLEEP_MIN, Input, Operator, OutputSink,
 };
@@ -522,13 +522,13 @@ pub fn run_operator<O: Operator>(setup: NodeSetup<'_>) -> Result<(), RuntimeErro
         &session,
         &control_key(&run.run_id, "start"),
         1,
-        crate::dataflow::DropPolicy::DropOldest,
+        DropPolicy::DropOldest,
     )?;
     let stop_sub = ZenohSubscriber::create(
         &session,
         &control_key(&run.run_id, "stop"),
         1,
-        crate::dataflow::DropPolicy::DropOldest,
+        DropPolicy::DropOldest,
     )?;
     let ready = ZenohPublisher::create(
         &session,
@@ -591,6 +591,9 @@ fn event_loop<O: Operator>(
         .map(|t| (t.name.clone(), t.period, started + t.period))
         .collect();
     let mut closed = vec![false; inputs.len()];
+    // The producer's sequence number last seen per input: a gap on a `drop: block` input is a
+    // message lost in transit (nothing may drop it), and is said on stderr, naming the input.
+    let mut last_seq = vec![0u64; inputs.len()];
     let mut idle = IDLE_SLEEP_MIN;
     loop {
         if stop.load(Ordering::Relaxed) || stop_sub.recv(None)?.is_some() {
@@ -606,7 +609,17 @@ fn event_loop<O: Operator>(
             let kind = spec.inputs[i].kind;
             let mut flow = Ok(Flow::Continue);
             let mut got_eos = false;
+            let last = &mut last_seq[i];
+            let input = &spec.inputs[i];
             let mut handle = |seq: u64, bytes: &[u8]| {
+                if let Some(lost) = lost_in_transit(*last, seq, input.drop) {
+                    eprintln!(
+                        "activemap: node `{}` input `{port}` (from {}): {lost} message(s) lost in transit before sequence number {seq}",
+                        spec.id,
+                        input.source_topic()
+                    );
+                }
+                *last = seq;
                 let event = if bytes.is_empty() {
                     got_eos = true;
                     Event::InputClosed { port }
@@ -681,9 +694,29 @@ pub fn logs_dir(run_dir: &Path) -> PathBuf {
     run_dir.join("logs")
 }
 
+/// How many messages a `drop: block` input lost between sequence numbers `last` and `seq` (the
+/// producer numbers its messages 1, 2, …). `None` when nothing was lost, before the first
+/// message (`last` 0: a restarted consumer starts mid-stream), on a drop-oldest input
+/// (dropping is its policy), or when the producer restarted (`seq` at or below `last`).
+fn lost_in_transit(last: u64, seq: u64, drop: DropPolicy) -> Option<u64> {
+    (drop == DropPolicy::Block && last > 0 && seq > last + 1).then(|| seq - last - 1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_gap_in_a_blocking_inputs_sequence_numbers_counts_the_lost_messages() {
+        assert_eq!(lost_in_transit(3, 4, DropPolicy::Block), None);
+        assert_eq!(lost_in_transit(3, 5, DropPolicy::Block), Some(1));
+        assert_eq!(lost_in_transit(3, 9, DropPolicy::Block), Some(5));
+        // Dropping is a ring's policy; a first message mid-stream or a restarted producer is
+        // no loss.
+        assert_eq!(lost_in_transit(3, 9, DropPolicy::DropOldest), None);
+        assert_eq!(lost_in_transit(0, 7, DropPolicy::Block), None);
+        assert_eq!(lost_in_transit(7, 1, DropPolicy::Block), None);
+    }
     use crate::catalog::{OperatorDescriptor, PortSpec, check_config_as};
     use activemap_schemas::{Counter, Payload};
 
