@@ -24,7 +24,7 @@
 use crate::SplatError;
 use crate::backward::{CHUNK, check_pixels};
 use crate::gaussians::{Gaussians, SH_C0, layout};
-use crate::project::{ConicPrep, Splat, chain, project_vjp_with};
+use crate::project::{ConicPrep, Splat, chain, projection_jacobian};
 use crate::rasterize::{ForwardContext, Render};
 use crate::real::Real;
 use crate::tiles::TILE;
@@ -546,38 +546,18 @@ fn walk_fisher<T: Real, const PER_CHANNEL: bool, const POSE: bool, const L: usiz
 type PosePart = ([f64; 36], [f64; 36]);
 
 /// The projection Jacobians of Gaussian `i` of the render: `∂u_k/∂w` over the 10 geometric
-/// parameters (mean, quaternion, log-scale) and `∂u_k/∂τ` over the pose, for the 6 geometric
-/// entries of `u`; zero when the projection chain is degenerate.
+/// parameters (mean, quaternion, log-scale) and, `with_pose`, `∂u_k/∂τ` over the pose (else
+/// zero), for the 6 geometric entries of `u`; zero when the projection chain is degenerate.
 fn projection_jacobians<T: Real>(
     ctx: &ForwardContext<T>,
     gaussians: &Gaussians<T>,
     i: usize,
+    with_pose: bool,
 ) -> (GeoJacobian<T>, [[T; 6]; 6]) {
-    let mut geo = GeoJacobian::<T>::default();
-    let mut pose = [[T::zero(); 6]; 6];
-    let Some(c) = chain(&ctx.cam, gaussians, i) else {
-        return (geo, pose);
-    };
-    let prep = ConicPrep::new(&c);
-    for k in 0..6 {
-        let mut up = [T::zero(); 6];
-        up[k] = T::one();
-        let g = project_vjp_with(&c, &prep, &ctx.cam, &up);
-        geo[k] = [
-            g.mean[0],
-            g.mean[1],
-            g.mean[2],
-            g.rotation[0],
-            g.rotation[1],
-            g.rotation[2],
-            g.rotation[3],
-            g.log_scale[0],
-            g.log_scale[1],
-            g.log_scale[2],
-        ];
-        pose[k] = g.pose;
+    match chain(&ctx.cam, gaussians, i) {
+        Some(c) => projection_jacobian(&c, &ConicPrep::new(&c), &ctx.cam, with_pose),
+        None => (GeoJacobian::<T>::default(), [[T::zero(); 6]; 6]),
     }
-    (geo, pose)
 }
 
 /// What the pixel walk needs of a Gaussian's pose Jacobian `pose[k][j] = ∂u_k/∂τ_j`.
@@ -699,7 +679,7 @@ pub(crate) fn fisher_with_lanes<T: Real>(
     let jacobians: Vec<(GeoJacobian<T>, [[T; 6]; 6])> = ids
         .par_iter()
         .with_min_len(CHUNK)
-        .map(|&i| projection_jacobians(ctx, gaussians, i as usize))
+        .map(|&i| projection_jacobians(ctx, gaussians, i as usize, with_pose))
         .collect();
     let pose_rows: Vec<PoseRows<T>> = if with_pose {
         jacobians

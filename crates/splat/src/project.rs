@@ -288,8 +288,8 @@ impl<T: Real> ConicPrep<T> {
     }
 }
 
-/// [`project_vjp`] with the chain products `prep` computed once (the Fisher pass asks for
-/// several upstream vectors per Gaussian).
+/// [`project_vjp`] with the chain products `prep` given (they are shared with
+/// [`projection_jacobian`]).
 pub(crate) fn project_vjp_with<T: Real>(
     c: &Chain<T>,
     prep: &ConicPrep<T>,
@@ -310,7 +310,7 @@ pub(crate) fn project_vjp_with<T: Real>(
     );
     if up[2] == T::zero() && up[3] == T::zero() && up[4] == T::zero() {
         // No gradient on the conic: every covariance term below is zero, only the mean path
-        // remains (the Fisher pass asks for such unit rows).
+        // remains.
         let mean_grad = c.w.transpose() * dp;
         let cross = c.p_c.cross(&dp);
         return ProjectionGrads {
@@ -391,6 +391,136 @@ pub(crate) fn project_vjp_with<T: Real>(
         log_scale,
         pose,
     }
+}
+
+/// The whole projection Jacobian of one Gaussian, row by row: `geo[k] = ∂u_k/∂w` over the 10
+/// geometric parameters (mean, quaternion, log-scale) and `pose[k] = ∂u_k/∂τ` (zero unless
+/// `with_pose`), for `u = (mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)`. Row `k` equals
+/// [`project_vjp_with`] with the unit upstream vector `e_k`, computed jointly: the three conic
+/// rows have `G = ∂u_k/∂Σ' = −½(a·bᵀ + b·aᵀ)` with `a`, `b` columns of `Q`, so their products
+/// with the chain (`2·G·C`, `2·AᵀG·B`, `CᵀG·J`) are sums of outer products of a few 3-vectors
+/// shared by the rows, not 2×2×3 matrix chains per row (the Fisher pass's per-Gaussian cost).
+pub(crate) fn projection_jacobian<T: Real>(
+    c: &Chain<T>,
+    prep: &ConicPrep<T>,
+    cam: &CameraT<T>,
+    with_pose: bool,
+) -> ([[T; 10]; 6], [[T; 6]; 6]) {
+    let two = T::of(2.0);
+    let half = T::of(0.5);
+    let (fx, fy) = (cam.fx, cam.fy);
+    let iz = T::one() / c.p_c.z;
+    let iz2 = iz * iz;
+    let iz3 = iz2 * iz;
+    let mut geo = [[T::zero(); 10]; 6];
+    let mut pose = [[T::zero(); 6]; 6];
+    // The mean rows (and z): no conic term, only the mean path.
+    let mean_rows = [
+        (0, Vector3::new(fx * iz, T::zero(), -fx * c.p_c.x * iz2)),
+        (1, Vector3::new(T::zero(), fy * iz, -fy * c.p_c.y * iz2)),
+        (5, Vector3::new(T::zero(), T::zero(), T::one())),
+    ];
+    for (k, dp) in mean_rows {
+        let mean_grad = c.w.transpose() * dp;
+        geo[k][0..3].copy_from_slice(&[mean_grad.x, mean_grad.y, mean_grad.z]);
+        if with_pose {
+            let cross = c.p_c.cross(&dp);
+            pose[k] = [dp.x, dp.y, dp.z, cross.x, cross.y, cross.z];
+        }
+    }
+    // Columns of the (symmetric) conic and their products with the chain's 2×3 factors.
+    let q = [
+        nalgebra::Vector2::new(c.conic[(0, 0)], c.conic[(1, 0)]),
+        nalgebra::Vector2::new(c.conic[(0, 1)], c.conic[(1, 1)]),
+    ];
+    let aq = q.map(|v| prep.a.transpose() * v);
+    let bq = q.map(|v| prep.b.transpose() * v);
+    let cq = q.map(|v| prep.c.transpose() * v);
+    let jq = q.map(|v| c.j.transpose() * v);
+    let focal = [fx, fy];
+    let [w, qx, qy, qz] = c.q_n;
+    let four = T::of(4.0);
+    // Row k = 2 + r with (a, b) = (q0, q0), (q0, q1), (q1, q1).
+    for (r, (ia, ib)) in [(0usize, 0usize), (0, 1), (1, 1)].into_iter().enumerate() {
+        let k = 2 + r;
+        let (ua, ub) = (q[ia], q[ib]);
+        // 2·G·C = −(a·(Cᵀb)ᵀ + b·(Cᵀa)ᵀ).
+        let dj = |row: usize, col: usize| -(ua[row] * cq[ib][col] + ub[row] * cq[ia][col]);
+        let mut dp = Vector3::new(
+            T::zero(),
+            T::zero(),
+            dj(0, 0) * (-fx * iz2) + dj(1, 1) * (-fy * iz2),
+        );
+        for (m, f) in focal.iter().enumerate() {
+            let d = dj(m, 2);
+            if c.clamped[m] {
+                dp.z += d * *f * c.t_xy[m] * iz3;
+            } else {
+                dp[m] += d * (-*f * iz2);
+                dp.z += d * two * *f * c.t_xy[m] * iz3;
+            }
+        }
+        let mean_grad = c.w.transpose() * dp;
+        // 2·AᵀG·B = −(Aᵀa·(Bᵀb)ᵀ + Aᵀb·(Bᵀa)ᵀ).
+        let dm = |i: usize, j: usize| -(aq[ia][i] * bq[ib][j] + aq[ib][i] * bq[ia][j]);
+        let mut d_rq = [[T::zero(); 3]; 3];
+        let mut log_scale = [T::zero(); 3];
+        for jj in 0..3 {
+            let mut ds = T::zero();
+            for (ii, row) in d_rq.iter_mut().enumerate() {
+                let v = dm(ii, jj);
+                row[jj] = v * c.s[jj];
+                ds += v * c.rq[(ii, jj)];
+            }
+            log_scale[jj] = ds * c.s[jj];
+        }
+        let g = |a: usize, b: usize| d_rq[a][b];
+        let dqn = [
+            two * (-qz * g(0, 1) + qy * g(0, 2) + qz * g(1, 0) - qx * g(1, 2) - qy * g(2, 0)
+                + qx * g(2, 1)),
+            two * (qy * g(0, 1) + qz * g(0, 2) + qy * g(1, 0) - w * g(1, 2)
+                + qz * g(2, 0)
+                + w * g(2, 1))
+                - four * qx * (g(1, 1) + g(2, 2)),
+            two * (qx * g(0, 1) + w * g(0, 2) + qx * g(1, 0) + qz * g(1, 2) - w * g(2, 0)
+                + qz * g(2, 1))
+                - four * qy * (g(0, 0) + g(2, 2)),
+            two * (-w * g(0, 1)
+                + qx * g(0, 2)
+                + w * g(1, 0)
+                + qy * g(1, 2)
+                + qx * g(2, 0)
+                + qy * g(2, 1))
+                - four * qz * (g(0, 0) + g(1, 1)),
+        ];
+        let dot = dqn[0] * w + dqn[1] * qx + dqn[2] * qy + dqn[3] * qz;
+        geo[k] = [
+            mean_grad.x,
+            mean_grad.y,
+            mean_grad.z,
+            (dqn[0] - w * dot) / c.q_norm,
+            (dqn[1] - qx * dot) / c.q_norm,
+            (dqn[2] - qy * dot) / c.q_norm,
+            (dqn[3] - qz * dot) / c.q_norm,
+            log_scale[0],
+            log_scale[1],
+            log_scale[2],
+        ];
+        if with_pose {
+            let cross = c.p_c.cross(&dp);
+            // CᵀG·J = −½(Cᵀa·(Jᵀb)ᵀ + Cᵀb·(Jᵀa)ᵀ); only its antisymmetric part enters.
+            let p = |i: usize, j: usize| -half * (cq[ia][i] * jq[ib][j] + cq[ib][i] * jq[ia][j]);
+            pose[k] = [
+                dp.x,
+                dp.y,
+                dp.z,
+                cross.x + two * (p(1, 2) - p(2, 1)),
+                cross.y + two * (p(2, 0) - p(0, 2)),
+                cross.z + two * (p(0, 1) - p(1, 0)),
+            ];
+        }
+    }
+    (geo, pose)
 }
 
 /// Row-wise evaluation of `σ = ½Q_xx dx² + Q_xy dx dy + ½Q_yy dy²` (SPEC §3): the terms in
@@ -500,6 +630,125 @@ mod tests {
         assert!(camera.with_far(0.005).validate().is_err());
         assert!(camera.with_far(f64::NAN).validate().is_err());
         assert!(camera.with_far(f64::INFINITY).validate().is_ok());
+    }
+
+    /// Random Gaussians in front of a tilted camera (f64): some well inside the view, some
+    /// beyond 1.3× its field of view, where the pinhole Jacobian is clamped.
+    fn jacobian_scene(seed: u64) -> (CameraT<f64>, Gaussians<f64>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let k = Intrinsics::from_hfov(40, 32, 90f64.to_radians());
+        let pose = Isometry3::new(
+            nalgebra::Vector3::new(0.2, -0.1, 0.3),
+            nalgebra::Vector3::new(0.1, -0.2, 0.05),
+        );
+        let cam = CameraT::<f64>::new(&Camera::new(k, pose));
+        let mut g = Gaussians::<f64>::new();
+        for n in 0..60 {
+            // Every third lies far off the axis (|x/z| > 1.3·tan 45°): a clamped Jacobian.
+            let off = if n % 3 == 0 { 3.0 } else { 0.6 };
+            let z: f64 = rng.random_range(1.0..4.0);
+            let mean = [
+                rng.random_range(-off..off) * z,
+                rng.random_range(-0.6..0.6) * z,
+                z,
+            ];
+            let scale = [0; 3].map(|_| 10f64.powf(rng.random_range(-2.5..-0.7)));
+            let q = [0; 4].map(|_| rng.random_range(-1.0..1.0));
+            g.push(mean, [0.5, 0.4, 0.3], q, rng.random_range(0.2..0.9), scale);
+        }
+        (cam, g)
+    }
+
+    /// The joint Jacobian is, row by row, the vector-Jacobian product with a unit vector
+    /// (geometric and pose parts), to rounding; without the pose its pose part is zero and its
+    /// geometric part the same.
+    #[test]
+    fn the_joint_jacobian_equals_the_products_with_unit_vectors() {
+        let (cam, g) = jacobian_scene(11);
+        let mut clamped = 0;
+        for i in 0..g.len() {
+            let Some(c) = chain(&cam, &g, i) else {
+                continue;
+            };
+            clamped += usize::from(c.clamped.iter().any(|v| *v));
+            let prep = ConicPrep::new(&c);
+            let (geo, pose) = projection_jacobian(&c, &prep, &cam, true);
+            let (geo_alone, pose_alone) = projection_jacobian(&c, &prep, &cam, false);
+            assert_eq!(geo, geo_alone);
+            assert_eq!(pose_alone, [[0.0; 6]; 6]);
+            for k in 0..6 {
+                let mut up = [0.0; 6];
+                up[k] = 1.0;
+                let v = project_vjp(&c, &cam, &up);
+                let want: Vec<f64> = v
+                    .mean
+                    .iter()
+                    .chain(&v.rotation)
+                    .chain(&v.log_scale)
+                    .chain(&v.pose)
+                    .copied()
+                    .collect();
+                let got: Vec<f64> = geo[k].iter().chain(&pose[k]).copied().collect();
+                let scale = want.iter().fold(1e-9f64, |m, x| m.max(x.abs()));
+                for (p, (a, b)) in got.iter().zip(&want).enumerate() {
+                    assert!(
+                        (a - b).abs() <= 1e-12 * scale,
+                        "Gaussian {i} row {k} entry {p}: {a} vs {b}"
+                    );
+                }
+            }
+        }
+        assert!(clamped > 5, "only {clamped} clamped Gaussians");
+    }
+
+    /// The geometric rows against central finite differences of the projection itself (f64):
+    /// `u = (mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)` of [`project_one`] under a nudge of each
+    /// mean coordinate, quaternion component and log-scale.
+    #[test]
+    fn the_joint_jacobian_matches_finite_differences_of_the_projection() {
+        let (cam, g) = jacobian_scene(12);
+        let u_of = |g: &Gaussians<f64>, i: usize| -> Option<[f64; 6]> {
+            let s = project_one(&cam, g, i)?;
+            Some([
+                s.mean[0], s.mean[1], s.conic[0], s.conic[1], s.conic[2], s.depth,
+            ])
+        };
+        let mut checked = 0;
+        for i in 0..g.len() {
+            let Some(c) = chain(&cam, &g, i) else {
+                continue;
+            };
+            if u_of(&g, i).is_none() {
+                continue;
+            }
+            let (geo, _) = projection_jacobian(&c, &ConicPrep::new(&c), &cam, false);
+            for p in 0..10 {
+                let h = 1e-6;
+                let nudged = |d: f64| {
+                    let mut h_g = g.clone();
+                    match p {
+                        0..=2 => h_g.means[i][p] += d,
+                        3..=6 => h_g.rotations[i][p - 3] += d,
+                        _ => h_g.log_scales[i][p - 7] += d,
+                    }
+                    u_of(&h_g, i)
+                };
+                let (Some(plus), Some(minus)) = (nudged(h), nudged(-h)) else {
+                    continue;
+                };
+                for k in 0..6 {
+                    let fd = (plus[k] - minus[k]) / (2.0 * h);
+                    let tol = 1e-6 * (1.0 + fd.abs().max(geo[k][p].abs()));
+                    assert!(
+                        (fd - geo[k][p]).abs() <= tol,
+                        "Gaussian {i} ∂u_{k}/∂w_{p}: analytic {} vs finite difference {fd}",
+                        geo[k][p]
+                    );
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 300, "only {checked} columns checked");
     }
 
     /// The screen box of Gaussian `i` at the largest extent (3, as for an opaque Gaussian),
