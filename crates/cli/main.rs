@@ -331,12 +331,20 @@ fn main() -> ExitCode {
 /// the main loop 15 % faster (`run dataflow.yaml --no-record --max-steps 400`, median of 3
 /// alternated runs, 27.1 s against 31.9 s). Peak memory is unchanged (a freed block is reused,
 /// not added to); memory freed after a peak is kept.
+///
+/// The trim threshold does not cover the heaps of the worker threads' arenas (at most 64 MiB
+/// each): glibc unmaps such a heap whole as soon as it is free, unless the top pad exceeds it.
+/// The Fisher scorer's candidate views (one per rayon worker, ~50 MB of buffers each) emptied
+/// and re-created a heap per view, and the kernel's page clearing was again 15 % of its
+/// samples; a 128 MiB top pad keeps those heaps. Measured: `bench scorer` replan 2.85/3.02 s
+/// → 2.31/2.38 s (two alternated pairs, `incremental`; the pad set by `GLIBC_TUNABLES`).
 fn keep_freed_memory() {
     #[cfg(target_env = "gnu")]
     // SAFETY: mallopt only sets allocator parameters; it is called before any thread starts.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+        libc::mallopt(libc::M_TOP_PAD, 128 << 20);
     }
 }
 
