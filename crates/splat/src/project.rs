@@ -302,7 +302,6 @@ pub(crate) fn project_vjp_with<T: Real>(
     let (x, y, z) = (c.p_c.x, c.p_c.y, c.p_c.z);
     let iz = T::one() / z;
     let iz2 = iz * iz;
-    let iz3 = iz2 * iz;
     let mut dp = Vector3::new(
         up[0] * fx * iz,
         up[1] * fy * iz,
@@ -325,54 +324,12 @@ pub(crate) fn project_vjp_with<T: Real>(
     let gs = -(c.conic * gq * c.conic);
     // Σ' = J Σ_c Jᵀ: ∂L/∂Σ_c = Jᵀ·gs·J, ∂L/∂J = 2·gs·J·Σ_c.
     let dj = gs * prep.c * two;
-    dp.z += dj[(0, 0)] * (-fx * iz2) + dj[(1, 1)] * (-fy * iz2);
-    let focal = [fx, fy];
-    for k in 0..2 {
-        let d = dj[(k, 2)];
-        if c.clamped[k] {
-            dp.z += d * focal[k] * c.t_xy[k] * iz3;
-        } else {
-            dp[k] += d * (-focal[k] * iz2);
-            dp.z += d * two * focal[k] * c.t_xy[k] * iz3;
-        }
-    }
+    add_jacobian_grad(c, cam, |r, k| dj[(r, k)], &mut dp);
     let mean_grad = c.w.transpose() * dp;
     // Σ_c = W Σ Wᵀ, Σ = M Mᵀ, M = R(q) S.
     // ∂L/∂Σ = Wᵀ(∂L/∂Σ_c)W = Aᵀ·gs·A; ∂L/∂M = 2·(∂L/∂Σ)·M = 2·Aᵀ·gs·B.
     let dm = prep.a.transpose() * (gs * prep.b) * two;
-    let mut d_rq = Matrix3::zeros();
-    let mut log_scale = [T::zero(); 3];
-    for jj in 0..3 {
-        let mut ds = T::zero();
-        for ii in 0..3 {
-            d_rq[(ii, jj)] = dm[(ii, jj)] * c.s[jj];
-            ds += dm[(ii, jj)] * c.rq[(ii, jj)];
-        }
-        log_scale[jj] = ds * c.s[jj];
-    }
-    let g = |a: usize, b: usize| d_rq[(a, b)];
-    let [w, qx, qy, qz] = c.q_n;
-    let four = T::of(4.0);
-    let dqn = [
-        two * (-qz * g(0, 1) + qy * g(0, 2) + qz * g(1, 0) - qx * g(1, 2) - qy * g(2, 0)
-            + qx * g(2, 1)),
-        two * (qy * g(0, 1) + qz * g(0, 2) + qy * g(1, 0) - w * g(1, 2)
-            + qz * g(2, 0)
-            + w * g(2, 1))
-            - four * qx * (g(1, 1) + g(2, 2)),
-        two * (qx * g(0, 1) + w * g(0, 2) + qx * g(1, 0) + qz * g(1, 2) - w * g(2, 0)
-            + qz * g(2, 1))
-            - four * qy * (g(0, 0) + g(2, 2)),
-        two * (-w * g(0, 1)
-            + qx * g(0, 2)
-            + w * g(1, 0)
-            + qy * g(1, 2)
-            + qx * g(2, 0)
-            + qy * g(2, 1))
-            - four * qz * (g(0, 0) + g(1, 1)),
-    ];
-    let dot = dqn[0] * w + dqn[1] * qx + dqn[2] * qy + dqn[3] * qz;
-    let rotation = [0, 1, 2, 3].map(|k| (dqn[k] - c.q_n[k] * dot) / c.q_norm);
+    let (rotation, log_scale) = shape_grads(c, |i, j| dm[(i, j)]);
     // Pose: ∂p_c/∂ρ = I, ∂p_c/∂θ = −[p_c]×, Σ_c = W Σ Wᵀ with ∂(W v)/∂θ = −[W v]×.
     let cross = c.p_c.cross(&dp);
     // Σ_c·(∂L/∂Σ_c) = Σ_c·Jᵀ·gs·J = Cᵀ·gs·J.
@@ -393,6 +350,74 @@ pub(crate) fn project_vjp_with<T: Real>(
     }
 }
 
+/// Adds to `dp = ∂L/∂p_c` what flows through the pinhole Jacobian `J` (evaluated at the
+/// clamped `x/z`, `y/z`), given `dj(r, k) = ∂L/∂J_rk`.
+#[inline(always)]
+fn add_jacobian_grad<T: Real>(
+    c: &Chain<T>,
+    cam: &CameraT<T>,
+    dj: impl Fn(usize, usize) -> T,
+    dp: &mut Vector3<T>,
+) {
+    let two = T::of(2.0);
+    let iz = T::one() / c.p_c.z;
+    let iz2 = iz * iz;
+    let iz3 = iz2 * iz;
+    let focal = [cam.fx, cam.fy];
+    dp.z += dj(0, 0) * (-focal[0] * iz2) + dj(1, 1) * (-focal[1] * iz2);
+    for (k, f) in focal.iter().enumerate() {
+        let d = dj(k, 2);
+        if c.clamped[k] {
+            dp.z += d * *f * c.t_xy[k] * iz3;
+        } else {
+            dp[k] += d * (-*f * iz2);
+            dp.z += d * two * *f * c.t_xy[k] * iz3;
+        }
+    }
+}
+
+/// The gradients on the raw quaternion and the log-scales, given `dm(i, j) = ∂L/∂M_ij` for
+/// `M = R(q/|q|)·S` (SPEC §3).
+#[inline(always)]
+fn shape_grads<T: Real>(c: &Chain<T>, dm: impl Fn(usize, usize) -> T) -> ([T; 4], [T; 3]) {
+    let two = T::of(2.0);
+    let four = T::of(4.0);
+    let mut d_rq = [[T::zero(); 3]; 3];
+    let mut log_scale = [T::zero(); 3];
+    for jj in 0..3 {
+        let mut ds = T::zero();
+        for (ii, row) in d_rq.iter_mut().enumerate() {
+            let v = dm(ii, jj);
+            row[jj] = v * c.s[jj];
+            ds += v * c.rq[(ii, jj)];
+        }
+        log_scale[jj] = ds * c.s[jj];
+    }
+    let g = |a: usize, b: usize| d_rq[a][b];
+    let [w, qx, qy, qz] = c.q_n;
+    let dqn = [
+        two * (-qz * g(0, 1) + qy * g(0, 2) + qz * g(1, 0) - qx * g(1, 2) - qy * g(2, 0)
+            + qx * g(2, 1)),
+        two * (qy * g(0, 1) + qz * g(0, 2) + qy * g(1, 0) - w * g(1, 2)
+            + qz * g(2, 0)
+            + w * g(2, 1))
+            - four * qx * (g(1, 1) + g(2, 2)),
+        two * (qx * g(0, 1) + w * g(0, 2) + qx * g(1, 0) + qz * g(1, 2) - w * g(2, 0)
+            + qz * g(2, 1))
+            - four * qy * (g(0, 0) + g(2, 2)),
+        two * (-w * g(0, 1)
+            + qx * g(0, 2)
+            + w * g(1, 0)
+            + qy * g(1, 2)
+            + qx * g(2, 0)
+            + qy * g(2, 1))
+            - four * qz * (g(0, 0) + g(1, 1)),
+    ];
+    let dot = dqn[0] * w + dqn[1] * qx + dqn[2] * qy + dqn[3] * qz;
+    let rotation = [0, 1, 2, 3].map(|k| (dqn[k] - c.q_n[k] * dot) / c.q_norm);
+    (rotation, log_scale)
+}
+
 /// The whole projection Jacobian of one Gaussian, row by row: `geo[k] = ∂u_k/∂w` over the 10
 /// geometric parameters (mean, quaternion, log-scale) and `pose[k] = ∂u_k/∂τ` (zero unless
 /// `with_pose`), for `u = (mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)`. Row `k` equals
@@ -411,7 +436,6 @@ pub(crate) fn projection_jacobian<T: Real>(
     let (fx, fy) = (cam.fx, cam.fy);
     let iz = T::one() / c.p_c.z;
     let iz2 = iz * iz;
-    let iz3 = iz2 * iz;
     let mut geo = [[T::zero(); 10]; 6];
     let mut pose = [[T::zero(); 6]; 6];
     // The mean rows (and z): no conic term, only the mean path.
@@ -437,71 +461,26 @@ pub(crate) fn projection_jacobian<T: Real>(
     let bq = q.map(|v| prep.b.transpose() * v);
     let cq = q.map(|v| prep.c.transpose() * v);
     let jq = q.map(|v| c.j.transpose() * v);
-    let focal = [fx, fy];
-    let [w, qx, qy, qz] = c.q_n;
-    let four = T::of(4.0);
     // Row k = 2 + r with (a, b) = (q0, q0), (q0, q1), (q1, q1).
     for (r, (ia, ib)) in [(0usize, 0usize), (0, 1), (1, 1)].into_iter().enumerate() {
         let k = 2 + r;
         let (ua, ub) = (q[ia], q[ib]);
         // 2·G·C = −(a·(Cᵀb)ᵀ + b·(Cᵀa)ᵀ).
         let dj = |row: usize, col: usize| -(ua[row] * cq[ib][col] + ub[row] * cq[ia][col]);
-        let mut dp = Vector3::new(
-            T::zero(),
-            T::zero(),
-            dj(0, 0) * (-fx * iz2) + dj(1, 1) * (-fy * iz2),
-        );
-        for (m, f) in focal.iter().enumerate() {
-            let d = dj(m, 2);
-            if c.clamped[m] {
-                dp.z += d * *f * c.t_xy[m] * iz3;
-            } else {
-                dp[m] += d * (-*f * iz2);
-                dp.z += d * two * *f * c.t_xy[m] * iz3;
-            }
-        }
+        let mut dp = Vector3::zeros();
+        add_jacobian_grad(c, cam, dj, &mut dp);
         let mean_grad = c.w.transpose() * dp;
         // 2·AᵀG·B = −(Aᵀa·(Bᵀb)ᵀ + Aᵀb·(Bᵀa)ᵀ).
         let dm = |i: usize, j: usize| -(aq[ia][i] * bq[ib][j] + aq[ib][i] * bq[ia][j]);
-        let mut d_rq = [[T::zero(); 3]; 3];
-        let mut log_scale = [T::zero(); 3];
-        for jj in 0..3 {
-            let mut ds = T::zero();
-            for (ii, row) in d_rq.iter_mut().enumerate() {
-                let v = dm(ii, jj);
-                row[jj] = v * c.s[jj];
-                ds += v * c.rq[(ii, jj)];
-            }
-            log_scale[jj] = ds * c.s[jj];
-        }
-        let g = |a: usize, b: usize| d_rq[a][b];
-        let dqn = [
-            two * (-qz * g(0, 1) + qy * g(0, 2) + qz * g(1, 0) - qx * g(1, 2) - qy * g(2, 0)
-                + qx * g(2, 1)),
-            two * (qy * g(0, 1) + qz * g(0, 2) + qy * g(1, 0) - w * g(1, 2)
-                + qz * g(2, 0)
-                + w * g(2, 1))
-                - four * qx * (g(1, 1) + g(2, 2)),
-            two * (qx * g(0, 1) + w * g(0, 2) + qx * g(1, 0) + qz * g(1, 2) - w * g(2, 0)
-                + qz * g(2, 1))
-                - four * qy * (g(0, 0) + g(2, 2)),
-            two * (-w * g(0, 1)
-                + qx * g(0, 2)
-                + w * g(1, 0)
-                + qy * g(1, 2)
-                + qx * g(2, 0)
-                + qy * g(2, 1))
-                - four * qz * (g(0, 0) + g(1, 1)),
-        ];
-        let dot = dqn[0] * w + dqn[1] * qx + dqn[2] * qy + dqn[3] * qz;
+        let (rotation, log_scale) = shape_grads(c, dm);
         geo[k] = [
             mean_grad.x,
             mean_grad.y,
             mean_grad.z,
-            (dqn[0] - w * dot) / c.q_norm,
-            (dqn[1] - qx * dot) / c.q_norm,
-            (dqn[2] - qy * dot) / c.q_norm,
-            (dqn[3] - qz * dot) / c.q_norm,
+            rotation[0],
+            rotation[1],
+            rotation[2],
+            rotation[3],
             log_scale[0],
             log_scale[1],
             log_scale[2],
