@@ -314,6 +314,7 @@ pub(crate) fn load(file: &Path, overrides: &[Override]) -> anyhow::Result<Datafl
 
 fn main() -> ExitCode {
     keep_freed_memory();
+    log_library_errors();
     match real_main() {
         Ok(code) => code,
         Err(e) => {
@@ -346,6 +347,20 @@ fn keep_freed_memory() {
         libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
         libc::mallopt(libc::M_TOP_PAD, 128 << 20);
     }
+}
+
+/// Sends the libraries' `tracing` events to stderr (a node's goes to its log file): errors only
+/// by default, so a transport fault inside Zenoh (a link it closes, a handshake it refuses) is
+/// on record where it happened; `RUST_LOG` (e.g. `RUST_LOG=zenoh=debug`) selects more. Never
+/// stdout, which carries command output.
+fn log_library_errors() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("error"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .try_init();
 }
 
 fn real_main() -> anyhow::Result<ExitCode> {

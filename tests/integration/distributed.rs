@@ -8,7 +8,7 @@ use std::time::Duration;
 use activemap_runtime::record::read_recording;
 use activemap_schemas::{Counter, SmallMessage};
 
-use super::harness::{Finished, root, run, spawn, wait};
+use super::harness::{Finished, root, run, run_env, spawn, wait};
 
 fn free_port(ip: &str) -> u16 {
     std::net::TcpListener::bind((ip, 0))
@@ -333,6 +333,41 @@ fn start_names_the_machine_whose_daemon_is_missing() {
 /// A daemon refuses to listen on a non-loopback address without TLS unless `--insecure`, and
 /// runs `path:` executables only from its `--allow-exec` folders: a flow with another one is
 /// refused, naming the node, and nothing of it runs.
+/// Zenoh's own `tracing` events reach stderr at the level `RUST_LOG` asks for (errors only
+/// by default), never stdout: a client that cannot connect logs Zenoh's warning under
+/// `RUST_LOG=zenoh=warn` and nothing of it at `error`.
+#[test]
+fn library_log_events_go_to_stderr_at_the_level_asked() {
+    let endpoint = format!("tcp/127.0.0.5:{}", free_port("127.0.0.5"));
+    let args = ["list", "--connect", endpoint.as_str()];
+    let verbose = run_env(
+        &args,
+        &root(),
+        &[("RUST_LOG", "zenoh=warn")],
+        Duration::from_secs(60),
+    );
+    assert!(!verbose.status.success());
+    assert!(
+        verbose.stderr.contains("WARN zenoh") && verbose.stderr.contains(&endpoint),
+        "{}",
+        verbose.stderr
+    );
+    assert!(verbose.stdout.trim().is_empty(), "{}", verbose.stdout);
+    let quiet = run_env(
+        &args,
+        &root(),
+        &[("RUST_LOG", "error")],
+        Duration::from_secs(60),
+    );
+    assert!(!quiet.status.success());
+    assert!(!quiet.stderr.contains("WARN"), "{}", quiet.stderr);
+    assert!(
+        quiet.stderr.contains("no daemon reachable"),
+        "{}",
+        quiet.stderr
+    );
+}
+
 #[test]
 fn daemons_refuse_exposed_listening_and_executables_outside_allow_exec() {
     let exposed = run(
