@@ -85,7 +85,23 @@ fn check_machine_b(dir_b: &std::path::Path) {
             .collect()
     };
     let doubled: Vec<i64> = values("double/doubled").iter().map(|c| c.value).collect();
-    assert_eq!(doubled, (1..=10).map(|v| 2 * v).collect::<Vec<_>>());
+    // On a mismatch, machine b's node logs say where a message went missing (a gap warning,
+    // a Zenoh transport error).
+    let logs = || -> String {
+        let dir = dir_b.join("logs");
+        let mut out = String::new();
+        for entry in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
+            let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
+            out += &format!("--- {} ---\n{text}\n", entry.path().display());
+        }
+        out
+    };
+    assert_eq!(
+        doubled,
+        (1..=10).map(|v| 2 * v).collect::<Vec<_>>(),
+        "machine b's logs:\n{}",
+        logs()
+    );
     let reports = values("checker/report");
     assert_eq!(reports.len(), 3, "{reports:?}");
     assert!(
