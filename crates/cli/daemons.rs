@@ -40,7 +40,7 @@ impl Tls {
 #[derive(clap::Args, Debug)]
 pub struct Connect {
     /// Control endpoint of any daemon (its `up --listen`), e.g. tcp/127.0.0.1:7400 or, with
-    /// mutual TLS, tls/10.0.0.1:7400.
+    /// mutual TLS, quic/10.0.0.1:7400 (or tls/10.0.0.1:7400).
     #[arg(long, required = true)]
     pub connect: Vec<String>,
     /// How long to wait for the daemons' answers, in seconds.

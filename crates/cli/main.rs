@@ -125,8 +125,8 @@ enum Command {
         /// start and at every submitted flow).
         #[arg(long, requires = "listen")]
         insecure: bool,
-        /// Daemon mode: mutual TLS on `tls/` endpoints (clients and other daemons must show a
-        /// certificate of the same CA), also used by the runs it starts.
+        /// Daemon mode: mutual TLS on `quic/` and `tls/` endpoints (clients and other daemons
+        /// must show a certificate of the same CA), also used by the runs it starts.
         #[command(flatten)]
         tls: daemons::Tls,
         /// One-shot mode: run id shared by all machines of the run.

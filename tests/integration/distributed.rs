@@ -40,7 +40,7 @@ fn two_machine_flow(pa: u16, pb: u16) -> String {
     two_machine_flow_over("tcp", pa, pb)
 }
 
-/// [`two_machine_flow`] with its data plane over `scheme` (`tcp` or `tls`).
+/// [`two_machine_flow`] with its data plane over `scheme` (`tcp`, `tls` or `quic`).
 fn two_machine_flow_over(scheme: &str, pa: u16, pb: u16) -> String {
     format!(
         "machines:
@@ -561,6 +561,30 @@ fn tls_args(id: &[String; 3]) -> Vec<&str> {
 /// all refused; a daemon given a `tls/` endpoint without its files is refused at start.
 #[test]
 fn daemons_with_mutual_tls_run_a_flow_and_refuse_clients_without_a_valid_certificate() {
+    mutual_tls_daemons("tls");
+}
+
+/// The same over `quic/` (TLS 1.3 inside QUIC, the same certificates and settings).
+#[test]
+fn daemons_with_mutual_tls_over_quic_run_a_flow_and_refuse_clients_without_a_valid_certificate() {
+    mutual_tls_daemons("quic");
+}
+
+/// A free UDP port on `ip` (QUIC listens on UDP).
+fn free_udp_port(ip: &str) -> u16 {
+    std::net::UdpSocket::bind((ip, 0))
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The mutual-TLS daemon scenario with every endpoint over `scheme` (`tls` or `quic`).
+fn mutual_tls_daemons(scheme: &str) {
+    let port = |ip: &str| match scheme {
+        "quic" => free_udp_port(ip),
+        _ => free_port(ip),
+    };
     let tmp = tempfile::tempdir().unwrap();
     let ids = test_pki(
         tmp.path(),
@@ -574,8 +598,9 @@ fn daemons_with_mutual_tls_run_a_flow_and_refuse_clients_without_a_valid_certifi
     let (id_a, id_b, id_client) = (&ids[0], &ids[1], &ids[2]);
     let rogue = &test_pki(tmp.path(), "rogue", &[("client", &["activemap-client"])])[0];
 
+    let no_files_endpoint = format!("{scheme}/127.0.0.2:1");
     let no_files = run(
-        &["up", "--machine", "a", "--listen", "tls/127.0.0.2:1"],
+        &["up", "--machine", "a", "--listen", &no_files_endpoint],
         &root(),
         Duration::from_secs(30),
     );
@@ -586,14 +611,14 @@ fn daemons_with_mutual_tls_run_a_flow_and_refuse_clients_without_a_valid_certifi
         no_files.stderr
     );
 
-    let (pa, pb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
-    let (ca, cb) = (free_port("127.0.0.2"), free_port("127.0.0.3"));
-    let file = tmp.path().join("two-tls.yaml");
-    std::fs::write(&file, two_machine_flow_over("tls", pa, pb)).unwrap();
+    let (pa, pb) = (port("127.0.0.2"), port("127.0.0.3"));
+    let (ca, cb) = (port("127.0.0.2"), port("127.0.0.3"));
+    let file = tmp.path().join(format!("two-{scheme}.yaml"));
+    std::fs::write(&file, two_machine_flow_over(scheme, pa, pb)).unwrap();
     let file = file.to_str().unwrap();
     let (runs_a, runs_b) = (tmp.path().join("a"), tmp.path().join("b"));
-    let control_a = format!("tls/127.0.0.2:{ca}");
-    let control_b = format!("tls/127.0.0.3:{cb}");
+    let control_a = format!("{scheme}/127.0.0.2:{ca}");
+    let control_b = format!("{scheme}/127.0.0.3:{cb}");
     let mut up_a = vec!["up", "--machine", "a", "--listen", &control_a, "--runs"];
     up_a.push(runs_a.to_str().unwrap());
     up_a.extend(tls_args(id_a));

@@ -53,7 +53,7 @@ pub struct DaemonOptions {
     /// at start and at every submitted flow.
     pub insecure: bool,
     /// Mutual TLS (`--tls-ca/--tls-cert/--tls-key`): required of every client and daemon on
-    /// the `tls/` control endpoints, and the default for the `tls/` endpoints of the runs it
+    /// the `quic/` and `tls/` control endpoints, and the default for those of the runs it
     /// starts (a flow's own `machines[].tls` wins).
     pub tls: Option<TlsFiles>,
 }
@@ -73,13 +73,14 @@ pub fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// True when `endpoint` is a `tls/` endpoint.
+/// True when `endpoint` is a `tls/` or `quic/` endpoint: both take the mutual-TLS settings
+/// (QUIC runs TLS 1.3 itself).
 fn is_tls_endpoint(endpoint: &str) -> bool {
-    endpoint.starts_with("tls/")
+    endpoint.starts_with("tls/") || endpoint.starts_with("quic/")
 }
 
 /// The endpoints of `listen` that anyone on the network can reach unauthenticated: not
-/// loopback, and not `tls/` with mutual TLS on.
+/// loopback, and not `tls/` or `quic/` with mutual TLS on.
 fn exposed_endpoints(listen: &[String], tls: bool) -> Vec<String> {
     listen
         .iter()
@@ -90,7 +91,7 @@ fn exposed_endpoints(listen: &[String], tls: bool) -> Vec<String> {
 
 /// Refuses a daemon that would listen on a non-loopback address without mutual TLS, unless
 /// `insecure`; returns the exposed endpoints (to warn about) when it is allowed. With `tls`,
-/// `tls/` endpoints are protected; a `tls/` endpoint without TLS files is refused outright.
+/// `quic/` and `tls/` endpoints are protected; such an endpoint without TLS files is refused.
 pub fn check_listen(
     listen: &[String],
     insecure: bool,
@@ -105,7 +106,7 @@ pub fn check_listen(
     if !exposed.is_empty() && !insecure {
         return Err(RuntimeError::Other(format!(
             "refusing to listen on {} without TLS: anyone who can reach it could submit flows \
-             to this machine; listen on a loopback address, use `tls/` endpoints with \
+             to this machine; listen on a loopback address, use `quic/` or `tls/` endpoints with \
              --tls-ca/--tls-cert/--tls-key (mutual TLS), or pass --insecure to accept the risk",
             exposed.join(", ")
         )));
@@ -492,7 +493,7 @@ pub struct DaemonClient {
 
 impl DaemonClient {
     /// Connect to the daemon network through `connect` (any daemon's `--listen` endpoint),
-    /// presenting `tls` on `tls/` endpoints.
+    /// presenting `tls` on `quic/` and `tls/` endpoints.
     pub fn connect(
         connect: &[String],
         timeout: Duration,
@@ -769,11 +770,19 @@ mod tests {
             e.contains("tcp/10.0.0.1:7401") && !e.contains("7400"),
             "{e}"
         );
-        // A `tls/` endpoint without the files: refused, saying what is missing.
-        let e = check_listen(&["tls/127.0.0.1:7400".into()], false, false)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("--tls-cert"), "{e}");
+        // A `tls/` or `quic/` endpoint without the files: refused, saying what is missing.
+        for endpoint in ["tls/127.0.0.1:7400", "quic/127.0.0.1:7400"] {
+            let e = check_listen(&[endpoint.into()], false, false)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("--tls-cert") && e.contains(endpoint), "{e}");
+        }
+        // Mutual TLS protects `quic/` endpoints as it does `tls/` ones.
+        assert!(
+            check_listen(&["quic/10.0.0.1:7400".into()], false, true)
+                .unwrap()
+                .is_empty()
+        );
     }
 
     /// A `path:` node runs only from an `--allow-exec` folder (after resolving `..` and
