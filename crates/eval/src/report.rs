@@ -24,10 +24,37 @@ pub struct MetricsReport {
     pub depth_mae_m: Option<f64>,
     /// ATE RMSE after Umeyama SE(3) alignment, metres.
     pub ate_rmse_m: Option<f64>,
-    /// Completeness at 5 cm, fraction in [0, 1] (the paper prints it ×100 %).
+    /// Surface completeness at 5 cm over the observable ground-truth samples (SPEC §8, Active
+    /// Neural Mapping): the share of mesh samples that a camera pose of the robot can see and
+    /// that lie within 5 cm of the map's reconstructed surface (`crate::surface`); fraction in
+    /// [0, 1] (the paper prints it ×100 %).
     pub completeness: Option<f64>,
+    /// The same surface completeness over every ground-truth sample, observable or not.
+    #[serde(default)]
+    pub completeness_all: Option<f64>,
+    /// Completeness from the map's Gaussian centres (the figure before surface completeness:
+    /// mesh samples with a Gaussian mean within 5 cm), over every sample, kept so older results
+    /// stay comparable.
+    #[serde(default)]
+    pub completeness_gaussians: Option<f64>,
+    /// Accuracy (Active Neural Mapping): mean distance from the reconstructed surface's samples
+    /// to the ground-truth mesh samples, centimetres; lower is better.
+    #[serde(default)]
+    pub accuracy_cm: Option<f64>,
+    /// Completion error (Active Neural Mapping): mean distance from the observable ground-truth
+    /// samples to the reconstructed surface, centimetres; lower is better.
+    #[serde(default)]
+    pub completion_error_cm: Option<f64>,
+    /// Share of the ground-truth samples that some camera pose of the robot can see, fraction
+    /// in [0, 1]: the ceiling on `completeness_all`.
+    #[serde(default)]
+    pub observable_share: Option<f64>,
     /// Seen / navigable floor area, fraction in [0, 1].
     pub coverage_2d: Option<f64>,
+    /// 2D coverage as the authors' release computes it (a fog of war: 90° FOV, 10 m rays from
+    /// the true pose every step, over the navigable cells), fraction in [0, 1].
+    #[serde(default)]
+    pub coverage_fog: Option<f64>,
     /// Completeness by kind of surface (floor, walls by height, ceiling, …): where the
     /// unobserved surface lies; empty when completeness is missing (absent in older files).
     #[serde(default)]
