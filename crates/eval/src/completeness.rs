@@ -9,38 +9,15 @@ use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 
 /// The completeness threshold of SPEC §8, metres.
 pub const COMPLETENESS_THRESHOLD_M: f64 = 0.05;
 
-/// A fast non-cryptographic hasher for integer cell keys (FxHash's multiply-rotate step):
-/// the keys come from our own points, so hash flooding is no concern.
-#[derive(Default)]
-struct CellHasher(u64);
-
-impl Hasher for CellHasher {
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(word));
-        }
-    }
-
-    fn write_u64(&mut self, word: u64) {
-        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
-    }
-
-    fn finish(&self) -> u64 {
-        self.0
-    }
-}
-
 /// Cell key → points in that cell.
-type Buckets = HashMap<[i64; 3], Vec<Point3<f64>>, BuildHasherDefault<CellHasher>>;
+/// FxHash (`rustc-hash`): the keys come from our own points, so hash flooding is no concern.
+type Buckets = FxHashMap<[i64; 3], Vec<Point3<f64>>>;
 
 /// Observed points bucketed by grid cell for fixed-radius queries.
 pub struct PointGrid {
@@ -231,29 +208,38 @@ pub struct SurfaceCompleteness {
     pub surface: SurfaceClass,
     /// Fraction of all ground-truth samples on this kind of surface (its share of the mesh area).
     pub share: f64,
-    /// Fraction of this kind's samples that are complete; `None` when it has no sample.
+    /// Fraction of this kind's observable samples that are complete; `None` when it has no
+    /// observable sample.
     pub completeness: Option<f64>,
+    /// Fraction of this kind's samples that a camera pose of the robot can see
+    /// ([`crate::observable`]); `None` when it has no sample (absent in older files).
+    #[serde(default)]
+    pub observable: Option<f64>,
 }
 
 /// Completeness broken down by [`SurfaceClass`]: each class's share of the mesh area and its
-/// own completeness, every class listed (in [`SurfaceClass::ALL`] order). `normals` and
-/// `complete` (from [`complete_samples`]) pair with `truth_samples`; `floor_z` and `ceiling_z`
+/// own completeness over its observable samples and the share of them that is observable,
+/// every class listed (in [`SurfaceClass::ALL`] order). `normals`, `complete` (e.g. from
+/// [`complete_samples`]) and `observable` pair with `truth_samples`; `floor_z` and `ceiling_z`
 /// as in [`SurfaceClass::of`].
 pub fn completeness_by_surface(
     truth_samples: &[Point3<f64>],
     normals: &[Vector3<f64>],
     complete: &[bool],
+    observable: &[bool],
     floor_z: f64,
     ceiling_z: f64,
 ) -> Result<Vec<SurfaceCompleteness>, EvalError> {
-    if normals.len() != truth_samples.len() || complete.len() != truth_samples.len() {
+    let n = truth_samples.len();
+    if normals.len() != n || complete.len() != n || observable.len() != n {
         return Err(EvalError::SizeMismatch {
             metric: "completeness",
             detail: format!(
-                "{} normals and {} flags for {} ground-truth samples",
+                "{} normals, {} completeness flags and {} observability flags for {n} \
+                 ground-truth samples",
                 normals.len(),
                 complete.len(),
-                truth_samples.len()
+                observable.len(),
             ),
         });
     }
@@ -263,21 +249,29 @@ pub fn completeness_by_surface(
             detail: "no ground-truth sample point".into(),
         });
     }
-    let mut counts = [(0usize, 0usize); SurfaceClass::ALL.len()];
-    for ((p, n), done) in truth_samples.iter().zip(normals).zip(complete) {
+    // Per class: samples, observable samples, complete observable samples.
+    let mut counts = [(0usize, 0usize, 0usize); SurfaceClass::ALL.len()];
+    for (((p, n), done), seen) in truth_samples
+        .iter()
+        .zip(normals)
+        .zip(complete)
+        .zip(observable)
+    {
         let class = SurfaceClass::of(p, n, floor_z, ceiling_z);
         let slot = &mut counts[class as usize];
         slot.0 += 1;
-        slot.1 += usize::from(*done);
+        slot.1 += usize::from(*seen);
+        slot.2 += usize::from(*seen && *done);
     }
-    let total = truth_samples.len() as f64;
+    let total = n as f64;
     Ok(SurfaceClass::ALL
         .iter()
         .zip(counts)
-        .map(|(&surface, (samples, done))| SurfaceCompleteness {
+        .map(|(&surface, (samples, seen, done))| SurfaceCompleteness {
             surface,
             share: samples as f64 / total,
-            completeness: (samples > 0).then(|| done as f64 / samples as f64),
+            completeness: (seen > 0).then(|| done as f64 / seen as f64),
+            observable: (samples > 0).then(|| seen as f64 / samples as f64),
         })
         .collect())
 }
@@ -400,7 +394,9 @@ mod tests {
         // A 3 cm threshold under the 5 cm lattice: each sample is complete by itself alone.
         let observed: Vec<Point3<f64>> = samples.iter().filter(|p| p.z < 1.0).copied().collect();
         let complete = complete_samples(&samples, &observed, 0.03).unwrap();
-        let rows = completeness_by_surface(&samples, &normals, &complete, 0.0, height).unwrap();
+        let all = vec![true; samples.len()];
+        let rows =
+            completeness_by_surface(&samples, &normals, &complete, &all, 0.0, height).unwrap();
         let expected = [
             (SurfaceClass::Floor, 16.0, Some(1.0)),
             (SurfaceClass::WallBelow1m, 16.0, Some(1.0)),
@@ -414,7 +410,21 @@ mod tests {
             assert_eq!(row.surface, class);
             assert!((row.share - area / 72.0).abs() < 1e-12, "{row:?}");
             assert_eq!(row.completeness, done, "{row:?}");
+            assert_eq!(row.observable, done.map(|_| 1.0), "{row:?}");
         }
+        // Only the lower half of the walls below 1 m observable (z < 0.5): they stay complete,
+        // and the class reports half of its samples observable.
+        let low: Vec<bool> = samples
+            .iter()
+            .zip(&normals)
+            .map(|(p, n)| n.z != 0.0 || p.z < 0.5)
+            .collect();
+        let rows =
+            completeness_by_surface(&samples, &normals, &complete, &low, 0.0, height).unwrap();
+        let walls = &rows[SurfaceClass::WallBelow1m as usize];
+        assert_eq!(walls.completeness, Some(1.0));
+        assert_eq!(walls.observable, Some(0.5));
+        assert_eq!(rows[SurfaceClass::Wall1To2m as usize].completeness, None);
         // A table top is "other horizontal"; a steep roof panel near the top is a wall.
         let table = SurfaceClass::of(&Point3::new(0.0, 0.0, 0.75), &-Vector3::z(), 0.0, height);
         assert_eq!(table, SurfaceClass::OtherHorizontal);
@@ -423,7 +433,7 @@ mod tests {
             SurfaceClass::of(&Point3::new(0.0, 0.0, 2.45), &steep, 0.0, height),
             SurfaceClass::WallAbove2m
         );
-        let e = completeness_by_surface(&samples, &normals[1..], &complete, 0.0, height)
+        let e = completeness_by_surface(&samples, &normals[1..], &complete, &all, 0.0, height)
             .unwrap_err()
             .to_string();
         assert!(e.contains("normals"), "{e}");

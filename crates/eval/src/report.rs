@@ -150,6 +150,23 @@ impl MetricsReport {
             cell(self.completeness, 2, 100.0),
             cell(self.coverage_2d, 2, 100.0),
         ) + &foot
+            + &format!(
+                "\nThe surface (completeness: ground-truth samples within 5 cm of the map's \
+                 reconstructed surface, over the samples a camera pose of the robot can see; \
+                 accuracy and completion error: mean distances reconstruction → truth and \
+                 observable truth → reconstruction):\n\n\
+                 | Completeness, all samples (%) | Completeness, Gaussian centres (%) | \
+                 Accuracy ↓ (cm) | Completion error ↓ (cm) | Observable share (%) | \
+                 2D coverage, fog of war (%) |\n\
+                 |---|---|---|---|---|---|\n\
+                 | {} | {} | {} | {} | {} | {} |\n",
+                cell(self.completeness_all, 2, 100.0),
+                cell(self.completeness_gaussians, 2, 100.0),
+                cell(self.accuracy_cm, 2, 1.0),
+                cell(self.completion_error_cm, 2, 1.0),
+                cell(self.observable_share, 2, 100.0),
+                cell(self.coverage_fog, 2, 100.0),
+            )
             + &self.surface_markdown(&cell)
     }
 
@@ -159,14 +176,16 @@ impl MetricsReport {
             return String::new();
         }
         let mut text = String::from(
-            "\nCompleteness by surface (share = the surface's part of the mesh area):\n\n\
-             | surface | share (%) | completeness ↑ (%) |\n|---|---|---|\n",
+            "\nCompleteness by surface (share = the surface's part of the mesh area; observable = \
+             the part of it a camera pose of the robot can see; completeness over that part):\n\n\
+             | surface | share (%) | observable (%) | completeness ↑ (%) |\n|---|---|---|---|\n",
         );
         for s in &self.completeness_by_surface {
             text += &format!(
-                "| {} | {} | {} |\n",
+                "| {} | {} | {} | {} |\n",
                 s.surface.label(),
                 cell(Some(s.share), 1, 100.0),
+                cell(s.observable, 1, 100.0),
                 cell(s.completeness, 1, 100.0)
             );
         }
@@ -262,18 +281,20 @@ mod tests {
                     surface: crate::SurfaceClass::WallAbove2m,
                     share: 0.25,
                     completeness: Some(0.125),
+                    observable: Some(0.5),
                 },
                 SurfaceCompleteness {
                     surface: crate::SurfaceClass::Ceiling,
                     share: 0.0,
                     completeness: None,
+                    observable: None,
                 },
             ],
             ..paper
         };
         let md = broken_down.to_markdown();
         assert!(
-            md.contains("| walls ≥ 2 m | 25.0 | 12.5 |\n| ceiling | 0.0 | — |\n"),
+            md.contains("| walls ≥ 2 m | 25.0 | 50.0 | 12.5 |\n| ceiling | 0.0 | — | — |\n"),
             "{md}"
         );
         assert_eq!(

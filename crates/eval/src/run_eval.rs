@@ -13,11 +13,21 @@
 //!    same camera height. A world test pose `T_world_camera` is rendered in the map at
 //!    `T_start_world · T_world_camera`.
 //! 4. ATE from the two trajectories (Umeyama SE(3) aligns the frames).
-//! 5. Completeness: ground-truth mesh surface samples (area-uniform) against the **means of the
-//!    map's Gaussians** mapped to the world frame, 5 cm (the map is what the run built; its
-//!    means sit on observed surfaces since the mapper inserts them from back-projected depth).
+//! 5. Surface completeness ([`crate::surface`], SPEC §8 as Active Neural Mapping): the map is
+//!    rendered at every test view and at keyframe-like poses of its estimated trajectory
+//!    ([`fusion_track_poses`]); pixels of rendered opacity ≥ 0.8 give depth / opacity, fused in
+//!    a TSDF (2 cm voxels) whose zero crossings are the reconstructed surface. Ground-truth mesh
+//!    samples (200k, area-uniform) are marked observable when a camera pose of the robot on the
+//!    reachable floor can see them ([`crate::observable`], cached per scene in
+//!    [`EvalOptions::cache_dir`]). `completeness` = observable samples within 5 cm of the
+//!    surface / observable samples; `completeness_all` the same over all samples;
+//!    `observable_share` = observable / all; `accuracy_cm` and `completion_error_cm` the mean
+//!    distances surface → truth and observable truth → surface; the breakdown by kind of surface
+//!    over the observable samples. `completeness_gaussians` is the earlier figure: samples with
+//!    a **mean of the map's Gaussians** within 5 cm, over all samples.
 //! 6. 2D coverage: the last row of `coverage.csv` (the evaluator's seen / reachable navigable
-//!    floor), else `summary.json`'s `coverage`.
+//!    floor), else `summary.json`'s `coverage`; and `coverage_fog`, the release's fog of war
+//!    along `trajectory_true.tum` ([`crate::fog`]).
 //!
 //! 7. Validity ([`crate::validity`]): a test view whose ground truth is empty (less than
 //!    [`validity::VIEW_MIN_VALID_DEPTH`] valid depth: it shows nothing, and an empty map renders
@@ -31,8 +41,11 @@
 //! of the first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`,
 //! `eval/view_NN_truth.png`).
 
+use crate::fog::{FogConfig, coverage_fog};
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
+use crate::observable::{self, ObservabilityConfig, camera_sites};
 use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
+use crate::surface::{DepthView, SurfaceConfig, fuse_jobs, surface_complete, surface_metrics};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::validity::{self, RunWarning};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
@@ -47,8 +60,9 @@ use activemap_geometry::{
 use activemap_sim::{Floor, Placement, Renderer, SimConfig, Simulator, Transform, UpAxis};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use nalgebra::Point3;
-use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
 
 /// Seed of the test poses: fixed so every method is scored on the same views (SPEC §8).
 pub const TEST_POSE_SEED: u64 = 2025;
@@ -280,6 +294,11 @@ pub struct EvalOptions {
     pub completeness_samples: usize,
     /// How many of the first test views are saved as PNGs for the report.
     pub saved_views: usize,
+    /// The surface reconstruction of surface completeness ([`crate::surface`]).
+    pub surface: SurfaceConfig,
+    /// Where the observable ground-truth samples are cached per scene
+    /// ([`observable::default_cache_dir`] by default); `None` computes them every time.
+    pub cache_dir: Option<PathBuf>,
 }
 
 impl Default for EvalOptions {
@@ -296,6 +315,8 @@ impl Default for EvalOptions {
             lpips: LpipsSource::Default,
             completeness_samples: COMPLETENESS_SAMPLES,
             saved_views: 4,
+            surface: SurfaceConfig::default(),
+            cache_dir: observable::default_cache_dir(),
         }
     }
 }
@@ -361,32 +382,54 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         path: eval_dir.clone(),
         source,
     })?;
-    // Each view with whether its ground truth and its render are empty.
-    let views: Vec<(ViewMetrics, bool, bool)> = poses
-        .par_iter()
-        .enumerate()
-        .map_init(Renderer::new, |renderer, (i, t_world_camera)| {
+    // The map's surface (crate::surface) is fused from the map rendered at the test views and
+    // at the keyframe-like poses of the estimated trajectory, in the world frame.
+    let world_from_map = to_map.inverse();
+    let track_views = fusion_track_poses(&estimate.poses);
+    let started = Instant::now();
+    let track_render_ns = AtomicU64::new(0);
+    // Each test view with whether its ground truth and its render are empty.
+    let (field, views) = fuse_jobs(
+        options.surface,
+        poses.len() + track_views.len(),
+        |job| -> Result<_, RunError> {
+            let Some(t_world_camera) = poses.get(job) else {
+                let t_map_camera = track_views[job - poses.len()];
+                let render_started = Instant::now();
+                let out = render_map(&map, &k, &t_map_camera)?;
+                track_render_ns.fetch_add(
+                    render_started.elapsed().as_nanos() as u64,
+                    Ordering::Relaxed,
+                );
+                let view = out.depth_view(k, world_from_map * t_map_camera);
+                return Ok((Some(view), None));
+            };
+            let i = job;
+            let mut renderer = Renderer::new();
             let frame = renderer.render(sim.scene(), &k, t_world_camera, sim.config().depth_range);
             let truth_rgb: Vec<f32> = frame.rgb.iter().map(|&v| v as f32 / 255.0).collect();
-            let (map_rgb, map_depth) = render_map(&map, &k, &(to_map * t_world_camera))?;
+            let out = render_map(&map, &k, &(to_map * t_world_camera))?;
             let (w, h) = (k.width as usize, k.height as usize);
             let view = evaluate_view(
-                ImageView::rgb(&map_rgb, w, h)?,
+                ImageView::rgb(&out.rgb, w, h)?,
                 ImageView::rgb(&truth_rgb, w, h)?,
-                ImageView::depth(&map_depth, w, h)?,
+                ImageView::depth(&out.depth, w, h)?,
                 ImageView::depth(&frame.depth, w, h)?,
                 lpips.as_ref(),
             )?;
             if i < options.saved_views {
-                save_png(&run.view_image(i, ViewImage::Map), &map_rgb, w, h)?;
+                save_png(&run.view_image(i, ViewImage::Map), &out.rgb, w, h)?;
                 save_png(&run.view_image(i, ViewImage::Truth), &truth_rgb, w, h)?;
             }
             let empty = |depth: &[f32]| {
                 validity::valid_depth_fraction(depth) < validity::VIEW_MIN_VALID_DEPTH
             };
-            Ok((view, empty(&frame.depth), empty(&map_depth)))
-        })
-        .collect::<Result<_, RunError>>()?;
+            let flags = (view, empty(&frame.depth), empty(&out.depth));
+            Ok((Some(out.depth_view(k, *t_world_camera)), Some(flags)))
+        },
+    )?;
+    let views: Vec<(ViewMetrics, bool, bool)> = views.into_iter().flatten().collect();
+    let views_seconds = started.elapsed().as_secs_f64();
     let mut means = ViewMeans::default();
     let mut infinite_psnr = 0;
     for (v, truth_empty, render_empty) in &views {
@@ -454,19 +497,108 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         .into_iter()
         .map(|s| (s.point, s.normal))
         .unzip();
-    let observed = map_points_in_world(&map, &to_map.inverse());
+    let observed = map_points_in_world(&map, &world_from_map);
     if samples.is_empty() {
-        report.mark_missing("completeness", "the scene mesh has no surface to sample");
+        for m in ["completeness", "completeness_all", "completeness_gaussians"] {
+            report.mark_missing(m, "the scene mesh has no surface to sample");
+        }
     } else {
-        let complete = complete_samples(&samples, &observed, crate::COMPLETENESS_THRESHOLD_M)?;
-        report.completeness = Some(complete_fraction(&complete));
+        let gaussians = complete_samples(&samples, &observed, crate::COMPLETENESS_THRESHOLD_M)?;
+        report.completeness_gaussians = Some(complete_fraction(&gaussians));
+        let config = ObservabilityConfig::for_camera(
+            camera_height,
+            options.width,
+            options.height,
+            options.hfov_deg.to_radians(),
+        );
+        let sites = camera_sites(nav, &reachable, config.spacing_m);
+        let key = observable::cache_key(sim.scene(), &sites, floor_z, &config, &samples);
+        let cache = options.cache_dir.as_deref();
+        let observe_started = Instant::now();
+        let mut cached = true;
+        let observable = match cache.and_then(|d| observable::load_cached(d, key, samples.len())) {
+            Some(flags) => flags,
+            None => {
+                cached = false;
+                let flags = observable::observable_samples(
+                    sim.scene(),
+                    &sites,
+                    floor_z,
+                    &config,
+                    &samples,
+                    &normals,
+                )?;
+                if let Some(dir) = cache
+                    && let Err(e) = observable::store_cached(dir, key, &flags)
+                {
+                    eprintln!(
+                        "warning: could not cache the observable samples in {}: {e}",
+                        dir.display()
+                    );
+                }
+                flags
+            }
+        };
+        let observe_seconds = observe_started.elapsed().as_secs_f64();
+        let metrics_started = Instant::now();
+        let seen = observable.iter().filter(|&&o| o).count();
+        report.observable_share = Some(seen as f64 / samples.len() as f64);
+        let surface = field.surface_points();
+        let all = vec![true; samples.len()];
+        let threshold = crate::COMPLETENESS_THRESHOLD_M;
+        report.completeness_all =
+            Some(surface_metrics(&samples, &all, &surface, threshold)?.completeness);
+        let complete = surface_complete(&samples, &surface, threshold)?;
+        if seen == 0 {
+            for m in ["completeness", "accuracy_cm", "completion_error_cm"] {
+                report.mark_missing(m, "no ground-truth sample is observable from the floor");
+            }
+        } else {
+            let metrics = surface_metrics(&samples, &observable, &surface, threshold)?;
+            report.completeness = Some(metrics.completeness);
+            report.accuracy_cm = metrics.accuracy_cm;
+            report.completion_error_cm = metrics.completion_error_cm;
+            if surface.is_empty() {
+                for m in ["accuracy_cm", "completion_error_cm"] {
+                    report.mark_missing(m, "the map's reconstructed surface is empty");
+                }
+            }
+        }
+        eprintln!(
+            "eval: {} test and {} trajectory views in {views_seconds:.1} s (of which CPU time: \
+             trajectory renders {:.1} s, surface fusion {:.1} s); observable samples {} in \
+             {observe_seconds:.1} s from {} camera sites; surface metrics {:.1} s ({} surface \
+             points)",
+            poses.len(),
+            track_views.len(),
+            track_render_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            field.fusion_seconds(),
+            if cached { "cached" } else { "computed" },
+            sites.len(),
+            metrics_started.elapsed().as_secs_f64(),
+            surface.len(),
+        );
         let ceiling_z = samples
             .iter()
             .map(|p| p.z)
             .fold(f64::NEG_INFINITY, f64::max);
-        report.completeness_by_surface =
-            completeness_by_surface(&samples, &normals, &complete, floor_z, ceiling_z)?;
+        report.completeness_by_surface = completeness_by_surface(
+            &samples,
+            &normals,
+            &complete,
+            &observable,
+            floor_z,
+            ceiling_z,
+        )?;
     }
+
+    let true_planar: Vec<PlanarPose> = truth.poses.iter().map(planar_from_camera_pose).collect();
+    report.coverage_fog = Some(coverage_fog(
+        nav,
+        &reachable,
+        &true_planar,
+        &FogConfig::default(),
+    )?);
 
     report.coverage_2d = coverage
         .as_ref()
@@ -569,12 +701,48 @@ fn load_lpips(source: &LpipsSource, report: &mut MetricsReport) -> Option<LpipsA
     }
 }
 
-/// Renders `map` (without unknown-space Gaussians) at `t_map_camera`: RGB in [0, 1] and depth.
+/// A render of the map: RGB in [0, 1], composited depth and opacity.
+struct MapRender {
+    rgb: Vec<f32>,
+    depth: Vec<f32>,
+    opacity: Vec<f32>,
+}
+
+impl MapRender {
+    /// The depth view of this render for the surface fusion, seen from `t_world_camera`.
+    fn depth_view(self, k: Intrinsics, t_world_camera: Isometry3<f64>) -> DepthView {
+        DepthView {
+            intrinsics: k,
+            t_world_camera,
+            depth: self.depth,
+            opacity: self.opacity,
+        }
+    }
+}
+
+/// The poses of the estimated trajectory (map frame) at which the map is rendered for the surface
+/// fusion besides the test views: the first, then each one that moved 0.25 m or turned 20° from
+/// the last one kept (about one per keyframe).
+pub fn fusion_track_poses(estimate: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
+    let mut kept: Vec<Isometry3<f64>> = Vec::new();
+    for pose in estimate {
+        let far = kept.last().is_none_or(|last| {
+            let delta = last.inverse() * pose;
+            delta.translation.vector.norm() >= 0.25 || delta.rotation.angle() >= 20f64.to_radians()
+        });
+        if far {
+            kept.push(*pose);
+        }
+    }
+    kept
+}
+
+/// Renders `map` (without unknown-space Gaussians) at `t_map_camera`.
 fn render_map(
     map: &Gaussians<f32>,
     k: &Intrinsics,
     t_map_camera: &Isometry3<f64>,
-) -> Result<(Vec<f32>, Vec<f32>), RunError> {
+) -> Result<MapRender, RunError> {
     let options = RenderOptions {
         exclude_flags: FLAG_UNKNOWN_SPACE,
         ..RenderOptions::default()
@@ -586,7 +754,11 @@ fn render_map(
         .iter()
         .flat_map(|c| c.map(|v| v.clamp(0.0, 1.0)))
         .collect();
-    Ok((rgb, out.depth))
+    Ok(MapRender {
+        rgb,
+        depth: out.depth,
+        opacity: out.opacity,
+    })
 }
 
 /// The means of the map's Gaussians (unknown space excluded) in the world frame.
@@ -630,6 +802,7 @@ mod tests {
             lpips: LpipsSource::Off,
             completeness_samples: 20_000,
             saved_views: 2,
+            cache_dir: None,
             ..EvalOptions::default()
         }
     }
@@ -725,14 +898,24 @@ mod tests {
         write_run(wrong.path(), MapKind::SurfaceInWorldFrame);
         let good = evaluate_run(right.path(), &options()).unwrap();
         let bad = evaluate_run(wrong.path(), &options()).unwrap();
-        // 60k opaque Gaussians on the mesh: nearly every 20k-sample surface point is within 5 cm.
-        assert!(good.completeness.unwrap() > 0.97, "{good:?}");
+        // 60k opaque Gaussians on the mesh: nearly every 20k-sample surface point is within 5 cm
+        // of a Gaussian centre; the 8 views seen by the fusion show a good part of the room.
+        assert!(good.completeness_gaussians.unwrap() > 0.97, "{good:?}");
+        assert!(good.completeness.unwrap() > 0.3, "{good:?}");
         // Depth is Σ z α T (un-normalised) over 3 cm Gaussians: a few cm off, not more.
         assert!(good.depth_mae_m.unwrap() < 0.15, "{good:?}");
         assert!(good.psnr_db.unwrap().is_finite());
         assert!(good.is_valid(), "{:?}", good.warnings);
         assert_eq!((good.empty_truth_views, good.empty_render_views), (0, 0));
-        assert!(bad.completeness.unwrap() < 0.5, "{bad:?}");
+        assert!(bad.completeness_gaussians.unwrap() < 0.5, "{bad:?}");
+        assert!(
+            bad.completeness.unwrap() < 0.25 * good.completeness.unwrap(),
+            "{bad:?}"
+        );
+        assert!(
+            bad.accuracy_cm.unwrap() > good.accuracy_cm.unwrap(),
+            "{bad:?}"
+        );
         assert!(
             bad.depth_mae_m.unwrap() > 5.0 * good.depth_mae_m.unwrap(),
             "{good:?} vs {bad:?}"

@@ -67,14 +67,24 @@ pub fn write_run(dir: &Path, kind: MapKind) {
         MapKind::SurfaceInWorldFrame => Some(Isometry3::identity()),
     };
     if let Some(frame) = frame {
-        for p in activemap_sim::ground_truth::surface_samples(sim.scene(), 60_000, 11) {
-            let q = frame * p;
+        // Flat discs (3 cm across, 3 mm thick) lying in the surface, as a good map's are.
+        for s in activemap_sim::ground_truth::oriented_surface_samples(sim.scene(), 60_000, 11) {
+            let q = frame * s.point;
+            let normal = frame.rotation * s.normal;
+            let r = nalgebra::UnitQuaternion::rotation_between(&nalgebra::Vector3::z(), &normal)
+                .unwrap_or_else(|| {
+                    nalgebra::UnitQuaternion::from_axis_angle(
+                        &nalgebra::Vector3::x_axis(),
+                        std::f64::consts::PI,
+                    )
+                });
+            let w = r.quaternion();
             map.push(
                 [q.x, q.y, q.z],
                 [0.5, 0.5, 0.5],
-                [1.0, 0.0, 0.0, 0.0],
+                [w.w, w.i, w.j, w.k],
                 0.99,
-                [0.03; 3],
+                [0.03, 0.03, 0.003],
             );
         }
     }
@@ -95,4 +105,52 @@ pub fn write_run(dir: &Path, kind: MapKind) {
         ..Summary::default()
     })
     .unwrap();
+}
+
+/// A scene of axis-aligned boxes `[lo, hi]` (all six faces, one grey material), for analytic
+/// tests of what can be seen.
+pub fn box_scene(boxes: &[([f32; 3], [f32; 3])]) -> activemap_sim::Scene {
+    use activemap_sim::{Material, Scene, Triangle, Vertex};
+    let mut scene = Scene {
+        name: "boxes".into(),
+        materials: vec![Material {
+            name: "grey".into(),
+            base_color: [0.5; 3],
+            texture: None,
+        }],
+        ..Scene::default()
+    };
+    for &(lo, hi) in boxes {
+        // Each face as (axis, side): its four corners in order around the face.
+        for axis in 0..3 {
+            for side in [lo[axis], hi[axis]] {
+                let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                let corners = [
+                    (lo[u], lo[v]),
+                    (hi[u], lo[v]),
+                    (hi[u], hi[v]),
+                    (lo[u], hi[v]),
+                ];
+                let base = scene.vertices.len() as u32;
+                for (cu, cv) in corners {
+                    let mut position = [0f32; 3];
+                    position[axis] = side;
+                    position[u] = cu;
+                    position[v] = cv;
+                    scene.vertices.push(Vertex {
+                        position,
+                        uv: [0.0; 2],
+                        color: [1.0; 3],
+                    });
+                }
+                for t in [[0, 1, 2], [0, 2, 3]] {
+                    scene.triangles.push(Triangle {
+                        vertices: t.map(|k| base + k),
+                        material: 0,
+                    });
+                }
+            }
+        }
+    }
+    scene
 }

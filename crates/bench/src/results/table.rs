@@ -614,6 +614,7 @@ mod tests {
                             (SurfaceClass::Floor, _) => Some(0.9 - 0.2 * i as f64),
                             _ => Some(0.25),
                         },
+                        observable: None,
                     })
                     .collect();
             }

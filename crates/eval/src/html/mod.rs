@@ -171,6 +171,24 @@ fn summary_section(summary: &Summary, metrics: Option<&MetricsReport>, valid: bo
                 cell(m.coverage_2d, 2, 100.0),
                 m.test_views
             );
+            let _ = write!(
+                s,
+                "<p>Completeness: ground-truth mesh samples within 5 cm of the map's reconstructed \
+                 surface (its rendered depth fused in a TSDF), over the samples a camera pose of the \
+                 robot can see; accuracy and completion error: mean distances reconstruction → truth \
+                 and observable truth → reconstruction.</p>\
+                 <table id=\"surface\"{}><tr><th>Completeness, all samples (%)</th>\
+                 <th>Completeness, Gaussian centres (%)</th><th>Accuracy ↓ (cm)</th>\
+                 <th>Completion error ↓ (cm)</th><th>Observable share (%)</th>\
+                 <th>2D coverage, fog of war (%)</th></tr><tr>{}{}{}{}{}{}</tr></table>",
+                if valid { "" } else { " class=\"invalid\"" },
+                cell(m.completeness_all, 2, 100.0),
+                cell(m.completeness_gaussians, 2, 100.0),
+                cell(m.accuracy_cm, 2, 1.0),
+                cell(m.completion_error_cm, 2, 1.0),
+                cell(m.observable_share, 2, 100.0),
+                cell(m.coverage_fog, 2, 100.0),
+            );
             if !valid {
                 s += "<p class=\"missing\">Struck through: the run is INVALID (see above).</p>";
             }
@@ -563,6 +581,7 @@ mod tests {
             lpips: LpipsSource::Off,
             completeness_samples: 5_000,
             saved_views: 3,
+            cache_dir: None,
             ..EvalOptions::default()
         };
         evaluate_run(dir, &options).unwrap();
@@ -814,6 +833,7 @@ mod tests {
             lpips: LpipsSource::Off,
             completeness_samples: 2_000,
             saved_views: 0,
+            cache_dir: None,
             ..EvalOptions::default()
         };
         let metrics = evaluate_run(dir.path(), &options).unwrap();
