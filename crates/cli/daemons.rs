@@ -125,9 +125,15 @@ pub fn start(
     Ok(done.iter().all(|e| e.state == RunState::Finished))
 }
 
-/// Print the runs the daemons know.
+/// Print the runs the daemons know (stdout) and which daemons answered (stderr); an error when
+/// none did, so an empty list always means daemons without runs.
 pub fn list(connect: &Connect) -> anyhow::Result<()> {
-    print_entries(&connect.client()?.runs()?);
+    let (machines, runs) = connect.client()?.runs_and_machines()?;
+    if machines.is_empty() {
+        anyhow::bail!("no daemon answered at {}", connect.connect.join(", "));
+    }
+    eprintln!("daemons answering: {}", machines.join(", "));
+    print_entries(&runs);
     Ok(())
 }
 

@@ -644,19 +644,20 @@ fn mutual_tls_daemons(scheme: &str, run_flow: bool) {
     let started_stdout = if run_flow {
         start_and_check_flow(file, &control_a, &run_id, id_client, &runs_b)
     } else {
-        // The daemons are up once the trusted client gets an answer.
+        // The daemons are up once both answer the trusted client.
         let mut list = vec!["list", "--connect", &control_a];
         list.extend(tls_args(id_client));
         let answered = (0..120).any(|_| {
             let out = run(&list, &root(), Duration::from_secs(60));
-            if !out.status.success() {
+            let both = out.status.success() && out.stderr.contains("daemons answering: a, b");
+            if !both {
                 std::thread::sleep(Duration::from_millis(250));
             }
-            out.status.success()
+            both
         });
         assert!(
             answered,
-            "the TLS daemons never answered the trusted client"
+            "the TLS daemons never both answered the trusted client"
         );
         String::new()
     };

@@ -614,16 +614,26 @@ impl DaemonClient {
 
     /// Every run every reachable daemon knows, sorted by run id then machine.
     pub fn runs(&self) -> Result<Vec<RunEntry>, RuntimeError> {
+        Ok(self.runs_and_machines()?.1)
+    }
+
+    /// The machines whose daemons answered (sorted) and every run they know, sorted by run id
+    /// then machine: an empty machine list means no daemon answered, which an empty run list
+    /// alone cannot tell from daemons with no runs.
+    pub fn runs_and_machines(&self) -> Result<(Vec<String>, Vec<RunEntry>), RuntimeError> {
         let mut all = Vec::new();
+        let mut machines = Vec::new();
         for (m, answer) in self.ask("*", "runs", Vec::new())? {
             let bytes =
                 answer.map_err(|why| RuntimeError::Other(format!("machine `{m}`: {why}")))?;
             let entries: Vec<RunEntry> = serde_json::from_slice(&bytes)
                 .map_err(|e| RuntimeError::Other(format!("machine `{m}`: bad answer: {e}")))?;
             all.extend(entries);
+            machines.push(m);
         }
         all.sort_by(|a, b| (&a.run_id, &a.machine).cmp(&(&b.run_id, &b.machine)));
-        Ok(all)
+        machines.sort();
+        Ok((machines, all))
     }
 
     /// Log tails of run `run_id` from every machine.
