@@ -6,6 +6,7 @@
 
 use activemap_eval::MetricsReport;
 use activemap_eval::run_folder::{RunError, RunFolder, read_text, write_file};
+use activemap_sim::Placement;
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
@@ -99,7 +100,9 @@ impl Method {
     }
 }
 
-fn is_folder_name(name: &str) -> bool {
+/// Whether `name` can name a method's run folder: non-empty letters, digits, `-`, `_` or `.`,
+/// not starting with `.`.
+pub(crate) fn is_folder_name(name: &str) -> bool {
     !name.is_empty()
         && !name.starts_with('.')
         && name
@@ -107,8 +110,11 @@ fn is_folder_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
 }
 
-/// Settings shared by every cell of a grid (they are part of each cell's identity).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Settings shared by every cell of a grid (they are part of each cell's identity). The
+/// `Option` fields added after the first release are left out of `cell.json` when `None`, so
+/// folders written before them still match. `Default` is a zero budget: name every field that
+/// matters.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GridSettings {
     /// Step budget of each episode.
     pub steps: u64,
@@ -124,6 +130,19 @@ pub struct GridSettings {
     /// method's own (absent from older `cell.json` files).
     #[serde(default)]
     pub noise: Option<String>,
+    /// Horizontal field of view of the camera, degrees, set on the `sim` node and a Fisher
+    /// scorer's camera; `None` keeps the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hfov_deg: Option<f64>,
+    /// Height of the camera above the floor, metres, set in the `robot` of every node that
+    /// takes one (they must agree); `None` keeps the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_height_m: Option<f64>,
+    /// What every `planner` node does when no reachable frontier is left (`end` or `refine`,
+    /// its `when_no_frontier` key); `None` keeps the method's. Suites set `refine`, so every
+    /// method runs the whole step budget and all are judged after the same number of steps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub when_no_frontier: Option<String>,
 }
 
 /// One cell of the grid: a method on a scene with a seed, under the grid's settings.
@@ -133,10 +152,18 @@ pub struct Cell {
     pub method: Method,
     /// The scene, `house:<seed>` or a scene file.
     pub scene: String,
+    /// How a scene file is placed (`up_axis`, `transform`, `floor` of the `sim` and
+    /// `evaluator` nodes); the default (absent from `cell.json`) places it as the format says.
+    #[serde(default, skip_serializing_if = "is_default_placement")]
+    pub placement: Placement,
     /// Repetition seed (set on every node whose config declares `seed`).
     pub seed: u64,
     /// The grid's settings.
     pub settings: GridSettings,
+}
+
+fn is_default_placement(p: &Placement) -> bool {
+    *p == Placement::default()
 }
 
 /// File in a cell's folder holding the cell (written before the run starts).
@@ -188,7 +215,8 @@ pub fn scene_folder(scene: &str) -> String {
         .collect()
 }
 
-/// Every cell of methods × scenes × seeds, in that nesting order.
+/// Every cell of methods × scenes × seeds, in that nesting order, each scene placed as its
+/// format says (a suite gives placements: [`super::suite::Suite::cells`]).
 pub fn cells(
     methods: &[Method],
     scenes: &[String],
@@ -202,6 +230,7 @@ pub fn cells(
                 out.push(Cell {
                     method: method.clone(),
                     scene: scene.clone(),
+                    placement: Placement::default(),
                     seed,
                     settings: settings.clone(),
                 });
@@ -290,6 +319,31 @@ fn settings_difference(a: &Cell, b: &Cell) -> String {
         sa.eval_views.to_string(),
         sb.eval_views.to_string(),
     );
+    check(
+        "noise",
+        format!("{:?}", sa.noise),
+        format!("{:?}", sb.noise),
+    );
+    check(
+        "hfov_deg",
+        format!("{:?}", sa.hfov_deg),
+        format!("{:?}", sb.hfov_deg),
+    );
+    check(
+        "camera_height_m",
+        format!("{:?}", sa.camera_height_m),
+        format!("{:?}", sb.camera_height_m),
+    );
+    check(
+        "when_no_frontier",
+        format!("{:?}", sa.when_no_frontier),
+        format!("{:?}", sb.when_no_frontier),
+    );
+    check(
+        "placement",
+        format!("{:?}", a.placement),
+        format!("{:?}", b.placement),
+    );
     if diff.is_empty() {
         "the cell differs".into()
     } else {
@@ -309,6 +363,7 @@ mod tests {
             max_area: Some(30.0),
             eval_views: 10,
             noise: None,
+            ..GridSettings::default()
         }
     }
 
