@@ -848,8 +848,10 @@ mod tests {
     }
 
     /// `--suite` runs through the same grid runner: both methods run the suite's whole budget
-    /// with the suite's settings, and the tables carry the paired comparison. Grid options
-    /// beside `--suite` are refused.
+    /// with the suite's settings, and the tables carry the paired comparison. In this
+    /// two-room house FBE alone ends its episode when no frontier is left (at step 336 with
+    /// seed 0 at 64×64, `when_no_frontier: end`); under the suite it refines instead and runs
+    /// all 360 steps. Grid options beside `--suite` are refused.
     #[test]
     fn a_suite_runs_every_method_for_the_whole_budget() {
         let tmp = tempfile::tempdir().unwrap();
@@ -857,7 +859,7 @@ mod tests {
         std::fs::write(
             &suite,
             "methods: [fbe, fisher]\nscenes: [house:3]\nhouses: { max_rooms: 2, max_area: 30 }\n\
-             seeds: [1]\nsteps: 30\ncamera: { resolution: 64, height_m: 1.0 }\neval_views: 4\n",
+             seeds: [0]\nsteps: 360\ncamera: { resolution: 64 }\neval_views: 4\n",
         )
         .unwrap();
         let out = tmp.path().join("out");
@@ -877,18 +879,27 @@ mod tests {
             "{log}"
         );
         for method in ["fbe", "fisher"] {
-            let dir = out.join(method).join("house-3/seed1");
+            let dir = out.join(method).join("house-3/seed0");
             let summary: Value =
                 serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
                     .unwrap();
-            assert_eq!(summary["steps"].as_u64(), Some(30), "{method}: {summary}");
+            assert_eq!(
+                summary["episode"], "Finished at step 360: max_steps reached",
+                "{method}: {summary}"
+            );
             let flow = std::fs::read_to_string(dir.join(CELL_FLOW)).unwrap();
             assert!(
-                flow.contains("\"when_no_frontier\": \"refine\"")
-                    && flow.contains("\"camera_height_m\": 1.0"),
+                flow.contains("\"when_no_frontier\": \"refine\""),
                 "{method}: {flow}"
             );
         }
+        // FBE did run out of frontiers, and went on refining to the budget.
+        let planner =
+            std::fs::read_to_string(out.join("fbe/house-3/seed0/logs/planner.stderr.log")).unwrap();
+        assert!(
+            planner.contains("no reachable frontier left") && planner.contains("refine goal"),
+            "{planner}"
+        );
         let md = std::fs::read_to_string(out.join("results.md")).unwrap();
         assert!(
             md.contains("Suite `") && md.contains("## Paired against `fbe`"),
