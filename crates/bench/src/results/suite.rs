@@ -584,7 +584,9 @@ impl Parser<'_> {
             ..SceneSpec::new(house.scene.clone())
         };
         if let Err(e) = spec.house_config() {
-            let loc = root.get("houses").map_or(Loc { line: 1, col: 1 }, Node::loc);
+            let loc = root
+                .get("houses")
+                .map_or(Loc { line: 1, col: 1 }, Node::loc);
             self.err(loc, format!("`houses`: {e}"));
         }
     }
