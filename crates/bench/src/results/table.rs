@@ -447,6 +447,11 @@ pub fn baseline(results: &[CellResult]) -> Option<String> {
     )
 }
 
+/// Fewest pairs for a bootstrap interval: a single pair resamples only to itself. With few
+/// pairs the percentile interval is narrow (every resample of two same-signed differences
+/// leaves out 0): read it with the number of pairs.
+pub const MIN_PAIRS_FOR_INTERVAL: usize = 2;
+
 /// One method against the baseline on one column, over the (scene, seed) pairs where both
 /// cells are complete, valid and have a finite value.
 #[derive(Debug, Clone, PartialEq)]
@@ -469,7 +474,7 @@ pub struct Paired {
     pub mean_difference: Option<f64>,
     /// 95 % percentile bootstrap interval of that mean
     /// ([`crate::stats::bootstrap_mean_interval`], 10 000 resamples, fixed seed); `None`
-    /// without pairs.
+    /// with fewer than [`MIN_PAIRS_FOR_INTERVAL`] pairs.
     pub interval: Option<(f64, f64)>,
 }
 
@@ -531,12 +536,12 @@ pub fn paired(results: &[CellResult]) -> Vec<Paired> {
                 ties: pairs - wins - losses,
                 mean_difference: (pairs > 0)
                     .then(|| differences.iter().sum::<f64>() / pairs as f64),
-                interval: bootstrap_mean_interval(
-                    &differences,
-                    0.95,
-                    BOOTSTRAP_RESAMPLES,
-                    BOOTSTRAP_SEED,
-                ),
+                // One pair resamples to itself: no interval.
+                interval: if pairs >= MIN_PAIRS_FOR_INTERVAL {
+                    bootstrap_mean_interval(&differences, 0.95, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+                } else {
+                    None
+                },
             });
         }
     }
@@ -764,8 +769,10 @@ pub fn markdown(heading: &str, results: &[CellResult]) -> String {
              For each (scene, seed) where both runs are complete and valid: a win when the \
              method is better than `{0}` by the column's arrow, a loss when worse; Δ = method − \
              `{0}` in the table's units, its mean over the pairs and the 95 % percentile \
-             bootstrap interval of that mean (10 000 resamples of the pairs, fixed seed). A \
-             **bold** interval leaves out 0: a difference chance alone is unlikely to make.\n\n",
+             bootstrap interval of that mean (10 000 resamples of the pairs, fixed seed; none \
+             from a single pair). A **bold** interval leaves out 0: a difference chance alone \
+             is unlikely to make; with few pairs the interval is narrow, so read it with their \
+             number.\n\n",
             first.baseline
         );
         s += &paired_markdown(&pairs);
@@ -1260,6 +1267,23 @@ mod tests {
         assert_eq!(psnr_row[10].parse::<f64>().unwrap(), hi);
         let ssim_row = &records[column_index("ssim").unwrap()];
         assert_eq!((&ssim_row[4], &ssim_row[8]), ("0", ""));
+        // One pair (seeds 2–4 of fisher left out): a mean difference, but no interval.
+        let one: Vec<CellResult> = r
+            .iter()
+            .filter(|c| c.cell.method.name == "fbe" || c.cell.seed == 1)
+            .cloned()
+            .collect();
+        let psnr_one = paired(&one)[column_index("psnr_db").unwrap()].clone();
+        assert_eq!(
+            (psnr_one.pairs, psnr_one.mean_difference, psnr_one.interval),
+            (1, Some(1.0), None)
+        );
+        assert!(!psnr_one.decided());
+        assert!(
+            markdown("", &one).contains("| fisher | PSNR ↑ | 1 | 1 | 0 | 0 | +1.00 | — |"),
+            "{}",
+            markdown("", &one)
+        );
         // One method alone: nothing to pair.
         let alone: Vec<CellResult> = r
             .into_iter()
