@@ -7,6 +7,7 @@
 use activemap_eval::MetricsReport;
 use activemap_eval::run_folder::{RunError, RunFolder, read_text, write_file};
 use activemap_sim::Placement;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
@@ -286,64 +287,44 @@ pub fn cell_state(cell: &Cell, out: &Path) -> Result<CellState, RunError> {
 
 /// Names what differs between two cells, for error messages.
 fn settings_difference(a: &Cell, b: &Cell) -> String {
-    let (sa, sb) = (&a.settings, &b.settings);
-    let mut diff = Vec::new();
-    let mut check = |name: &str, x: String, y: String| {
-        if x != y {
-            diff.push(format!("{name} {x} there, {y} now"));
+    /// Every leaf of a cell's JSON by its dotted path (`settings.` and `method.` left out, so
+    /// `steps`, `dataflow`, `placement.up_axis`), strings without their quotes.
+    fn leaves(prefix: &str, value: &serde_json::Value, out: &mut BTreeMap<String, String>) {
+        match value {
+            serde_json::Value::Object(map) => {
+                for (key, v) in map {
+                    let path = match prefix {
+                        "" | "settings" | "method" => key.clone(),
+                        _ => format!("{prefix}.{key}"),
+                    };
+                    leaves(&path, v, out);
+                }
+            }
+            serde_json::Value::String(text) => {
+                out.insert(prefix.to_string(), text.clone());
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
         }
+    }
+    let flat = |cell: &Cell| {
+        let mut out = BTreeMap::new();
+        leaves(
+            "",
+            &serde_json::to_value(cell).unwrap_or_default(),
+            &mut out,
+        );
+        out
     };
-    check(
-        "dataflow",
-        a.method.dataflow.display().to_string(),
-        b.method.dataflow.display().to_string(),
-    );
-    check("steps", sa.steps.to_string(), sb.steps.to_string());
-    check(
-        "resolution",
-        sa.resolution.to_string(),
-        sb.resolution.to_string(),
-    );
-    check(
-        "max_rooms",
-        format!("{:?}", sa.max_rooms),
-        format!("{:?}", sb.max_rooms),
-    );
-    check(
-        "max_area",
-        format!("{:?}", sa.max_area),
-        format!("{:?}", sb.max_area),
-    );
-    check(
-        "eval_views",
-        sa.eval_views.to_string(),
-        sb.eval_views.to_string(),
-    );
-    check(
-        "noise",
-        format!("{:?}", sa.noise),
-        format!("{:?}", sb.noise),
-    );
-    check(
-        "hfov_deg",
-        format!("{:?}", sa.hfov_deg),
-        format!("{:?}", sb.hfov_deg),
-    );
-    check(
-        "camera_height_m",
-        format!("{:?}", sa.camera_height_m),
-        format!("{:?}", sb.camera_height_m),
-    );
-    check(
-        "when_no_frontier",
-        format!("{:?}", sa.when_no_frontier),
-        format!("{:?}", sb.when_no_frontier),
-    );
-    check(
-        "placement",
-        format!("{:?}", a.placement),
-        format!("{:?}", b.placement),
-    );
+    let (fa, fb) = (flat(a), flat(b));
+    let keys: BTreeSet<&String> = fa.keys().chain(fb.keys()).collect();
+    let shown = |v: Option<&String>| v.map_or("none".to_string(), Clone::clone);
+    let diff: Vec<String> = keys
+        .into_iter()
+        .filter(|k| fa.get(*k) != fb.get(*k))
+        .map(|k| format!("{k} {} there, {} now", shown(fa.get(k)), shown(fb.get(k))))
+        .collect();
     if diff.is_empty() {
         "the cell differs".into()
     } else {
@@ -479,6 +460,16 @@ mod tests {
         let e = cell_state(&other, out.path()).unwrap_err().to_string();
         assert!(
             e.contains("cell.json") && e.contains("steps 40 there, 41 now"),
+            "{e}"
+        );
+        // A suite's settings and placement are named too, `none` where one side lacks them.
+        let mut other = cell.clone();
+        other.settings.camera_height_m = Some(1.25);
+        other.placement.up_axis = Some(activemap_sim::UpAxis::Y);
+        let e = cell_state(&other, out.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("camera_height_m none there, 1.25 now")
+                && e.contains("placement.up_axis none there, y now"),
             "{e}"
         );
     }

@@ -195,6 +195,31 @@ impl Parser<'_> {
         Some(entries)
     }
 
+    /// The plain (unquoted) scalar of `key` as `read` takes it from its JSON value; otherwise
+    /// an error saying it must be `expected` and showing what it is.
+    fn plain<T>(
+        &mut self,
+        key: &str,
+        node: &Node,
+        expected: &str,
+        read: impl Fn(&serde_json::Value) -> Option<T>,
+    ) -> Option<T> {
+        let value = match node {
+            Node::Scalar { quoted: false, .. } => read(&node.to_json()),
+            _ => None,
+        };
+        if value.is_none() {
+            let shown = node
+                .as_str()
+                .map_or(node.type_name().to_string(), |s| format!("`{s}`"));
+            self.err(
+                node.loc(),
+                format!("`{key}` must be {expected}, got {shown}"),
+            );
+        }
+        value
+    }
+
     /// A plain number of `key` that `ok` accepts; the error says what was expected.
     fn number(
         &mut self,
@@ -203,44 +228,14 @@ impl Parser<'_> {
         expected: &str,
         ok: fn(f64) -> bool,
     ) -> Option<f64> {
-        let value = match node {
-            Node::Scalar { quoted: false, .. } => node.to_json().as_f64(),
-            _ => None,
-        };
-        match value {
-            Some(v) if ok(v) => Some(v),
-            _ => {
-                let shown = node
-                    .as_str()
-                    .map_or(node.type_name().to_string(), |s| format!("`{s}`"));
-                self.err(
-                    node.loc(),
-                    format!("`{key}` must be {expected}, got {shown}"),
-                );
-                None
-            }
-        }
+        self.plain(key, node, expected, |v| v.as_f64().filter(|x| ok(*x)))
     }
 
     /// A plain unsigned integer of `key`, at least `min`.
     fn integer(&mut self, key: &str, node: &Node, min: u64) -> Option<u64> {
-        let value = match node {
-            Node::Scalar { quoted: false, .. } => node.to_json().as_u64(),
-            _ => None,
-        };
-        match value {
-            Some(v) if v >= min => Some(v),
-            _ => {
-                let shown = node
-                    .as_str()
-                    .map_or(node.type_name().to_string(), |s| format!("`{s}`"));
-                self.err(
-                    node.loc(),
-                    format!("`{key}` must be an integer ≥ {min}, got {shown}"),
-                );
-                None
-            }
-        }
+        self.plain(key, node, &format!("an integer ≥ {min}"), |v| {
+            v.as_u64().filter(|x| *x >= min)
+        })
     }
 
     /// A scalar string of `key`.
