@@ -8,6 +8,12 @@
 //! as child processes, `--jobs` at a time; a cell whose folder already holds a complete
 //! `metrics.json` is not re-run, a half-finished one is cleared and re-run. Ctrl-C (or SIGTERM)
 //! stops the running episodes cleanly and writes the table of what is complete.
+//!
+//! `--suite FILE` takes the grid from a suite file (`activemap_bench::results::suite`) instead
+//! of the options; its camera height, field of view, planner setting (`when_no_frontier`, so
+//! that every method runs the whole budget) and scene placement reach the derived dataflows
+//! too: the height in the `robot` of every node that takes one, the field of view on the `sim`
+//! node and a Fisher scorer's camera, the placement on `sim` and `evaluator`.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
@@ -15,7 +21,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method};
+use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method, Suite};
+use activemap_operators::checks::ROBOT_OPERATORS;
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
 use anyhow::{Context as _, bail};
 use serde_json::Value;
@@ -23,6 +30,17 @@ use serde_json::Value;
 /// Options of `activemap bench results`.
 #[derive(clap::Args)]
 pub struct ResultsArgs {
+    /// A suite file (`benchmarks/*.yaml`): methods, scenes with their placement, seeds, steps,
+    /// camera, noise and test views in one place (`activemap_bench::results::suite`); replaces
+    /// the grid options below (`--out`, `--jobs` and `--record` still apply).
+    #[arg(
+        long,
+        conflicts_with_all = [
+            "methods", "houses", "scenes", "noise", "seeds", "steps", "resolution",
+            "max_rooms", "max_area", "eval_views",
+        ]
+    )]
+    suite: Option<PathBuf>,
     /// Methods, the table's rows: a known name (`fbe` = dataflow.yaml, `fisher_eig_only` and
     /// `fisher` = flows/<name>.yaml, relative to the working directory) or NAME=DATAFLOW;
     /// repeatable and comma-separated (`--methods fbe,fisher_eig_only,fisher`).
@@ -63,9 +81,10 @@ pub struct ResultsArgs {
     /// Test views of each evaluation (SPEC §8: 2000).
     #[arg(long, default_value_t = 2000)]
     eval_views: usize,
-    /// Output folder: one run folder per cell, results.md and results.csv.
-    #[arg(long, default_value = "runs/results")]
-    out: PathBuf,
+    /// Output folder: one run folder per cell, results.md, results.csv and paired.csv
+    /// (default `runs/results`, with `--suite FILE` `runs/<FILE's stem>`).
+    #[arg(long)]
+    out: Option<PathBuf>,
     /// Episodes run at once (default: one per two cores).
     #[arg(long)]
     jobs: Option<usize>,
@@ -74,8 +93,18 @@ pub struct ResultsArgs {
     record: bool,
 }
 
-/// Runs the grid, writes the tables and prints the Markdown.
-pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
+/// What to run: the cells and the description of the grid for `results.md`.
+struct Plan {
+    /// Every cell.
+    cells: Vec<Cell>,
+    /// Lines under the title of `results.md`.
+    heading: String,
+    /// Output folder.
+    out: PathBuf,
+}
+
+/// The grid the command-line options describe.
+fn plan_from_args(args: &ResultsArgs) -> anyhow::Result<Plan> {
     anyhow::ensure!(
         !args.seeds.is_empty() && !args.methods.is_empty(),
         "bench results: --method and --seeds must each name at least one"
@@ -112,23 +141,135 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
         max_area: args.max_area,
         eval_views: args.eval_views,
         noise: args.noise.clone(),
+        hfov_deg: None,
+        camera_height_m: None,
+        when_no_frontier: None,
     };
-    let cells = results::cells(&methods, &scenes, &args.seeds, &settings);
+    let list = |v: &[u64]| v.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
+    let heading = format!(
+        "Command: `activemap {}`\n\n\
+         Houses {} (max_rooms {}, max_area {}), seeds {}; {} steps per episode, {res}×{res} px \
+         camera; {} test views per evaluation (SPEC §8). Methods: {}.",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
+        scenes.join(", "),
+        args.max_rooms.map_or("default".into(), |v| v.to_string()),
+        args.max_area
+            .map_or("default".into(), |v| format!("{v} m²")),
+        list(&args.seeds),
+        args.steps,
+        args.eval_views,
+        methods
+            .iter()
+            .map(|m| format!("{} = `{}`", m.name, m.dataflow.display()))
+            .collect::<Vec<_>>()
+            .join(", "),
+        res = args.resolution,
+    );
+    Ok(Plan {
+        cells: results::cells(&methods, &scenes, &args.seeds, &settings),
+        heading,
+        out: args
+            .out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("runs/results")),
+    })
+}
+
+/// The grid a suite file describes (known method names resolve against the working
+/// directory).
+fn plan_from_suite(file: &Path, out: Option<&Path>) -> anyhow::Result<Plan> {
+    let cwd = std::env::current_dir().context("reading the working directory")?;
+    let suite = Suite::load(file, &cwd).map_err(|d| anyhow::anyhow!("{d}"))?;
+    let s = &suite.settings;
+    let or_method = |v: Option<String>| v.unwrap_or_else(|| "the method's".into());
+    let scenes: Vec<String> = suite
+        .scenes
+        .iter()
+        .map(|sc| {
+            let placement = serde_json::to_string(&sc.placement).unwrap_or_default();
+            if placement == "{}" {
+                sc.scene.clone()
+            } else {
+                format!("{} {placement}", sc.scene)
+            }
+        })
+        .collect();
+    let heading = format!(
+        "Command: `activemap {}`\n\n{}Suite `{}`: methods {}; scenes {}; houses max_rooms {}, \
+         max_area {}; seeds {}; {} steps per episode (when no frontier is left: {}); camera \
+         {res}×{res} px, field of view {}, height {}; noise {}; {} test views per evaluation \
+         (SPEC §8).",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
+        suite
+            .description
+            .as_ref()
+            .map_or(String::new(), |d| format!("{d}\n\n")),
+        file.display(),
+        suite
+            .methods
+            .iter()
+            .map(|m| format!("{} = `{}`", m.name, m.dataflow.display()))
+            .collect::<Vec<_>>()
+            .join(", "),
+        scenes.join(", "),
+        s.max_rooms.map_or("default".into(), |v| v.to_string()),
+        s.max_area.map_or("default".into(), |v| format!("{v} m²")),
+        suite
+            .seeds
+            .iter()
+            .map(u64::to_string)
+            .collect::<Vec<_>>()
+            .join(", "),
+        s.steps,
+        or_method(s.when_no_frontier.clone()),
+        or_method(s.hfov_deg.map(|v| format!("{v}°"))),
+        or_method(s.camera_height_m.map(|v| format!("{v} m"))),
+        or_method(s.noise.clone()),
+        s.eval_views,
+        res = s.resolution,
+    );
+    let out = out.map(Path::to_path_buf).unwrap_or_else(|| {
+        let stem = file
+            .file_stem()
+            .map_or("suite".into(), |f| f.to_string_lossy().into_owned());
+        PathBuf::from("runs").join(stem)
+    });
+    Ok(Plan {
+        cells: suite.cells(),
+        heading,
+        out,
+    })
+}
+
+/// Runs the grid, writes the tables and prints the Markdown.
+pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
+    let plan = match &args.suite {
+        Some(file) => plan_from_suite(file, args.out.as_deref())?,
+        None => plan_from_args(args)?,
+    };
+    let cells = &plan.cells;
     // Every cell's dataflow is checked before the first episode starts.
-    for cell in &cells {
+    for cell in cells {
         cell_flow(cell)?;
     }
     let exe = std::env::current_exe().context("locating the activemap executable")?;
     let stop = Arc::new(AtomicBool::new(false));
     activemap_runtime::node::install_stop_signals(&stop)?;
     let jobs = args.jobs.unwrap_or_else(results::default_jobs).max(1);
+    let count = |key: fn(&Cell) -> String| {
+        cells
+            .iter()
+            .map(key)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len()
+    };
     eprintln!(
-        "bench results: {} cells ({} methods × {} houses × {} seeds), {jobs} at a time, in {}",
+        "bench results: {} cells ({} methods × {} scenes × {} seeds), {jobs} at a time, in {}",
         cells.len(),
-        methods.len(),
-        scenes.len(),
-        args.seeds.len(),
-        args.out.display()
+        count(|c| c.method.name.clone()),
+        count(|c| c.scene.clone()),
+        count(|c| c.seed.to_string()),
+        plan.out.display()
     );
     let started = Instant::now();
     let run = |cell: &Cell, dir: &Path| run_cell(&exe, cell, dir, args.record, &stop);
@@ -152,33 +293,14 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
             r.cell.label()
         );
     };
-    let outcome = results::run_cells(&cells, &args.out, jobs, &stop, run, progress)?;
-    let list = |v: &[u64]| v.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
-    let heading = format!(
-        "Command: `activemap {}`\n\n\
-         Houses {} (max_rooms {}, max_area {}), seeds {}; {} steps per episode, {res}×{res} px \
-         camera; {} test views per evaluation (SPEC §8). Methods: {}.",
-        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
-        scenes.join(", "),
-        args.max_rooms.map_or("default".into(), |v| v.to_string()),
-        args.max_area
-            .map_or("default".into(), |v| format!("{v} m²")),
-        list(&args.seeds),
-        args.steps,
-        args.eval_views,
-        methods
-            .iter()
-            .map(|m| format!("{} = `{}`", m.name, m.dataflow.display()))
-            .collect::<Vec<_>>()
-            .join(", "),
-        res = args.resolution,
-    );
-    let (md, csv) = results::write_tables(&args.out, &heading, &outcome)?;
+    let outcome = results::run_cells(cells, &plan.out, jobs, &stop, run, progress)?;
+    let (md, csv) = results::write_tables(&plan.out, &plan.heading, &outcome)?;
     print!("{}", std::fs::read_to_string(&md).unwrap_or_default());
     eprintln!(
-        "bench results: wrote {} and {}",
+        "bench results: wrote {}, {} and {}",
         md.display(),
-        csv.display()
+        csv.display(),
+        plan.out.join(results::files::PAIRED).display()
     );
     if outcome
         .iter()
@@ -211,6 +333,7 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     };
     let (mut sims, mut evaluators) = (0, 0);
     let s = &cell.settings;
+    let placement = serde_json::to_value(cell.placement).unwrap_or(Value::Null);
     for node in nodes.iter_mut() {
         // External executables keep working from the cell's folder.
         if let Some(YamlNode::Scalar { value, .. }) = entry(node, "path")
@@ -226,16 +349,13 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
         if !matches!(node, YamlNode::Map { .. }) {
             continue;
         }
-        let needs_config = operator == "sim" || operator == "evaluator";
-        if needs_config && !matches!(node.get("config"), Some(YamlNode::Map { .. })) {
-            set(
-                node,
-                "config",
-                Some(YamlNode::Map {
-                    entries: Vec::new(),
-                    loc: Loc::default(),
-                }),
-            );
+        let takes_robot = ROBOT_OPERATORS.contains(&operator.as_str());
+        let needs_config = operator == "sim"
+            || operator == "evaluator"
+            || (takes_robot && s.camera_height_m.is_some())
+            || (operator == "planner" && s.when_no_frontier.is_some());
+        if needs_config {
+            child_map(node, "config");
         }
         let Some(config) = entry(node, "config") else {
             continue;
@@ -243,10 +363,20 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
         if config.get("seed").is_some() {
             set(config, "seed", Some(scalar(cell.seed)));
         }
+        if let (true, Some(height)) = (takes_robot, s.camera_height_m) {
+            set(
+                child_map(config, "robot"),
+                "camera_height_m",
+                Some(scalar(height)),
+            );
+        }
         let set_scene = |config: &mut YamlNode| {
             set(config, "scene", Some(quoted(&cell.scene)));
             set(config, "max_rooms", s.max_rooms.map(scalar));
             set(config, "max_area", s.max_area.map(scalar));
+            for key in PLACEMENT_KEYS {
+                set(config, key, placement.get(key).map(from_json));
+            }
         };
         match operator.as_str() {
             "sim" => {
@@ -258,6 +388,9 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
                 if let Some(noise) = &s.noise {
                     set(config, "noise", Some(scalar(noise)));
                 }
+                if let Some(fov) = s.hfov_deg {
+                    set(config, "hfov_deg", Some(scalar(fov)));
+                }
             }
             "evaluator" => {
                 evaluators += 1;
@@ -265,19 +398,16 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
             }
             // A Fisher scorer renders at the simulator's camera (checked across nodes).
             "scorer" if config.get("mode").and_then(YamlNode::as_str) == Some("fisher") => {
-                if !matches!(config.get("camera"), Some(YamlNode::Map { .. })) {
-                    set(
-                        config,
-                        "camera",
-                        Some(YamlNode::Map {
-                            entries: Vec::new(),
-                            loc: Loc::default(),
-                        }),
-                    );
+                let camera = child_map(config, "camera");
+                set(camera, "width", Some(scalar(s.resolution)));
+                set(camera, "height", Some(scalar(s.resolution)));
+                if let Some(fov) = s.hfov_deg {
+                    set(camera, "hfov_deg", Some(scalar(fov)));
                 }
-                if let Some(camera) = entry(config, "camera") {
-                    set(camera, "width", Some(scalar(s.resolution)));
-                    set(camera, "height", Some(scalar(s.resolution)));
+            }
+            "planner" => {
+                if let Some(when) = &s.when_no_frontier {
+                    set(config, "when_no_frontier", Some(scalar(when)));
                 }
             }
             _ => {}
@@ -304,6 +434,55 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     )
     .map_err(|d| anyhow::anyhow!("{d}"))?;
     Ok(text)
+}
+
+/// The keys that place a scene file, on the `sim` and `evaluator` nodes.
+const PLACEMENT_KEYS: [&str; 3] = ["up_axis", "transform", "floor"];
+
+/// The mapping under `key` of mapping `node`, created (or replacing a value that is not a
+/// mapping) when absent; `node` itself when it is not a mapping.
+fn child_map<'a>(node: &'a mut YamlNode, key: &str) -> &'a mut YamlNode {
+    let empty = || YamlNode::Map {
+        entries: Vec::new(),
+        loc: Loc::default(),
+    };
+    match node {
+        YamlNode::Map { entries, .. } => {
+            let i = match entries.iter().position(|e| e.0 == key) {
+                Some(i) => i,
+                None => {
+                    entries.push((key.to_string(), Loc::default(), empty()));
+                    entries.len() - 1
+                }
+            };
+            let value = &mut entries[i].2;
+            if !matches!(value, YamlNode::Map { .. }) {
+                *value = empty();
+            }
+            value
+        }
+        other => other,
+    }
+}
+
+/// A JSON value as a YAML node: strings quoted, numbers, booleans and null plain.
+fn from_json(value: &Value) -> YamlNode {
+    let loc = Loc::default();
+    match value {
+        Value::String(text) => quoted(text),
+        Value::Array(items) => YamlNode::Seq {
+            items: items.iter().map(from_json).collect(),
+            loc,
+        },
+        Value::Object(map) => YamlNode::Map {
+            entries: map
+                .iter()
+                .map(|(k, v)| (k.clone(), loc, from_json(v)))
+                .collect(),
+            loc,
+        },
+        other => scalar(other),
+    }
 }
 
 /// The value of `key` in a mapping, mutable.
@@ -506,6 +685,7 @@ mod tests {
             max_area: Some(30.0),
             eval_views: 8,
             noise: None,
+            ..GridSettings::default()
         }
     }
 
@@ -591,6 +771,156 @@ mod tests {
         assert_eq!(scorer["camera"]["height"].as_u64(), Some(64));
         assert_eq!(scorer["camera"]["hfov_deg"].as_f64(), Some(90.0));
         assert_eq!(scorer["fisher"]["objective"], "eig_only");
+    }
+
+    /// A suite's camera, robot, planner and placement settings reach every node that needs
+    /// them, and the derived flow of each known method still passes the cross-node checks
+    /// (one robot, the scorer's camera equal to the simulator's).
+    #[test]
+    fn cell_flow_applies_a_suites_camera_robot_planner_and_placement() {
+        let settings = GridSettings {
+            hfov_deg: Some(79.0),
+            camera_height_m: Some(1.25),
+            when_no_frontier: Some("refine".into()),
+            noise: Some("realistic".into()),
+            ..small()
+        };
+        let placement: activemap_sim::Placement = serde_json::from_value(serde_json::json!({
+            "up_axis": "y",
+            "floor": "auto",
+            "transform": { "scale": 0.5, "translate": [1.0, 2.0, 0.0] }
+        }))
+        .unwrap();
+        for known in results::KNOWN_METHODS {
+            let mut c = cell(settings.clone());
+            c.method.dataflow = root().join(known.dataflow);
+            c.scene = "/nowhere/room.glb".into();
+            c.placement = placement;
+            let text = cell_flow(&c).unwrap_or_else(|e| panic!("{}: {e:#}", known.name));
+            let flow =
+                Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+            let mut robots = 0;
+            for node in &flow.nodes {
+                let op = match &node.implementation {
+                    activemap_runtime::dataflow::NodeImpl::Operator(op) => op.as_str(),
+                    _ => "",
+                };
+                if ROBOT_OPERATORS.contains(&op) {
+                    robots += 1;
+                    assert_eq!(
+                        node.config["robot"]["camera_height_m"].as_f64(),
+                        Some(1.25),
+                        "{}: {}",
+                        known.name,
+                        node.id
+                    );
+                }
+                if op == "planner" {
+                    assert_eq!(node.config["when_no_frontier"], "refine", "{}", known.name);
+                }
+                if op == "scorer" && node.config["mode"] == "fisher" {
+                    assert_eq!(node.config["camera"]["hfov_deg"].as_f64(), Some(79.0));
+                    assert_eq!(node.config["camera"]["width"].as_u64(), Some(64));
+                }
+                if op == "sim" || op == "evaluator" {
+                    assert_eq!(node.config["scene"], "/nowhere/room.glb");
+                    assert_eq!(node.config["up_axis"], "y");
+                    assert_eq!(node.config["floor"], "auto");
+                    assert_eq!(node.config["transform"]["scale"].as_f64(), Some(0.5));
+                    assert_eq!(node.config["transform"]["translate"][1].as_f64(), Some(2.0));
+                }
+                if op == "sim" {
+                    assert_eq!(node.config["hfov_deg"].as_f64(), Some(79.0));
+                    assert_eq!(node.config["noise"], "realistic");
+                }
+            }
+            assert!(robots >= 5, "{}: {robots} robot nodes", known.name);
+            // The cross-node checks (robot, camera) pass on the derived flow.
+            activemap_operators::checks::check_flow(&flow)
+                .unwrap_or_else(|e| panic!("{}: {e}", known.name));
+        }
+        // Without suite settings the method's own values stay.
+        let text = cell_flow(&cell(small())).unwrap();
+        assert!(
+            !text.contains("camera_height_m") && !text.contains("when_no_frontier"),
+            "{text}"
+        );
+    }
+
+    /// `--suite` runs through the same grid runner: both methods run the suite's whole budget
+    /// with the suite's settings, and the tables carry the paired comparison. In this
+    /// two-room house FBE alone ends its episode when no frontier is left (at step 336 with
+    /// seed 0 at 64×64, `when_no_frontier: end`); under the suite it refines instead and runs
+    /// all 360 steps. Grid options beside `--suite` are refused.
+    #[test]
+    fn a_suite_runs_every_method_for_the_whole_budget() {
+        let tmp = tempfile::tempdir().unwrap();
+        let suite = tmp.path().join("tiny.yaml");
+        std::fs::write(
+            &suite,
+            "methods: [fbe, fisher]\nscenes: [house:3]\nhouses: { max_rooms: 2, max_area: 30 }\n\
+             seeds: [0]\nsteps: 360\ncamera: { resolution: 64 }\neval_views: 4\n",
+        )
+        .unwrap();
+        let out = tmp.path().join("out");
+        let done = Command::new(binary())
+            .current_dir(root())
+            .args(["bench", "results", "--jobs", "1", "--suite"])
+            .arg(&suite)
+            .arg("--out")
+            .arg(&out)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&done.stderr);
+        assert!(done.status.success(), "{log}");
+        assert!(
+            log.contains("2 cells (2 methods × 1 scenes × 1 seeds)"),
+            "{log}"
+        );
+        for method in ["fbe", "fisher"] {
+            let dir = out.join(method).join("house-3/seed0");
+            let summary: Value =
+                serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
+                    .unwrap();
+            assert_eq!(
+                summary["episode"], "Finished at step 360: max_steps reached",
+                "{method}: {summary}"
+            );
+            let flow = std::fs::read_to_string(dir.join(CELL_FLOW)).unwrap();
+            assert!(
+                flow.contains("\"when_no_frontier\": \"refine\""),
+                "{method}: {flow}"
+            );
+        }
+        // FBE did run out of frontiers, and went on refining to the budget.
+        let planner =
+            std::fs::read_to_string(out.join("fbe/house-3/seed0/logs/planner.stderr.log")).unwrap();
+        assert!(
+            planner.contains("no reachable frontier left") && planner.contains("refine goal"),
+            "{planner}"
+        );
+        let md = std::fs::read_to_string(out.join("results.md")).unwrap();
+        assert!(
+            md.contains("Suite `") && md.contains("## Paired against `fbe`"),
+            "{md}"
+        );
+        let paired = std::fs::read_to_string(out.join("paired.csv")).unwrap();
+        assert!(
+            paired.contains("\nfisher,fbe,psnr_db,higher,1,"),
+            "{paired}"
+        );
+        let clash = Command::new(binary())
+            .current_dir(root())
+            .args(["bench", "results", "--steps", "5", "--suite"])
+            .arg(&suite)
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&clash.stderr);
+        assert!(
+            !clash.status.success() && log.contains("cannot be used with"),
+            "{log}"
+        );
     }
 
     fn bench(out: &Path, steps: u64) -> Command {

@@ -83,8 +83,20 @@ fn sim_camera(node: &NodeSpec) -> Option<(u32, u32, f64)> {
         .map(|c| (c.width, c.height, c.hfov_deg))
 }
 
+/// The operators whose config takes a `robot` (the ones [`check_flow`] compares): a tool that
+/// changes the robot of a flow (the results benchmark's camera height) sets it on all of them.
+pub const ROBOT_OPERATORS: [&str; 7] = [
+    "sim",
+    "tracker",
+    "occupancy",
+    "frontier",
+    "scorer",
+    "follower",
+    "evaluator",
+];
+
 /// The robot model of a node whose operator takes one (`None` for any other node, or a config
-/// its own check refuses).
+/// its own check refuses). Covers exactly [`ROBOT_OPERATORS`].
 fn robot(node: &NodeSpec) -> Option<RobotModel> {
     let NodeImpl::Operator(op) = &node.implementation else {
         return None;

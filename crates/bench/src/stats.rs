@@ -1,6 +1,7 @@
 //! Small statistics for the benchmarks: medians and quantiles of timings, and the Spearman rank
 //! correlation of the EIG–PSNR benchmark (ranks with average ties, then the Pearson correlation
-//! of the ranks, as `scipy.stats.spearmanr`).
+//! of the ranks, as `scipy.stats.spearmanr`), and the percentile bootstrap interval of a mean
+//! that the paired comparisons of `bench results` print.
 
 /// The `q`-quantile (`q` in [0, 1]) of `values` with linear interpolation between order
 /// statistics (numpy's default); `None` when empty. NaNs sort last.
@@ -74,6 +75,36 @@ pub fn spearman(a: &[f64], b: &[f64]) -> Option<f64> {
     pearson(&ranks(a), &ranks(b))
 }
 
+/// Resamples [`bootstrap_mean_interval`] draws.
+pub const BOOTSTRAP_RESAMPLES: usize = 10_000;
+
+/// Seed of the bootstrap's random stream: fixed, so the same values always give the same
+/// interval.
+pub const BOOTSTRAP_SEED: u64 = 0x5eed_b007;
+
+/// The percentile bootstrap interval of the mean of `values` at `level` (0.95 for 95 %):
+/// `resamples` means of `values.len()` draws with replacement (ChaCha8 seeded with `seed`),
+/// then their (1 − level)/2 and (1 + level)/2 quantiles ([`quantile`]). `None` when `values`
+/// is empty or holds a value that is not finite. Deterministic for a given `seed`.
+pub fn bootstrap_mean_interval(
+    values: &[f64],
+    level: f64,
+    resamples: usize,
+    seed: u64,
+) -> Option<(f64, f64)> {
+    use rand::{Rng as _, SeedableRng as _};
+    if values.is_empty() || values.iter().any(|v| !v.is_finite()) || resamples == 0 {
+        return None;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let n = values.len();
+    let means: Vec<f64> = (0..resamples)
+        .map(|_| (0..n).map(|_| values[rng.random_range(0..n)]).sum::<f64>() / n as f64)
+        .collect();
+    let tail = (1.0 - level.clamp(0.0, 1.0)) / 2.0;
+    Some((quantile(&means, tail)?, quantile(&means, 1.0 - tail)?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -130,5 +161,26 @@ mod tests {
         assert_eq!(quantile(&v, 0.25), Some(1.75));
         assert_eq!(median(&[7.0]), Some(7.0));
         assert_eq!(median(&[]), None);
+    }
+
+    /// Two values {0, 1}: the resampled means are 0, 0.5 and 1 with chances ¼, ½, ¼, so the
+    /// 2.5 % and 97.5 % quantiles of 10 000 of them are 0 and 1; the same call gives the same
+    /// interval, and a constant sample gives a point.
+    #[test]
+    fn bootstrap_interval_matches_the_exact_distribution_and_repeats() {
+        let ci = |v: &[f64]| bootstrap_mean_interval(v, 0.95, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED);
+        assert_eq!(ci(&[0.0, 1.0]), Some((0.0, 1.0)));
+        assert_eq!(ci(&[2.5, 2.5, 2.5]), Some((2.5, 2.5)));
+        let v = [1.0, -1.0, 1.0, 3.0, 0.5, 2.0, -0.5];
+        let (lo, hi) = ci(&v).unwrap();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        assert!(lo < mean && mean < hi, "{lo} {mean} {hi}");
+        assert!(
+            lo > -1.0 && hi < 3.0,
+            "inside the sample's range: {lo} {hi}"
+        );
+        assert_eq!(ci(&v), Some((lo, hi)), "deterministic");
+        assert_eq!(ci(&[]), None);
+        assert_eq!(ci(&[1.0, f64::INFINITY]), None);
     }
 }

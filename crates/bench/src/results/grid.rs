@@ -6,6 +6,8 @@
 
 use activemap_eval::MetricsReport;
 use activemap_eval::run_folder::{RunError, RunFolder, read_text, write_file};
+use activemap_sim::Placement;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
@@ -99,7 +101,9 @@ impl Method {
     }
 }
 
-fn is_folder_name(name: &str) -> bool {
+/// Whether `name` can name a method's run folder: non-empty letters, digits, `-`, `_` or `.`,
+/// not starting with `.`.
+pub(crate) fn is_folder_name(name: &str) -> bool {
     !name.is_empty()
         && !name.starts_with('.')
         && name
@@ -107,8 +111,11 @@ fn is_folder_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
 }
 
-/// Settings shared by every cell of a grid (they are part of each cell's identity).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Settings shared by every cell of a grid (they are part of each cell's identity). The
+/// `Option` fields added after the first release are left out of `cell.json` when `None`, so
+/// folders written before them still match. `Default` is a zero budget: name every field that
+/// matters.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GridSettings {
     /// Step budget of each episode.
     pub steps: u64,
@@ -124,6 +131,19 @@ pub struct GridSettings {
     /// method's own (absent from older `cell.json` files).
     #[serde(default)]
     pub noise: Option<String>,
+    /// Horizontal field of view of the camera, degrees, set on the `sim` node and a Fisher
+    /// scorer's camera; `None` keeps the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hfov_deg: Option<f64>,
+    /// Height of the camera above the floor, metres, set in the `robot` of every node that
+    /// takes one (they must agree); `None` keeps the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_height_m: Option<f64>,
+    /// What every `planner` node does when no reachable frontier is left (`end` or `refine`,
+    /// its `when_no_frontier` key); `None` keeps the method's. Suites set `refine`, so every
+    /// method runs the whole step budget and all are judged after the same number of steps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub when_no_frontier: Option<String>,
 }
 
 /// One cell of the grid: a method on a scene with a seed, under the grid's settings.
@@ -133,10 +153,18 @@ pub struct Cell {
     pub method: Method,
     /// The scene, `house:<seed>` or a scene file.
     pub scene: String,
+    /// How a scene file is placed (`up_axis`, `transform`, `floor` of the `sim` and
+    /// `evaluator` nodes); the default (absent from `cell.json`) places it as the format says.
+    #[serde(default, skip_serializing_if = "is_default_placement")]
+    pub placement: Placement,
     /// Repetition seed (set on every node whose config declares `seed`).
     pub seed: u64,
     /// The grid's settings.
     pub settings: GridSettings,
+}
+
+fn is_default_placement(p: &Placement) -> bool {
+    *p == Placement::default()
 }
 
 /// File in a cell's folder holding the cell (written before the run starts).
@@ -188,7 +216,8 @@ pub fn scene_folder(scene: &str) -> String {
         .collect()
 }
 
-/// Every cell of methods × scenes × seeds, in that nesting order.
+/// Every cell of methods × scenes × seeds, in that nesting order, each scene placed as its
+/// format says (a suite gives placements: [`super::suite::Suite::cells`]).
 pub fn cells(
     methods: &[Method],
     scenes: &[String],
@@ -202,6 +231,7 @@ pub fn cells(
                 out.push(Cell {
                     method: method.clone(),
                     scene: scene.clone(),
+                    placement: Placement::default(),
                     seed,
                     settings: settings.clone(),
                 });
@@ -257,39 +287,44 @@ pub fn cell_state(cell: &Cell, out: &Path) -> Result<CellState, RunError> {
 
 /// Names what differs between two cells, for error messages.
 fn settings_difference(a: &Cell, b: &Cell) -> String {
-    let (sa, sb) = (&a.settings, &b.settings);
-    let mut diff = Vec::new();
-    let mut check = |name: &str, x: String, y: String| {
-        if x != y {
-            diff.push(format!("{name} {x} there, {y} now"));
+    /// Every leaf of a cell's JSON by its dotted path (`settings.` and `method.` left out, so
+    /// `steps`, `dataflow`, `placement.up_axis`), strings without their quotes.
+    fn leaves(prefix: &str, value: &serde_json::Value, out: &mut BTreeMap<String, String>) {
+        match value {
+            serde_json::Value::Object(map) => {
+                for (key, v) in map {
+                    let path = match prefix {
+                        "" | "settings" | "method" => key.clone(),
+                        _ => format!("{prefix}.{key}"),
+                    };
+                    leaves(&path, v, out);
+                }
+            }
+            serde_json::Value::String(text) => {
+                out.insert(prefix.to_string(), text.clone());
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
         }
+    }
+    let flat = |cell: &Cell| {
+        let mut out = BTreeMap::new();
+        leaves(
+            "",
+            &serde_json::to_value(cell).unwrap_or_default(),
+            &mut out,
+        );
+        out
     };
-    check(
-        "dataflow",
-        a.method.dataflow.display().to_string(),
-        b.method.dataflow.display().to_string(),
-    );
-    check("steps", sa.steps.to_string(), sb.steps.to_string());
-    check(
-        "resolution",
-        sa.resolution.to_string(),
-        sb.resolution.to_string(),
-    );
-    check(
-        "max_rooms",
-        format!("{:?}", sa.max_rooms),
-        format!("{:?}", sb.max_rooms),
-    );
-    check(
-        "max_area",
-        format!("{:?}", sa.max_area),
-        format!("{:?}", sb.max_area),
-    );
-    check(
-        "eval_views",
-        sa.eval_views.to_string(),
-        sb.eval_views.to_string(),
-    );
+    let (fa, fb) = (flat(a), flat(b));
+    let keys: BTreeSet<&String> = fa.keys().chain(fb.keys()).collect();
+    let shown = |v: Option<&String>| v.map_or("none".to_string(), Clone::clone);
+    let diff: Vec<String> = keys
+        .into_iter()
+        .filter(|k| fa.get(*k) != fb.get(*k))
+        .map(|k| format!("{k} {} there, {} now", shown(fa.get(k)), shown(fb.get(k))))
+        .collect();
     if diff.is_empty() {
         "the cell differs".into()
     } else {
@@ -309,6 +344,7 @@ mod tests {
             max_area: Some(30.0),
             eval_views: 10,
             noise: None,
+            ..GridSettings::default()
         }
     }
 
@@ -424,6 +460,16 @@ mod tests {
         let e = cell_state(&other, out.path()).unwrap_err().to_string();
         assert!(
             e.contains("cell.json") && e.contains("steps 40 there, 41 now"),
+            "{e}"
+        );
+        // A suite's settings and placement are named too, `none` where one side lacks them.
+        let mut other = cell.clone();
+        other.settings.camera_height_m = Some(1.25);
+        other.placement.up_axis = Some(activemap_sim::UpAxis::Y);
+        let e = cell_state(&other, out.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("camera_height_m none there, 1.25 now")
+                && e.contains("placement.up_axis none there, y now"),
             "{e}"
         );
     }

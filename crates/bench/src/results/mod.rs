@@ -3,8 +3,10 @@
 //!
 //! - [`grid`]: the cells, their run folders and whether each is complete;
 //! - [`runner`]: runs the unfinished cells on worker threads, resuming after an interruption;
-//! - [`table`]: `results.md` (Table 1 layout, the ablation, per scene) and `results.csv`
-//!   (mean ± spread over seeds).
+//! - [`table`]: `results.md` (Table 1 layout, the ablation, the paired comparison against
+//!   FBE, per scene), `results.csv` (mean ± spread over seeds) and `paired.csv`;
+//! - [`suite`]: a benchmark suite file (methods, scenes with their placement, seeds, steps,
+//!   camera, noise, test views) read into the grid's cells.
 //!
 //! A method is a dataflow file, named on the command line as NAME=DATAFLOW or by a bare known
 //! name ([`KNOWN_METHODS`]: `fbe` = `dataflow.yaml`, `fisher_eig_only` and `fisher` in
@@ -14,6 +16,7 @@
 
 pub mod grid;
 pub mod runner;
+pub mod suite;
 pub mod table;
 
 pub use grid::{
@@ -21,6 +24,7 @@ pub use grid::{
     known_method,
 };
 pub use runner::{CellOutcome, CellResult, run_cells};
+pub use suite::{Suite, SuiteScene};
 
 use activemap_eval::run_folder::{RunError, write_file};
 use std::path::{Path, PathBuf};
@@ -31,6 +35,8 @@ pub mod files {
     pub const MARKDOWN: &str = "results.md";
     /// The CSV table.
     pub const CSV: &str = "results.csv";
+    /// The paired comparison against the baseline (`table::paired_csv`).
+    pub const PAIRED: &str = "paired.csv";
 }
 
 /// Episodes to run at once by default: one per two cores (an episode keeps about two cores busy:
@@ -39,8 +45,8 @@ pub fn default_jobs() -> usize {
     std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1))
 }
 
-/// Writes `results.md` (with `heading` under the title) and `results.csv` into `out`; returns
-/// their paths.
+/// Writes `results.md` (with `heading` under the title), `results.csv` and `paired.csv` into
+/// `out`; returns the paths of the first two.
 pub fn write_tables(
     out: &Path,
     heading: &str,
@@ -54,5 +60,6 @@ pub fn write_tables(
     let csv = out.join(files::CSV);
     write_file(&md, table::markdown(heading, results))?;
     write_file(&csv, table::csv(results))?;
+    write_file(&out.join(files::PAIRED), table::paired_csv(results))?;
     Ok((md, csv))
 }

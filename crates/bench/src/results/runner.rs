@@ -181,6 +181,7 @@ mod tests {
             max_area: None,
             eval_views: 4,
             noise: None,
+            ..GridSettings::default()
         };
         cells(
             &[Method::parse("fbe=x.yaml").unwrap()],
