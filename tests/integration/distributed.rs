@@ -198,41 +198,7 @@ fn long_lived_daemons_accept_a_flow_list_it_show_logs_and_go_down() {
     );
     // A client reaches both daemons through a's endpoint; retry while they come up.
     let run_id = format!("d{}", std::process::id());
-    let mut started = None;
-    for _ in 0..40 {
-        let out = run(
-            &[
-                "start",
-                file,
-                "--connect",
-                &control_a,
-                "--run-id",
-                &run_id,
-                "--wait",
-            ],
-            &root(),
-            Duration::from_secs(120),
-        );
-        if out.status.success() {
-            started = Some(out);
-            break;
-        }
-        // Until both daemons listen, the client cannot connect or a machine does not answer.
-        assert!(
-            out.stderr.contains("no daemon answered") || out.stderr.contains("no daemon reachable"),
-            "start failed for another reason:\n{}\n{}",
-            out.stderr,
-            out.stdout
-        );
-        std::thread::sleep(Duration::from_millis(250));
-    }
-    let started = started.expect("the daemons never accepted the flow");
-    assert!(
-        started.stdout.contains(&format!("run {run_id} started")),
-        "{}",
-        started.stdout
-    );
-    check_machine_b(&runs_b.join(&run_id));
+    start_and_check_flow(file, &control_a, &run_id, &[], &runs_b);
     assert!(runs_a.join(&run_id).join("logs/source.stderr.log").exists());
     assert!(!runs_a.join(&run_id).join("logs/double.stderr.log").exists());
 
@@ -642,7 +608,7 @@ fn mutual_tls_daemons(scheme: &str, run_flow: bool) {
 
     let run_id = format!("m{}", std::process::id());
     let started_stdout = if run_flow {
-        start_and_check_flow(file, &control_a, &run_id, id_client, &runs_b)
+        start_and_check_flow(file, &control_a, &run_id, &tls_args(id_client), &runs_b)
     } else {
         // The daemons are up once both answer the trusted client.
         let mut list = vec!["list", "--connect", &control_a];
@@ -719,14 +685,15 @@ fn mutual_tls_daemons(scheme: &str, run_flow: bool) {
     }
 }
 
-/// Starts the two-machine flow `file` through `control_a` as the trusted client (retrying
-/// while the daemons come up), waits for it and checks machine b's outputs; returns start's
-/// stdout.
+/// Starts the two-machine flow `file` through `control_a` with the client arguments `client`
+/// (the TLS identity, if any), retrying while the daemons come up (until then the client
+/// cannot connect or a machine does not answer), waits for it and checks machine b's
+/// outputs; returns start's stdout.
 fn start_and_check_flow(
     file: &str,
     control_a: &str,
     run_id: &str,
-    id_client: &[String; 3],
+    client: &[&str],
     runs_b: &std::path::Path,
 ) -> String {
     let mut start = vec![
@@ -738,7 +705,7 @@ fn start_and_check_flow(
         run_id,
         "--wait",
     ];
-    start.extend(tls_args(id_client));
+    start.extend(client);
     let mut started = None;
     for _ in 0..60 {
         let out = run(&start, &root(), Duration::from_secs(120));
@@ -754,7 +721,7 @@ fn start_and_check_flow(
         );
         std::thread::sleep(Duration::from_millis(250));
     }
-    let started = started.expect("the TLS daemons never accepted the flow");
+    let started = started.expect("the daemons never accepted the flow");
     assert!(
         started.stdout.contains(&format!("run {run_id} started")),
         "{}",

@@ -544,11 +544,11 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         let seen = observable.iter().filter(|&&o| o).count();
         report.observable_share = Some(seen as f64 / samples.len() as f64);
         let surface = field.surface_points();
-        let all = vec![true; samples.len()];
         let threshold = crate::COMPLETENESS_THRESHOLD_M;
-        report.completeness_all =
-            Some(surface_metrics(&samples, &all, &surface, threshold)?.completeness);
+        // One completeness flag per sample serves the figure over all samples and the
+        // breakdown by surface; accuracy and completion error need the observable ones only.
         let complete = surface_complete(&samples, &surface, threshold)?;
+        report.completeness_all = Some(complete_fraction(&complete));
         if seen == 0 {
             for m in ["completeness", "accuracy_cm", "completion_error_cm"] {
                 report.mark_missing(m, "no ground-truth sample is observable from the floor");
