@@ -55,7 +55,7 @@ pub struct ResultsArgs {
     /// is given.
     #[arg(long, value_delimiter = ',')]
     houses: Vec<u64>,
-    /// Scene files run after the houses, e.g. `../shared/data/scenes/aws_small_house.glb` (the
+    /// Scene files (or procedural `home:<n>`, `office:<n>`) run after the houses, e.g. `../shared/data/scenes/aws_small_house.glb` (the
     /// furnished house); made absolute, since every cell runs in its own folder.
     #[arg(long, value_delimiter = ',')]
     scenes: Vec<String>,
@@ -130,6 +130,14 @@ fn plan_from_args(args: &ResultsArgs) -> anyhow::Result<Plan> {
         .collect::<anyhow::Result<Vec<_>>>()?;
     let mut scenes = crate::bench_explore::house_scenes(&args.houses, &args.scenes);
     for file in &args.scenes {
+        // A procedural home or office (`home:3`, `office:2`) is a scene without a file.
+        if activemap_sim::SceneSpec::new(file.clone())
+            .house_seed()
+            .is_ok_and(|seed| seed.is_some())
+        {
+            scenes.push(file.clone());
+            continue;
+        }
         let path = std::path::absolute(file).with_context(|| format!("--scenes {file}"))?;
         anyhow::ensure!(path.is_file(), "--scenes {file}: no such file");
         scenes.push(path.display().to_string());
@@ -144,6 +152,7 @@ fn plan_from_args(args: &ResultsArgs) -> anyhow::Result<Plan> {
         hfov_deg: None,
         camera_height_m: None,
         when_no_frontier: None,
+        checkpoints: Vec::new(),
     };
     let list = |v: &[u64]| v.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
     let heading = format!(
@@ -295,6 +304,10 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
     };
     let outcome = results::run_cells(cells, &plan.out, jobs, &stop, run, progress)?;
     let (md, csv) = results::write_tables(&plan.out, &plan.heading, &outcome)?;
+    for path in results::write_checkpoint_tables(&plan.out, &plan.heading, &outcome)? {
+        print!("{}", std::fs::read_to_string(&path).unwrap_or_default());
+        eprintln!("bench results: wrote {}", path.display());
+    }
     print!("{}", std::fs::read_to_string(&md).unwrap_or_default());
     eprintln!(
         "bench results: wrote {}, {} and {}",
@@ -395,6 +408,13 @@ fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
             "evaluator" => {
                 evaluators += 1;
                 set_scene(&mut *config);
+                if !s.checkpoints.is_empty() {
+                    set(
+                        config,
+                        "checkpoints",
+                        Some(from_json(&serde_json::json!(s.checkpoints))),
+                    );
+                }
             }
             // A Fisher scorer renders at the simulator's camera (checked across nodes).
             "scorer" if config.get("mode").and_then(YamlNode::as_str) == Some("fisher") => {

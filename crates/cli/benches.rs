@@ -135,6 +135,13 @@ pub struct PlanningArgs {
     /// Seeds of the library-only FBE episodes (true poses, synthetic 2.5D houses); empty skips them.
     #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
     seeds: Vec<u64>,
+    /// Further procedural scenes for the same episodes, after the houses: `home:<seed>`,
+    /// `office:<seed>` (the large scenes of issue 36) or `house:<seed>`.
+    #[arg(long, value_delimiter = ',')]
+    scenes: Vec<String>,
+    /// Step budget of each episode.
+    #[arg(long, default_value_t = 2000)]
+    steps: usize,
 }
 
 /// Runs the planning micro-benchmarks.
@@ -142,6 +149,8 @@ pub fn planning(args: &PlanningArgs) -> anyhow::Result<()> {
     let cfg = activemap_bench::planning_bench::BenchConfig {
         repetitions: args.repetitions,
         explore_seeds: args.seeds.clone(),
+        explore_scenes: args.scenes.clone(),
+        explore_steps: args.steps,
         ..Default::default()
     };
     for row in activemap_bench::planning_bench::run(&cfg).context("planning benchmark")? {

@@ -38,8 +38,8 @@ impl Default for EvalArgs {
     }
 }
 
-/// Evaluates a run folder, writes `metrics.json`, `metrics.md` and `report.html`, and prints the
-/// table.
+/// Evaluates a run folder (and each of its checkpoints first), writes `metrics.json`,
+/// `metrics.md` and `report.html`, and prints the table.
 pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
     let options = EvalOptions {
         test_views: args.views,
@@ -53,6 +53,21 @@ pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
         },
         ..EvalOptions::default()
     };
+    // Checkpoints first: the run's own metrics.json, written last, marks everything evaluated.
+    for (step, checkpoint) in activemap_eval::RunFolder::new(run_dir).checkpoints()? {
+        let m = evaluate_run(checkpoint.dir(), &options)?;
+        let pct = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{:.1} %", 100.0 * v));
+        eprintln!(
+            "checkpoint at step {step}: completeness {}, 2D coverage {}, ATE {} → {}",
+            pct(m.completeness),
+            pct(m.coverage_2d),
+            m.ate_rmse_m
+                .map_or("n/a".to_string(), |a| format!("{:.2} cm", 100.0 * a)),
+            checkpoint
+                .path(activemap_eval::RunFolder::METRICS_MD)
+                .display()
+        );
+    }
     let metrics = evaluate_run(run_dir, &options)?;
     // An invalid run says so on stderr too (issue 16), one line per reason.
     for w in &metrics.warnings {

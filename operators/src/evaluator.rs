@@ -89,6 +89,12 @@ pub struct Config {
     /// of its forward step counts as blocked; written to `summary.json` for `activemap eval`.
     #[serde(default)]
     pub robot: RobotModel,
+    /// Steps after which the results so far are also written as a checkpoint
+    /// (`checkpoints/step_NNNNNN/`, a run folder `activemap eval` evaluates with the run), so a
+    /// benchmark can compare methods at several budgets from the same episodes. Increasing,
+    /// each ≥ 1; a step the episode never reaches writes nothing.
+    #[serde(default)]
+    pub checkpoints: Vec<u64>,
 }
 
 fn default_scene() -> String {
@@ -176,6 +182,8 @@ pub struct Evaluator {
     /// The earliest RGB-D frame received (optional `rgbd` input): its id and the fraction of
     /// its depth pixels that are valid.
     start_depth: Option<(u64, f64)>,
+    /// Step counts at which to write a checkpoint ([`Config::checkpoints`]).
+    checkpoints: Vec<u64>,
 }
 
 /// The `llm.jsonl` record of an exchange whose BEV was written at `bev` (relative path).
@@ -305,7 +313,21 @@ impl Evaluator {
 
     /// Writes every output file; returns the summary.
     pub fn write_outputs(&mut self) -> anyhow::Result<Summary> {
-        let out = &self.out;
+        let out = self.out.clone();
+        let episode = self.episode.clone();
+        self.write_folder(&out, episode)
+    }
+
+    /// Writes the checkpoint after `step` steps: the run folder's results as they stand now,
+    /// in [`RunFolder::checkpoint`] (the map is the last one received, which the mapper's lag
+    /// may leave a few steps behind the trajectory).
+    pub fn write_checkpoint(&mut self, step: u64) -> anyhow::Result<Summary> {
+        let out = self.out.checkpoint(step);
+        self.write_folder(&out, format!("checkpoint at step {step}"))
+    }
+
+    /// Writes every output file into `out` with `episode` as the summary's episode status.
+    fn write_folder(&self, out: &RunFolder, episode: String) -> anyhow::Result<Summary> {
         out.create()?;
         out.write_trajectory(RunFolder::TRAJECTORY_EST, &self.estimated)?;
         out.write_trajectory(RunFolder::TRAJECTORY_TRUE, &self.true_traj)?;
@@ -358,7 +380,7 @@ impl Evaluator {
             path_length_m,
             forward_actions,
             blocked_forwards: blocked,
-            episode: self.episode.clone(),
+            episode,
             recording_present: out.has_recording(),
             map_gaussians: self.map.as_ref().map_or(0, |m| m.len()),
             scene: Some(self.scene.scene.clone()),
@@ -474,6 +496,12 @@ impl Operator for Evaluator {
             .or_else(|| std::env::var_os("ACTIVEMAP_RUN_DIR").map(PathBuf::from))
             .unwrap_or_else(|| PathBuf::from("."));
         anyhow::ensure!(
+            config.checkpoints.first().is_none_or(|&s| s >= 1)
+                && config.checkpoints.windows(2).all(|w| w[0] < w[1]),
+            "evaluator: checkpoints must be increasing step counts >= 1, got {:?}",
+            config.checkpoints
+        );
+        anyhow::ensure!(
             (1..=16).contains(&config.bev_pixels_per_cell),
             "evaluator: bev_pixels_per_cell must be in 1..=16, got {}",
             config.bev_pixels_per_cell
@@ -508,6 +536,7 @@ impl Operator for Evaluator {
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: None,
+            checkpoints: config.checkpoints,
         })
     }
 
@@ -524,6 +553,11 @@ impl Operator for Evaluator {
                     self.corrected
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);
+                    let steps = self.estimated.len() as u64;
+                    if self.checkpoints.binary_search(&steps).is_ok() {
+                        self.score_pending()?;
+                        self.write_checkpoint(steps)?;
+                    }
                 }
                 "true_pose" => {
                     let t: TruePose = input.decode()?;
@@ -757,8 +791,22 @@ mod tests {
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: None,
+            checkpoints: vec![4],
         };
         let summary = ev.write_outputs().unwrap();
+        assert_eq!(run.read_summary().unwrap(), summary);
+        // A checkpoint is a run folder of its own under checkpoints/, listed by step, with the
+        // same results so far; the run's own summary stays as it was.
+        let at_4 = ev.write_checkpoint(4).unwrap();
+        let listed = run.checkpoints().unwrap();
+        assert_eq!(listed.len(), 1);
+        assert_eq!(listed[0].0, 4);
+        assert_eq!(listed[0].1.read_summary().unwrap(), at_4);
+        assert_eq!(
+            (at_4.steps, at_4.episode.as_str()),
+            (4, "checkpoint at step 4")
+        );
+        assert_eq!(listed[0].1.read_coverage().unwrap().unwrap(), coverage);
         assert_eq!(run.read_summary().unwrap(), summary);
         // No pose graph: no final trajectory, no final ATE.
         assert!(!run.path(RunFolder::TRAJECTORY_FINAL).exists());
@@ -889,6 +937,7 @@ mod tests {
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: Some((0, 0.8)),
+            checkpoints: Vec::new(),
         }
     }
 

@@ -2,6 +2,13 @@
 //! one door in every split wall (so every room connects to every other), textured floors,
 //! walls and ceilings, and furniture against the walls and in the middle of large rooms.
 //!
+//! Two larger styles share the generator ([`Style`]): homes (250–420 m², 8–14 rooms) and
+//! offices (350–600 m², 12–20 rooms). Their footprint opens with a double-height hall across
+//! one end, then one or two corridors run its length between strips of rooms; every room that
+//! touches a corridor or the hall gets its own door onto it, rooms split off deeper inside a
+//! strip are entered through their neighbour. They exist so that a 2000-step episode does not
+//! see everything (issue 36: the default houses saturate 2D coverage by step 430–730).
+//!
 //! The layout is computed in integer units of 5 cm and the textures with integer hashing and
 //! f32 arithmetic (see [`crate::procedural_texture`]); only `+ − × ÷` and `sqrt` (all correctly
 //! rounded in IEEE 754) touch floating point, so a seed gives the same house on every machine.
@@ -50,6 +57,42 @@ pub struct HouseConfig {
     pub texture_metres: f64,
     /// Radius of the agent for which every room must be reachable, metres.
     pub agent_radius: f64,
+    /// Layout family: BSP house, or corridor-served home or office.
+    pub style: Style,
+    /// Corridor width between wall centre lines, metres (homes and offices).
+    pub corridor_width: f64,
+    /// Ceiling height of the hall (homes and offices), metres: more than one storey where it
+    /// fits, so that the camera's upward view matters.
+    pub hall_height: f64,
+}
+
+/// Layout family of a procedural scene (see the module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Style {
+    /// `house:<seed>`: a BSP split of a 50–150 m² footprint, one door per split wall.
+    House,
+    /// `home:<seed>`: a hall, one corridor and 8–14 rooms on 250–420 m².
+    Home,
+    /// `office:<seed>`: a lobby, one or two corridors and 12–20 rooms on 350–600 m².
+    Office,
+}
+
+impl Style {
+    /// The scene-name prefix of the style (`house`, `home`, `office`).
+    pub fn prefix(self) -> &'static str {
+        match self {
+            Style::House => "house",
+            Style::Home => "home",
+            Style::Office => "office",
+        }
+    }
+
+    /// The style named by a scene-name prefix.
+    pub fn from_prefix(prefix: &str) -> Option<Style> {
+        [Style::House, Style::Home, Style::Office]
+            .into_iter()
+            .find(|s| s.prefix() == prefix)
+    }
 }
 
 impl Default for HouseConfig {
@@ -68,8 +111,56 @@ impl Default for HouseConfig {
             texture_size: 256,
             texture_metres: 2.0,
             agent_radius: activemap_geometry::RobotModel::default().radius_m,
+            style: Style::House,
+            corridor_width: 1.6,
+            hall_height: 5.0,
         }
     }
+}
+
+impl HouseConfig {
+    /// The settings of a style: [`HouseConfig::default`] for houses, the large presets for
+    /// homes and offices.
+    pub fn for_style(style: Style) -> Self {
+        let base = Self::default();
+        match style {
+            Style::House => base,
+            Style::Home => Self {
+                min_rooms: 8,
+                max_rooms: 14,
+                min_area: 250.0,
+                max_area: 420.0,
+                min_room_side: 2.6,
+                style,
+                corridor_width: 1.5,
+                hall_height: 5.0,
+                ..base
+            },
+            Style::Office => Self {
+                min_rooms: 12,
+                max_rooms: 20,
+                min_area: 350.0,
+                max_area: 600.0,
+                min_room_side: 2.8,
+                wall_height: 2.7,
+                style,
+                corridor_width: 2.0,
+                hall_height: 5.4,
+                ..base
+            },
+        }
+    }
+}
+
+/// What a room is for: corridors and halls are the hubs that every touching room opens onto.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RoomKind {
+    /// A room (bedroom, office, kitchen…).
+    Room,
+    /// A corridor: no furniture.
+    Corridor,
+    /// The double-height hall or lobby of a home or office.
+    Hall,
 }
 
 /// A room: the rectangle between its walls' centre lines.
@@ -79,6 +170,8 @@ pub struct Room {
     pub min: [f64; 2],
     /// Upper-right corner, metres.
     pub max: [f64; 2],
+    /// What the room is for.
+    pub kind: RoomKind,
 }
 
 impl Room {
@@ -217,6 +310,24 @@ fn validate(c: &HouseConfig) -> Result<()> {
             "need a power of two >= 16 and texture_metres > 0",
         );
     }
+    if c.style != Style::House {
+        if !(c.corridor_width >= c.door_width + 2.0 * c.wall_thickness + 0.2
+            && c.corridor_width < c.min_room_side * 2.0)
+        {
+            return bad(
+                "corridor_width",
+                c.corridor_width.to_string(),
+                "a corridor must hold a door (door width + 2 × (wall thickness + 0.1 m)) and stay narrower than two rooms",
+            );
+        }
+        if !(c.hall_height >= c.wall_height && c.hall_height < 20.0) {
+            return bad(
+                "hall_height",
+                c.hall_height.to_string(),
+                "need wall height <= hall height < 20 m",
+            );
+        }
+    }
     Ok(())
 }
 
@@ -230,7 +341,65 @@ fn leaves(nodes: &[Node], i: usize, out: &mut Vec<usize>) {
     }
 }
 
-fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Option<House>> {
+/// A floor plan: the split tree, its leaves (the rooms, by node index ascending) and what each
+/// node is (only leaves' kinds matter).
+struct Plan {
+    nodes: Vec<Node>,
+    rooms: Vec<usize>,
+    kinds: Vec<RoomKind>,
+}
+
+/// Splits node `id` at `pos` on `axis` (0: the wall x = pos); returns the (lower, upper) children.
+fn split(nodes: &mut Vec<Node>, id: usize, axis: usize, pos: i64) -> (usize, usize) {
+    let r = nodes[id].rect;
+    let (mut left, mut right) = (r, r);
+    left[axis + 2] = pos;
+    right[axis] = pos;
+    nodes.push(Node {
+        rect: left,
+        split: None,
+    });
+    nodes.push(Node {
+        rect: right,
+        split: None,
+    });
+    let (li, ri) = (nodes.len() - 2, nodes.len() - 1);
+    nodes[id].split = Some((axis, pos, li, ri));
+    (li, ri)
+}
+
+/// Splits the largest splittable leaf of `leaves` along its longer side (at 35–65 %, no side
+/// below `min_side`) until there are `target` leaves; `None` when no leaf can be split.
+fn split_largest(
+    rng: &mut ChaCha8Rng,
+    nodes: &mut Vec<Node>,
+    leaves: &mut Vec<usize>,
+    target: usize,
+    min_side: i64,
+) -> Option<()> {
+    while leaves.len() < target {
+        let mut order: Vec<usize> = (0..leaves.len()).collect();
+        let area_of = |r: &Rect| (r[2] - r[0]) * (r[3] - r[1]);
+        order.sort_by_key(|&k| std::cmp::Reverse(area_of(&nodes[leaves[k]].rect)));
+        let k = order.into_iter().find(|&k| {
+            let r = nodes[leaves[k]].rect;
+            (r[2] - r[0]).max(r[3] - r[1]) >= 2 * min_side
+        })?;
+        let id = leaves[k];
+        let r = nodes[id].rect;
+        let axis = if r[2] - r[0] >= r[3] - r[1] { 0 } else { 1 };
+        let (a, b) = (r[axis], r[axis + 2]);
+        let t = rng.random_range(0.35..0.65);
+        let pos = (a + (metres(b - a) * t / UNIT).round() as i64).clamp(a + min_side, b - min_side);
+        let (li, ri) = split(nodes, id, axis, pos);
+        leaves[k] = li;
+        leaves.push(ri);
+    }
+    Some(())
+}
+
+/// The house plan: a footprint of the drawn area and aspect split by [`split_largest`].
+fn house_plan(rng: &mut ChaCha8Rng, c: &HouseConfig) -> Option<Plan> {
     let n_rooms = rng.random_range(c.min_rooms..=c.max_rooms) as usize;
     let min_side = units(c.min_room_side);
     let lo_area = c
@@ -246,40 +415,90 @@ fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Opti
         split: None,
     }];
     let mut rooms = vec![0usize];
-    while rooms.len() < n_rooms {
-        // Split the largest splittable room along its longer side.
-        let mut order: Vec<usize> = (0..rooms.len()).collect();
-        let area_of = |r: &Rect| (r[2] - r[0]) * (r[3] - r[1]);
-        order.sort_by_key(|&k| std::cmp::Reverse(area_of(&nodes[rooms[k]].rect)));
-        let Some(k) = order.into_iter().find(|&k| {
-            let r = nodes[rooms[k]].rect;
-            (r[2] - r[0]).max(r[3] - r[1]) >= 2 * min_side
-        }) else {
-            return Ok(None);
-        };
-        let id = rooms[k];
-        let r = nodes[id].rect;
-        let axis = if r[2] - r[0] >= r[3] - r[1] { 0 } else { 1 };
-        let (a, b) = (r[axis], r[axis + 2]);
-        let t = rng.random_range(0.35..0.65);
-        let pos = (a + (metres(b - a) * t / UNIT).round() as i64).clamp(a + min_side, b - min_side);
-        let (mut left, mut right) = (r, r);
-        left[axis + 2] = pos;
-        right[axis] = pos;
-        nodes.push(Node {
-            rect: left,
-            split: None,
-        });
-        nodes.push(Node {
-            rect: right,
-            split: None,
-        });
-        let (li, ri) = (nodes.len() - 2, nodes.len() - 1);
-        nodes[id].split = Some((axis, pos, li, ri));
-        rooms[k] = li;
-        rooms.push(ri);
-    }
+    split_largest(rng, &mut nodes, &mut rooms, n_rooms, min_side)?;
     rooms.sort_unstable();
+    let kinds = vec![RoomKind::Room; nodes.len()];
+    Some(Plan {
+        nodes,
+        rooms,
+        kinds,
+    })
+}
+
+/// The plan of a home or office: a hall 5–7.5 m wide across the west end of the footprint, then
+/// strips of rooms along x with a corridor between each pair (two corridors when the footprint
+/// is at least 17 m deep), the strips split by [`split_largest`] until the drawn room count
+/// (the hall included, corridors not) is reached.
+fn corridor_plan(rng: &mut ChaCha8Rng, c: &HouseConfig) -> Option<Plan> {
+    let n_rooms = rng.random_range(c.min_rooms..=c.max_rooms) as usize;
+    let min_side = units(c.min_room_side);
+    let area = rng.random_range(c.min_area..=c.max_area);
+    let aspect = rng.random_range(1.4..2.4);
+    let width = units((area * aspect).sqrt());
+    let depth = units(area / metres(width));
+    let cw = units(c.corridor_width);
+    let corridors: i64 = if metres(depth) >= 17.0 { 2 } else { 1 };
+    let hall_w = units(rng.random_range(5.0..7.5));
+    if depth - corridors * cw < (corridors + 1) * min_side || width - hall_w < 2 * min_side {
+        return None;
+    }
+    let mut nodes = vec![Node {
+        rect: [0, 0, width, depth],
+        split: None,
+    }];
+    let mut kinds = Vec::new();
+    let (hall, mut rest) = split(&mut nodes, 0, 0, hall_w);
+    let mut strips = Vec::new();
+    let mut corridor_ids = Vec::new();
+    for k in 0..corridors {
+        let r = nodes[rest].rect;
+        let strips_left = corridors + 1 - k;
+        let room_depth = (r[3] - r[1]) - (corridors - k) * cw;
+        let share = (room_depth as f64 / strips_left as f64 * rng.random_range(0.85..1.15)) as i64;
+        let d = share.clamp(min_side, room_depth - (strips_left - 1) * min_side);
+        let (strip, remainder) = split(&mut nodes, rest, 1, r[1] + d);
+        let (corridor, next) = split(&mut nodes, remainder, 1, r[1] + d + cw);
+        strips.push(strip);
+        corridor_ids.push(corridor);
+        rest = next;
+    }
+    strips.push(rest);
+    split_largest(
+        rng,
+        &mut nodes,
+        &mut strips,
+        n_rooms.saturating_sub(1),
+        min_side,
+    )?;
+    kinds.resize(nodes.len(), RoomKind::Room);
+    kinds[hall] = RoomKind::Hall;
+    for &id in &corridor_ids {
+        kinds[id] = RoomKind::Corridor;
+    }
+    let mut rooms: Vec<usize> = strips;
+    rooms.push(hall);
+    rooms.extend(corridor_ids);
+    rooms.sort_unstable();
+    Some(Plan {
+        nodes,
+        rooms,
+        kinds,
+    })
+}
+
+fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Option<House>> {
+    let plan = match c.style {
+        Style::House => house_plan(rng, c),
+        Style::Home | Style::Office => corridor_plan(rng, c),
+    };
+    let Some(Plan {
+        nodes,
+        rooms,
+        kinds,
+    }) = plan
+    else {
+        return Ok(None);
+    };
 
     // One door per split wall, between the pair of rooms sharing the longest stretch of it.
     let t = units(c.wall_thickness);
@@ -305,35 +524,65 @@ fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Opti
         let (mut ls, mut rs) = (Vec::new(), Vec::new());
         leaves(&nodes, l, &mut ls);
         leaves(&nodes, r, &mut rs);
+        // A room touching a corridor or the hall gets its own door onto it; otherwise the
+        // wall gets one door, between the pair of rooms sharing its longest stretch.
         let mut best: Option<(i64, i64)> = None;
+        let mut hub_stretches = Vec::new();
         for &a in ls.iter().filter(|&&a| nodes[a].rect[axis + 2] == pos) {
             for &b in rs.iter().filter(|&&b| nodes[b].rect[axis] == pos) {
                 let (ra, rb) = (nodes[a].rect, nodes[b].rect);
                 let lo = ra[other].max(rb[other]);
                 let hi = ra[other + 2].min(rb[other + 2]);
-                if best.is_none_or(|(bl, bh)| hi - lo > bh - bl) {
+                if kinds[a] != RoomKind::Room || kinds[b] != RoomKind::Room {
+                    if hi - lo >= door + 2 * margin {
+                        hub_stretches.push((lo, hi));
+                    }
+                } else if best.is_none_or(|(bl, bh)| hi - lo > bh - bl) {
                     best = Some((lo, hi));
                 }
             }
         }
-        let Some((lo, hi)) = best else {
-            return Ok(None);
+        let openings = if hub_stretches.is_empty() {
+            let Some((lo, hi)) = best else {
+                return Ok(None);
+            };
+            if hi - lo < door + 2 * margin {
+                return Ok(None);
+            }
+            let start = rng.random_range(lo + margin..=hi - margin - door);
+            vec![(start, start + door)]
+        } else {
+            hub_stretches.sort_unstable();
+            hub_stretches
+                .into_iter()
+                .map(|(lo, hi)| {
+                    let start = rng.random_range(lo + margin..=hi - margin - door);
+                    (start, start + door)
+                })
+                .collect()
         };
-        if hi - lo < door + 2 * margin {
-            return Ok(None);
-        }
-        let start = rng.random_range(lo + margin..=hi - margin - door);
         let rect = nodes[i].rect;
         walls.push(WallLine {
             axis,
             pos,
             from: rect[other],
             to: rect[other + 2],
-            openings: vec![(start, start + door)],
+            openings,
         });
     }
 
     let room_rects: Vec<Rect> = rooms.iter().map(|&i| nodes[i].rect).collect();
+    let room_kinds: Vec<RoomKind> = rooms.iter().map(|&i| kinds[i]).collect();
+    let heights: Vec<f64> = room_kinds
+        .iter()
+        .map(|&k| {
+            if k == RoomKind::Hall {
+                c.hall_height
+            } else {
+                c.wall_height
+            }
+        })
+        .collect();
     let mut builder = Builder::new(c, seed);
     let floor_materials: Vec<u32> = (0..room_rects.len())
         .map(|_| {
@@ -359,21 +608,22 @@ fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Opti
         builder.material(TextureKind::Fabric, rng.random()),
     ];
 
-    let h = c.wall_height;
     for (k, r) in room_rects.iter().enumerate() {
         let (x0, y0, x1, y1) = (metres(r[0]), metres(r[1]), metres(r[2]), metres(r[3]));
         builder.horizontal([x0, y0, x1, y1], 0.0, true, floor_materials[k]);
-        builder.horizontal([x0, y0, x1, y1], h, false, ceiling);
+        builder.horizontal([x0, y0, x1, y1], heights[k], false, ceiling);
     }
     for w in &walls {
-        builder.wall(w, &room_rects, &wall_materials, frame);
+        builder.wall(w, &room_rects, &heights, &wall_materials, frame);
     }
 
     let room_list: Vec<Room> = room_rects
         .iter()
-        .map(|r| Room {
+        .zip(&room_kinds)
+        .map(|(r, &kind)| Room {
             min: [metres(r[0]), metres(r[1])],
             max: [metres(r[2]), metres(r[3])],
+            kind,
         })
         .collect();
     let doors: Vec<Door> = walls
@@ -397,6 +647,9 @@ fn try_generate(seed: u64, rng: &mut ChaCha8Rng, c: &HouseConfig) -> Result<Opti
     let mut pieces: Vec<(usize, Vec<Box3>, u32)> = Vec::new();
     if c.furniture {
         for (k, room) in room_list.iter().enumerate() {
+            if room.kind == RoomKind::Corridor {
+                continue;
+            }
             place_furniture(rng, c, k, room, &doors, &furniture_materials, &mut pieces);
         }
     }
@@ -530,14 +783,24 @@ fn place_furniture(
     let mut placed: Vec<Box3> = Vec::new();
     for _ in 0..count {
         // (length along the wall, depth, height, material, is a table)
-        let kinds = [
-            (2.0, 1.6, 0.5, 1, false),  // bed
-            (1.9, 0.85, 0.8, 2, false), // sofa
-            (1.0, 0.5, 1.9, 0, false),  // wardrobe
-            (0.9, 0.35, 2.0, 0, false), // shelf
-            (1.2, 0.6, 0.75, 0, true),  // desk
-            (0.5, 0.5, 0.45, 2, false), // stool
-        ];
+        let kinds: &[(f64, f64, f64, usize, bool)] = match c.style {
+            Style::House | Style::Home => &[
+                (2.0, 1.6, 0.5, 1, false),  // bed
+                (1.9, 0.85, 0.8, 2, false), // sofa
+                (1.0, 0.5, 1.9, 0, false),  // wardrobe
+                (0.9, 0.35, 2.0, 0, false), // shelf
+                (1.2, 0.6, 0.75, 0, true),  // desk
+                (0.5, 0.5, 0.45, 2, false), // stool
+            ],
+            Style::Office => &[
+                (1.6, 0.8, 0.75, 0, true),  // desk
+                (1.6, 0.8, 0.75, 0, true),  // desk
+                (1.2, 0.5, 1.3, 0, false),  // filing cabinet
+                (0.9, 0.4, 2.0, 0, false),  // bookcase
+                (2.0, 0.9, 0.85, 2, false), // sofa
+                (0.8, 0.8, 1.1, 1, false),  // printer cabinet
+            ],
+        };
         let (len, dep, height, mat, table) = kinds[rng.random_range(0..kinds.len())];
         for _try in 0..8 {
             let side = rng.random_range(0..4u32);
@@ -614,7 +877,7 @@ impl Builder {
     fn new(c: &HouseConfig, seed: u64) -> Self {
         Builder {
             scene: Scene {
-                name: format!("procedural house seed {seed}"),
+                name: format!("procedural {} seed {seed}", c.style.prefix()),
                 ..Scene::default()
             },
             config: c.clone(),
@@ -726,7 +989,14 @@ impl Builder {
 
     /// The faces of one wall line: per room on each side, the wall face minus door openings
     /// plus the lintels above them; jambs and lintel undersides once per opening.
-    fn wall(&mut self, w: &WallLine, rooms: &[Rect], wall_materials: &[u32], frame: u32) {
+    fn wall(
+        &mut self,
+        w: &WallLine,
+        rooms: &[Rect],
+        heights: &[f64],
+        wall_materials: &[u32],
+        frame: u32,
+    ) {
         let c = self.config.clone();
         let half = 0.5 * c.wall_thickness;
         let other = 1 - w.axis;
@@ -745,6 +1015,9 @@ impl Builder {
                 continue;
             }
             let at = if side { pos + half } else { pos - half };
+            // Each face rises to its own room's ceiling (the shading and texture rows too).
+            let top = heights[k];
+            self.config.wall_height = top;
             let mut cursor = lo;
             let mut openings: Vec<(i64, i64)> = w
                 .openings
@@ -759,7 +1032,7 @@ impl Builder {
                         w.axis,
                         at,
                         [metres(cursor), metres(a)],
-                        [0.0, c.wall_height],
+                        [0.0, top],
                         side,
                         wall_materials[k],
                     );
@@ -768,7 +1041,7 @@ impl Builder {
                     w.axis,
                     at,
                     [metres(a.max(lo)), metres(b.min(hi))],
-                    [c.door_height, c.wall_height],
+                    [c.door_height, top],
                     side,
                     wall_materials[k],
                 );
@@ -779,12 +1052,13 @@ impl Builder {
                     w.axis,
                     at,
                     [metres(cursor), metres(hi)],
-                    [0.0, c.wall_height],
+                    [0.0, top],
                     side,
                     wall_materials[k],
                 );
             }
         }
+        self.config.wall_height = c.wall_height;
         for &(a, b) in &w.openings {
             let (a, b) = (metres(a), metres(b));
             // Jambs: faces across the wall thickness at both ends of the opening.

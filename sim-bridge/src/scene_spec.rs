@@ -1,11 +1,12 @@
 //! Which scene a run simulates, as the `sim` node's configuration names it: a procedural house
-//! (`house:<seed>`, optionally smaller) or a scene file (optionally with its [`Placement`]: up
+//! (`house:<seed>`, optionally smaller), a large home or office (`home:<seed>`, `office:<seed>`)
+//! or a scene file (optionally with its [`Placement`]: up
 //! axis, transform, floor levelling). The `sim`
 //! operator, the evaluator and `activemap eval` all build their simulator from this one
 //! description, so the ground truth is always computed on the scene the robot explored.
 
 use crate::error::{Result, SimError};
-use crate::house::{self, HouseConfig};
+use crate::house::{self, HouseConfig, Style};
 use crate::load::{LoadOptions, Loaded, Placement, load_scene};
 use crate::simulator::{SimConfig, Simulator};
 use std::path::Path;
@@ -35,24 +36,36 @@ impl SceneSpec {
         }
     }
 
-    /// The seed of a `house:<seed>` scene; `None` for a scene file.
-    pub fn house_seed(&self) -> Result<Option<u64>> {
-        let Some(seed) = self.scene.strip_prefix("house:") else {
+    /// The style and seed of a procedural scene (`house:<seed>`, `home:<seed>` or
+    /// `office:<seed>`); `None` for a scene file.
+    pub fn procedural(&self) -> Result<Option<(Style, u64)>> {
+        let Some((prefix, seed)) = self.scene.split_once(':') else {
+            return Ok(None);
+        };
+        let Some(style) = Style::from_prefix(prefix) else {
             return Ok(None);
         };
         seed.trim()
             .parse()
-            .map(Some)
+            .map(|seed| Some((style, seed)))
             .map_err(|_| SimError::InvalidConfig {
                 field: "scene",
                 value: self.scene.clone(),
-                reason: "a procedural house is `house:<seed>` with an unsigned integer seed",
+                reason: "a procedural scene is `house:<seed>`, `home:<seed>` or `office:<seed>` \
+                         with an unsigned integer seed",
             })
     }
 
-    /// The house generator settings: the defaults narrowed by `max_rooms` and `max_area`.
+    /// The seed of a procedural scene (any style); `None` for a scene file.
+    pub fn house_seed(&self) -> Result<Option<u64>> {
+        Ok(self.procedural()?.map(|(_, seed)| seed))
+    }
+
+    /// The generator settings: the style's ([`HouseConfig::for_style`]; a scene file gets the
+    /// house defaults) narrowed by `max_rooms` and `max_area`.
     pub fn house_config(&self) -> Result<HouseConfig> {
-        let mut config = HouseConfig::default();
+        let style = self.procedural()?.map_or(Style::House, |(style, _)| style);
+        let mut config = HouseConfig::for_style(style);
         if let Some(rooms) = self.max_rooms {
             if rooms == 0 {
                 return Err(SimError::InvalidConfig {

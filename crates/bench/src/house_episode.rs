@@ -23,8 +23,8 @@ use activemap_planning::grid::{CellState, OccupancyGrid};
 /// What episode to run.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HouseEpisodeConfig {
-    /// The house seed (`house:<seed>`).
-    pub seed: u64,
+    /// The procedural scene: `house:<seed>`, `home:<seed>` or `office:<seed>`.
+    pub scene: String,
     /// Largest number of rooms (`None`: the generator's default, as `activemap bench explore`).
     pub max_rooms: Option<u32>,
     /// Largest floor area, m² (`None`: the generator's default).
@@ -40,11 +40,11 @@ pub struct HouseEpisodeConfig {
 }
 
 impl HouseEpisodeConfig {
-    /// The issue-6 benchmark episode on `house:<seed>`: 2000 steps at 160×160, the
+    /// The issue-6 benchmark episode on `scene` (e.g. `house:1`): 2000 steps at 160×160, the
     /// operators' settings ([`ExplorerConfig::default`]).
-    pub fn benchmark(seed: u64) -> Result<Self, PlanningError> {
+    pub fn benchmark(scene: &str) -> Result<Self, PlanningError> {
         Ok(Self {
-            seed,
+            scene: scene.to_string(),
             max_rooms: None,
             max_area: None,
             steps: 2000,
@@ -125,12 +125,12 @@ fn sim_error(e: activemap_sim::SimError) -> PlanningError {
     }
 }
 
-/// Runs one FBE episode on `house:<seed>` with true poses.
+/// Runs one FBE episode on the configured procedural scene with true poses.
 pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
     let spec = SceneSpec {
         max_rooms: config.max_rooms,
         max_area: config.max_area,
-        ..SceneSpec::new(format!("house:{}", config.seed))
+        ..SceneSpec::new(config.scene.clone())
     };
     let mut sim = spec
         .simulator(SimConfig::with_resolution(
@@ -272,7 +272,7 @@ mod tests {
             .and_then(|s| s.parse().ok())
             .unwrap_or(2000);
         for seed in houses {
-            let mut cfg = HouseEpisodeConfig::benchmark(seed).unwrap();
+            let mut cfg = HouseEpisodeConfig::benchmark(&format!("house:{seed}")).unwrap();
             cfg.steps = steps;
             // Knobs to compare the FBE variants: POLICY, BAN_UNSHRUNK (0/1), LOOK_SKIP_DEG,
             // COST_OFFSET.

@@ -26,6 +26,9 @@ pub struct BenchConfig {
     pub repetitions: usize,
     /// `house:<seed>` seeds for the FBE episodes (empty: no episodes).
     pub explore_seeds: Vec<u64>,
+    /// Further procedural scenes for FBE episodes, after the houses (`home:<seed>`,
+    /// `office:<seed>`, `house:<seed>`).
+    pub explore_scenes: Vec<String>,
     /// Step budget of each episode.
     pub explore_steps: usize,
     /// Depth resolution (square) of the episodes and of the occupancy benchmark.
@@ -37,6 +40,7 @@ impl Default for BenchConfig {
         Self {
             repetitions: 5,
             explore_seeds: vec![1, 2, 3],
+            explore_scenes: Vec::new(),
             explore_steps: 2000,
             depth_size: 160,
         }
@@ -185,22 +189,27 @@ pub fn run(config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
     rows.push(row("frontiers_400x400_regions", regions as f64, "regions"));
 
     for seed in &config.explore_seeds {
-        rows.extend(explore_episode(*seed, config)?);
+        rows.extend(explore_episode(&format!("house:{seed}"), config)?);
+    }
+    for scene in &config.explore_scenes {
+        rows.extend(explore_episode(scene, config)?);
     }
     Ok(rows)
 }
 
-/// One FBE episode on the simulator's `house:<seed>` (the scenes of `activemap bench explore`,
-/// default size) with true poses ([`crate::house_episode`]); rows: coverage, steps, steps to
+/// One FBE episode on a procedural `scene` (`house:<seed>` as in `activemap bench explore`,
+/// default size, or a home or office) with true poses ([`crate::house_episode`]); rows: coverage, steps, steps to
 /// 85 %, path length, collisions, planning-loop steps per second (without rendering), the
 /// event counters and the time shares.
-pub fn explore_episode(seed: u64, config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
-    let mut episode = HouseEpisodeConfig::benchmark(seed)?;
+pub fn explore_episode(scene: &str, config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
+    let mut episode = HouseEpisodeConfig::benchmark(scene)?;
     episode.steps = config.explore_steps;
     episode.image_size = config.depth_size;
     episode.coverage_every = 10;
     let e = house_episode::run(&episode)?;
-    let name = |what: &str| format!("explore_fbe_house{seed}_{what}");
+    // `house:1` → `explore_fbe_house1_…`, `office:3` → `explore_fbe_office3_…`.
+    let tag = scene.replace(':', "");
+    let name = |what: &str| format!("explore_fbe_{tag}_{what}");
     let total = e.loop_time.as_secs_f64().max(1e-12);
     let share = |d: Duration| 100.0 * d.as_secs_f64() / total;
     let c = &e.counters;
@@ -281,7 +290,8 @@ mod tests {
             explore_steps: env("STEPS", 2000),
             ..Default::default()
         };
-        for r in explore_episode(seed, &cfg).unwrap() {
+        let scene = std::env::var("SCENE").unwrap_or_else(|_| format!("house:{seed}"));
+        for r in explore_episode(&scene, &cfg).unwrap() {
             println!("{:<40} {:>12.3} {}", r.name, r.value, r.unit);
         }
     }

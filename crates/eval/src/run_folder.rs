@@ -75,9 +75,52 @@ impl RunFolder {
     /// The recording of every message of the run.
     pub const RECORDING: &'static str = "recording.mcap";
 
+    /// Folder of the checkpoints: `checkpoints/step_NNNNNN/`, each a run folder of its own
+    /// holding the run's results as they stood after that many steps (the `evaluator` node's
+    /// `checkpoints`), evaluated by `activemap eval` like the run itself.
+    pub const CHECKPOINTS_DIR: &'static str = "checkpoints";
+
     /// The run folder at `dir` (not created).
     pub fn new(dir: impl Into<PathBuf>) -> Self {
         Self { dir: dir.into() }
+    }
+
+    /// The checkpoint of this run after `step` steps (not created).
+    pub fn checkpoint(&self, step: u64) -> RunFolder {
+        RunFolder::new(
+            self.dir
+                .join(Self::CHECKPOINTS_DIR)
+                .join(format!("step_{step:06}")),
+        )
+    }
+
+    /// The checkpoints this run holds, by step (empty without a checkpoints folder). Entries
+    /// not named `step_N` are an error naming them.
+    pub fn checkpoints(&self) -> Result<Vec<(u64, RunFolder)>, RunError> {
+        let dir = self.dir.join(Self::CHECKPOINTS_DIR);
+        let entries = match std::fs::read_dir(&dir) {
+            Ok(entries) => entries,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(source) => return Err(RunError::Io { path: dir, source }),
+        };
+        let mut out = Vec::new();
+        for entry in entries {
+            let entry = entry.map_err(|source| RunError::Io {
+                path: dir.clone(),
+                source,
+            })?;
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let step = name
+                .strip_prefix("step_")
+                .and_then(|n| n.parse::<u64>().ok())
+                .ok_or_else(|| RunError::Malformed {
+                    path: entry.path(),
+                    detail: "a checkpoint folder is named `step_N` (N the step count)".into(),
+                })?;
+            out.push((step, RunFolder::new(entry.path())));
+        }
+        out.sort_by_key(|(step, _)| *step);
+        Ok(out)
     }
 
     /// The folder itself.

@@ -105,3 +105,43 @@ fn time_preparation() {
         );
     }
 }
+
+#[test]
+#[ignore = "prints the large homes' and offices' sizes and writes their navigable maps as PNGs (development aid)"]
+fn describe_large_scenes() {
+    use crate::house::{RoomKind, Style};
+    let dir = std::env::temp_dir().join("activemap-large-scenes");
+    std::fs::create_dir_all(&dir).unwrap();
+    for style in [Style::Home, Style::Office] {
+        for seed in 1..=6u64 {
+            let t = std::time::Instant::now();
+            let house = generate(seed, &HouseConfig::for_style(style)).unwrap();
+            let g = t.elapsed();
+            let area: f64 = house.rooms.iter().map(|r| r.area()).sum();
+            let rooms = house
+                .rooms
+                .iter()
+                .filter(|r| r.kind != RoomKind::Corridor)
+                .count();
+            let sim = Simulator::new(house.scene, SimConfig::with_resolution(96, 96)).unwrap();
+            let map = sim.navigation().map();
+            let f = map.frame;
+            let pixels: Vec<u8> = (0..f.height)
+                .rev()
+                .flat_map(|j| (0..f.width).map(move |i| (i, j)))
+                .map(|(i, j)| if map.is_navigable(i, j) { 255 } else { 0 })
+                .collect();
+            let name = format!("{}_{seed}", style.prefix());
+            image::GrayImage::from_raw(f.width as u32, f.height as u32, pixels)
+                .unwrap()
+                .save(dir.join(format!("{name}.png")))
+                .unwrap();
+            println!(
+                "{name}: {area:.0} m² in {rooms} rooms, {} doors, navigable {:.0} m², {} triangles, generated in {g:?}",
+                house.doors.len(),
+                map.area(),
+                sim.scene().triangles.len()
+            );
+        }
+    }
+}

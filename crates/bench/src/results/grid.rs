@@ -144,6 +144,11 @@ pub struct GridSettings {
     /// method runs the whole step budget and all are judged after the same number of steps.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub when_no_frontier: Option<String>,
+    /// Steps at which the `evaluator` also writes (and `activemap eval` evaluates) a
+    /// checkpoint of the same episode, increasing and below `steps`; the tables are then also
+    /// written at each ([`crate::results::write_checkpoint_tables`]). Empty: the last step only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub checkpoints: Vec<u64>,
 }
 
 /// One cell of the grid: a method on a scene with a seed, under the grid's settings.

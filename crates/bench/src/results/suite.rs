@@ -18,6 +18,7 @@
 //! noise: realistic                  # optional: none | realistic (the sim node's preset)
 //! eval_views: 500
 //! when_no_frontier: refine          # optional, default refine: every method runs all steps
+//! checkpoints: [500, 1000]          # optional: tables also at these steps, same episodes
 //! ```
 //!
 //! Paths (scene files, a method's `dataflow`) are relative to the suite file's folder; a known
@@ -290,12 +291,13 @@ impl Parser<'_> {
         let mut seeds = None;
         let mut steps = None;
         let mut eval_views = None;
+        let mut checkpoints = None;
         let mut settings = GridSettings {
             resolution: 160,
             when_no_frontier: Some("refine".into()),
             ..GridSettings::default()
         };
-        for (key, key_loc, value) in entries {
+        for (key, _, value) in entries {
             match key.as_str() {
                 "description" => description = self.string(key, value),
                 "methods" => methods = self.methods(value),
@@ -319,10 +321,7 @@ impl Parser<'_> {
                         }
                     })
                 }
-                "checkpoints" => self.err(
-                    *key_loc,
-                    "`checkpoints` is not supported yet: each episode is evaluated once, at its last step",
-                ),
+                "checkpoints" => checkpoints = self.checkpoints(value),
                 _ => {} // refused by `entries`
             }
         }
@@ -348,6 +347,21 @@ impl Parser<'_> {
         }
         settings.steps = steps?;
         settings.eval_views = usize::try_from(eval_views?).ok()?;
+        if let Some((checkpoints, loc)) = checkpoints {
+            if let Some(&last) = checkpoints.last()
+                && last >= settings.steps
+            {
+                self.err(
+                    loc,
+                    format!(
+                        "checkpoint {last} is not before the last step ({}): the run itself is evaluated there",
+                        settings.steps
+                    ),
+                );
+                return None;
+            }
+            settings.checkpoints = checkpoints;
+        }
         Some(Suite {
             file: PathBuf::from(self.file),
             description,
@@ -570,7 +584,11 @@ impl Parser<'_> {
 
     /// The house generator's own check of the size limits (on the first procedural scene).
     fn check_house_sizes(&mut self, scenes: &[SuiteScene], settings: &GridSettings, root: &Node) {
-        let Some(house) = scenes.iter().find(|s| s.scene.starts_with("house:")) else {
+        let Some(house) = scenes.iter().find(|s| {
+            SceneSpec::new(s.scene.clone())
+                .house_seed()
+                .is_ok_and(|seed| seed.is_some())
+        }) else {
             return;
         };
         let spec = SceneSpec {
@@ -584,6 +602,31 @@ impl Parser<'_> {
                 .map_or(Loc { line: 1, col: 1 }, Node::loc);
             self.err(loc, format!("`houses`: {e}"));
         }
+    }
+
+    /// `checkpoints: [500, 1000]`: increasing step counts ≥ 1 (with the list's location, for the
+    /// check against `steps`).
+    fn checkpoints(&mut self, node: &Node) -> Option<(Vec<u64>, Loc)> {
+        let items = self.list("checkpoints", node)?;
+        let mut out: Vec<u64> = Vec::new();
+        let mut ok = true;
+        for item in items {
+            match self.integer("checkpoints", item, 1) {
+                Some(s) if out.last().is_some_and(|&last| s <= last) => {
+                    self.err(
+                        item.loc(),
+                        format!(
+                            "checkpoints must increase: {s} after {}",
+                            out[out.len() - 1]
+                        ),
+                    );
+                    ok = false;
+                }
+                Some(s) => out.push(s),
+                None => ok = false,
+            }
+        }
+        ok.then_some((out, node.loc()))
     }
 
     fn seeds(&mut self, node: &Node) -> Option<Vec<u64>> {
@@ -735,6 +778,16 @@ eval_views: 20
         assert_eq!((s.hfov_deg, s.camera_height_m), (Some(79.0), Some(1.25)));
         assert_eq!(s.noise.as_deref(), Some("realistic"));
         assert_eq!(s.when_no_frontier.as_deref(), Some("refine"), "the default");
+        assert!(s.checkpoints.is_empty(), "none unless asked for");
+        let with = VALID.replace("eval_views: 20", "eval_views: 20\ncheckpoints: [100, 200]");
+        let checked = parse(dir.path(), &with).unwrap().settings;
+        assert_eq!(checked.checkpoints, [100, 200]);
+        let at_end = VALID.replace("eval_views: 20", "eval_views: 20\ncheckpoints: [100, 300]");
+        let e = parse(dir.path(), &at_end).unwrap_err().to_string();
+        assert!(
+            e.contains("checkpoint 300 is not before the last step (300)"),
+            "{e}"
+        );
         let cells = suite.cells();
         assert_eq!(cells.len(), 2 * 2 * 2);
         assert_eq!(cells[2].placement, room.placement);
@@ -878,10 +931,10 @@ eval_views: 20
             ),
             (
                 "eval_views: 20",
-                "eval_views: 20\ncheckpoints: [500]",
+                "eval_views: 20\ncheckpoints: [10, 5]",
                 15,
-                "checkpoints",
-                "`checkpoints` is not supported",
+                "5]",
+                "checkpoints must increase: 5 after 10",
             ),
             (
                 "  - house:3\n",
@@ -930,6 +983,9 @@ eval_views: 20
         assert_eq!(names, ["fbe", "fisher"]);
         assert_eq!((smoke.scenes.len(), smoke.seeds.len()), (1, 1));
         assert_eq!(smoke.settings.when_no_frontier.as_deref(), Some("refine"));
+        let large = Suite::load(&root().join("benchmarks/large.yaml"), &root()).unwrap();
+        assert_eq!(large.scenes.len(), 4);
+        assert_eq!(large.settings.checkpoints, [500, 1000]);
         let house = root().join("../shared/data/scenes/aws_small_house.glb");
         if !house.is_file() {
             eprintln!("skipped table1.yaml: {} absent", house.display());
@@ -942,6 +998,7 @@ eval_views: 20
         assert_eq!(table1.settings.steps, 2000);
         assert_eq!(table1.settings.camera_height_m, Some(1.25));
         assert_eq!(table1.settings.noise.as_deref(), Some("realistic"));
+        assert_eq!(table1.settings.checkpoints, [500, 1000]);
         assert!(
             table1
                 .scenes
