@@ -38,6 +38,13 @@ pub enum PathObjective {
     /// The release: maximise `mean_i(−0.2·C_local(x_i) + 1.0·log EIG_i(x_i)) + 60·EIG(x_T)`
     /// (reported as its negative, so lower is better for every objective).
     Release,
+    /// Ablation (issue 34): a uniformly random path among those with a finite `paper`
+    /// objective (drawn from the replan's seeded generator), to show whether the objective's
+    /// choice matters. Paths are scored and reported with the `paper` objective.
+    Random,
+    /// Ablation (issue 34): the path to the best-EIG candidate (the first with a finite `paper`
+    /// objective, candidates in EIG order), i.e. the objective ignored. Scored as `paper`.
+    First,
 }
 
 /// Which DBSCAN cluster a refine replan aims at (SPEC §6).

@@ -174,7 +174,8 @@ pub fn path_terms<V: std::borrow::Borrow<ViewInformation>>(
 pub const EIG_FLOOR: f64 = 1e-12;
 
 /// The objective of a path from its terms (lower is better, +∞ refuses it, never NaN):
-/// `paper` `Σ_i [C_local_i − η·ln EIG_i]`; `eig_only` `−η·Σ_i ln max(EIG_i, EIG_FLOOR)`;
+/// `paper` (and the `random` and `first` ablations, which choose differently) `Σ_i [C_local_i −
+/// η·ln EIG_i]`; `eig_only` `−η·Σ_i ln max(EIG_i, EIG_FLOOR)`;
 /// `release` `−[mean_i(−0.2·C_local_i + ln EIG_i) + 60·EIG_T]`. A path with no scored pose
 /// costs +∞.
 pub fn objective(eigs: &[f64], costs: &[f64], config: &FisherConfig) -> f64 {
@@ -182,7 +183,7 @@ pub fn objective(eigs: &[f64], costs: &[f64], config: &FisherConfig) -> f64 {
         return f64::INFINITY;
     }
     let value = match config.objective {
-        PathObjective::Paper => eigs
+        PathObjective::Paper | PathObjective::Random | PathObjective::First => eigs
             .iter()
             .zip(costs)
             .map(|(e, c)| {

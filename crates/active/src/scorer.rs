@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::ActiveError;
 use crate::candidates::{sample_candidates, sample_free_space_poses};
-use crate::config::{FisherConfig, ModelFisherSource};
+use crate::config::{FisherConfig, ModelFisherSource, PathObjective};
 use crate::information::{
     ScoringScene, ViewInformation, ViewParts, ViewSettings, eig, view_information,
 };
@@ -594,12 +594,21 @@ impl FisherScorer {
             })
             .collect();
         outcome.timings.path_scores_ms = ms(t);
-        let chosen = scored
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.objective.is_finite())
-            .min_by(|a, b| a.1.objective.total_cmp(&b.1.objective))
-            .map(|(i, _)| i);
+        // The lowest objective (the first of equals), or an ablation's choice among the paths
+        // the objective does not refuse.
+        let finite: Vec<usize> = (0..scored.len())
+            .filter(|&i| scored[i].objective.is_finite())
+            .collect();
+        let chosen = match config.objective {
+            PathObjective::Random => {
+                (!finite.is_empty()).then(|| finite[rng.random_range(0..finite.len())])
+            }
+            PathObjective::First => finite.first().copied(),
+            PathObjective::Paper | PathObjective::EigOnly | PathObjective::Release => finite
+                .iter()
+                .copied()
+                .min_by(|&a, &b| scored[a].objective.total_cmp(&scored[b].objective)),
+        };
         if let Some(i) = chosen {
             outcome.path = Some(futures[i].1.path.clone());
         } else {

@@ -175,3 +175,69 @@ fn refine_and_the_ablation_objectives_get_paths() {
         assert!(out.path.is_some(), "{objective:?}: {:?}", out.note);
     }
 }
+
+/// The choice ablations: `first` takes the best-EIG candidate's path, `random` a path the paper
+/// objective does not refuse, the same one for the same frame; both report the paper objective.
+#[test]
+fn the_first_and_random_ablations_choose_among_the_paper_scored_paths() {
+    let (grid, map) = room();
+    let robot = RobotModel::default();
+    let input = ReplanInput {
+        frame_id: 61,
+        grid: &grid,
+        pose: robot.camera_pose(&PlanarPose::new(0.8, 1.5, 0.3), 0.0),
+        map: &map,
+        goal: GoalRequest::Frontier {
+            focus: Point2::new(2.3, 1.0),
+        },
+    };
+    let run = |objective| {
+        scorer(FisherConfig {
+            objective,
+            ..config()
+        })
+        .replan(&input)
+        .unwrap()
+    };
+    let paper = run(PathObjective::Paper);
+    let first = run(PathObjective::First);
+    let objectives = |o: &activemap_active::ReplanOutcome| -> Vec<u64> {
+        o.paths.iter().map(|p| p.objective.to_bits()).collect()
+    };
+    assert!(paper.paths.len() >= 2, "{:?}", paper.note);
+    assert_eq!(objectives(&first), objectives(&paper), "scored alike");
+    let finite: Vec<usize> = (0..paper.paths.len())
+        .filter(|&i| paper.paths[i].objective.is_finite())
+        .collect();
+    assert_eq!(first.chosen, finite.first().copied());
+    let best = finite.iter().copied().min_by(|&a, &b| {
+        paper.paths[a]
+            .objective
+            .total_cmp(&paper.paths[b].objective)
+    });
+    assert_eq!(paper.chosen, best);
+    let random = run(PathObjective::Random);
+    let pick = random.chosen.expect("a finite path exists");
+    assert!(finite.contains(&pick));
+    assert_eq!(
+        run(PathObjective::Random).chosen,
+        Some(pick),
+        "seeded per frame"
+    );
+    // Over frames, the random choice is not always the same path.
+    let picks: std::collections::BTreeSet<usize> = (0..6)
+        .filter_map(|k| {
+            scorer(FisherConfig {
+                objective: PathObjective::Random,
+                ..config()
+            })
+            .replan(&ReplanInput {
+                frame_id: 100 + k,
+                ..input.clone()
+            })
+            .unwrap()
+            .chosen
+        })
+        .collect();
+    assert!(picks.len() >= 2, "{picks:?}");
+}

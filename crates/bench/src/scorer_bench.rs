@@ -57,6 +57,28 @@ pub struct Case {
     pub distinct_views: Vec<usize>,
     /// Median rollout length of the paths (actions), per replan.
     pub path_actions: Vec<f64>,
+    /// Per replan with at least two paths of finite objective: whether the two best tie
+    /// ([`best_two_tie`]).
+    pub ties: Vec<bool>,
+}
+
+/// Relative gap under which the two best paths' objectives count as tied: 1 % of the best's
+/// magnitude (issue 34: a choice the objective cannot make).
+pub const TIE_RELATIVE: f64 = 0.01;
+
+/// Whether the two lowest finite values of a replan's path `objectives` lie within
+/// [`TIE_RELATIVE`] of the best's magnitude; `None` with fewer than two finite values.
+pub fn best_two_tie(objectives: &[f64]) -> Option<bool> {
+    let mut values: Vec<f64> = objectives
+        .iter()
+        .copied()
+        .filter(|o| o.is_finite())
+        .collect();
+    if values.len() < 2 {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    Some(values[1] - values[0] <= TIE_RELATIVE * values[0].abs())
 }
 
 impl Case {
@@ -72,6 +94,7 @@ impl Case {
             path_views: Vec::new(),
             distinct_views: Vec::new(),
             path_actions: Vec::new(),
+            ties: Vec::new(),
         }
     }
 
@@ -86,6 +109,8 @@ impl Case {
             .push(outcome.paths.iter().map(|p| p.scored_steps.len()).sum());
         let actions: Vec<f64> = outcome.paths.iter().map(|p| p.actions as f64).collect();
         self.path_actions.push(median(&actions).unwrap_or(f64::NAN));
+        let objectives: Vec<f64> = outcome.paths.iter().map(|p| p.objective).collect();
+        self.ties.extend(best_two_tie(&objectives));
     }
 
     /// The median of one stage over the replans (ms).
@@ -224,13 +249,25 @@ impl ScorerBench {
             .expect("the benchmark always runs the incremental case")
     }
 
-    /// The summary line `scorer replan_median_ms <x> gaussians <n>` (x: the `incremental`
-    /// median total; n: the map's Gaussians).
+    /// The summary lines `scorer replan_median_ms <x> gaussians <n>` (x: the `incremental`
+    /// median total; n: the map's Gaussians) and `scorer tie_fraction <f> replans <m>` (the
+    /// share of all the cases' replans whose two best paths tie within 1 %).
     pub fn summary(&self) -> String {
+        let ties: Vec<bool> = self
+            .cases
+            .iter()
+            .flat_map(|c| c.ties.iter().copied())
+            .collect();
+        let fraction = if ties.is_empty() {
+            f64::NAN
+        } else {
+            ties.iter().filter(|&&t| t).count() as f64 / ties.len() as f64
+        };
         format!(
-            "scorer replan_median_ms {:.1} gaussians {}",
+            "scorer replan_median_ms {:.1} gaussians {}\nscorer tie_fraction {fraction:.2} replans {}",
             self.incremental().median_total_ms(),
-            self.gaussians
+            self.gaussians,
+            ties.len()
         )
     }
 
@@ -334,6 +371,21 @@ impl ScorerBench {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_two_best_paths_tie_within_one_percent_of_the_best() {
+        use super::best_two_tie;
+        assert_eq!(best_two_tie(&[-10.0, f64::INFINITY]), None);
+        assert_eq!(best_two_tie(&[]), None);
+        assert_eq!(best_two_tie(&[5.0, -10.0, -9.95]), Some(true));
+        assert_eq!(best_two_tie(&[-9.8, -10.0, 3.0]), Some(false));
+        assert_eq!(
+            best_two_tie(&[2.0, 2.0]),
+            Some(true),
+            "equal objectives tie"
+        );
+        assert_eq!(best_two_tie(&[100.0, 100.5, f64::INFINITY]), Some(true));
+    }
+
     use super::*;
     use crate::house_map::{HouseMapConfig, build};
 
@@ -370,7 +422,21 @@ mod tests {
         assert!(bench.cases[1].model_reused.iter().all(|r| !r));
         assert!(bench.cases[2].model_reused.iter().all(|r| *r));
         let summary = bench.summary();
-        let fields: Vec<&str> = summary.split(' ').collect();
+        let (timing, ties) = summary.split_once('\n').expect("two lines");
+        let tie_fields: Vec<&str> = ties.split(' ').collect();
+        assert_eq!(
+            (
+                tie_fields[0],
+                tie_fields[1],
+                tie_fields[3],
+                tie_fields.len()
+            ),
+            ("scorer", "tie_fraction", "replans", 5),
+            "{ties}"
+        );
+        let counted: usize = bench.cases.iter().map(|c| c.ties.len()).sum();
+        assert_eq!(tie_fields[4], counted.to_string());
+        let fields: Vec<&str> = timing.split(' ').collect();
         assert_eq!(fields.len(), 5, "{summary}");
         assert_eq!(
             (fields[0], fields[1], fields[3]),
