@@ -186,17 +186,15 @@ impl Provider for OpenAiProvider {
                 body(config, request, placeholder.as_deref(), schema).to_string(),
             )
         };
-        let mut refused = self.schema_refused;
         let (out, recorded, dropped) = super::post_with_schema(
             &mut self.http,
             &self.url,
             "response_format",
             mode.wanted(follow_up),
             mode == StructuredOutput::On,
-            &mut refused,
+            &mut self.schema_refused,
             build,
         );
-        self.schema_refused = refused;
         let mut c = Completion::from_http("openai", &self.config.model, recorded, out, read_reply);
         c.schema_refused = dropped;
         c
