@@ -31,7 +31,7 @@
 use std::path::PathBuf;
 
 use activemap_eval::run_folder::{
-    Bev, BevCell, CoverageRow, FisherRow, LlmRecord, LlmSummary, RunFolder,
+    Bev, BevCell, CoverageRow, FisherRow, LlmFollowUpRecord, LlmRecord, LlmSummary, RunFolder,
 };
 use activemap_eval::validity::{self, RunWarning};
 use activemap_eval::{AteOptions, CorrectedTrajectory, ate, coverage_2d};
@@ -207,7 +207,31 @@ pub fn llm_record(e: &LlmExchange, bev: Option<String>) -> LlmRecord {
         decision: Some(i64::from(e.decision)),
         failure: e.failure.clone(),
         failure_detail: e.failure_detail.clone(),
+        finish_reason: e.finish_reason.clone(),
+        reasoning: Some(e.reasoning.clone()).filter(|r| !r.is_empty()),
+        thinking: thinking(&e.reply),
+        schema_refused: Some(e.schema_refused),
+        follow_up: e.follow_up.as_ref().map(|f| LlmFollowUpRecord {
+            cause: Some(f.cause.clone()),
+            prompt: Some(f.prompt.clone()),
+            http_status: f.http_status,
+            attempts: Some(f.attempts),
+            latency_ms: Some(f.latency_ms),
+            prompt_tokens: f.prompt_tokens,
+            completion_tokens: f.completion_tokens,
+            reply: Some(f.reply.clone()),
+            finish_reason: f.finish_reason.clone(),
+            reasoning: Some(f.reasoning.clone()).filter(|r| !r.is_empty()),
+            thinking: thinking(&f.reply),
+            schema_refused: Some(f.schema_refused),
+        }),
     }
+}
+
+/// The `<think>` blocks of a reply, joined; `None` when it has none.
+fn thinking(reply: &str) -> Option<String> {
+    let blocks = activemap_llm::parse::split_thinking(reply).thinking;
+    (!blocks.is_empty()).then(|| blocks.join("\n\n"))
 }
 
 /// Counts the forward actions whose outcome is known, and the blocked ones among them: the

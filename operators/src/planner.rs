@@ -43,8 +43,8 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
 };
 use activemap_schemas::{
-    Frontiers, GaussianMapView, Goal, LlmExchange, MessageKind as K, OccupancyGridView,
-    PoseEstimate, ReplanReason, ReplanRequest, SmallMessage,
+    Frontiers, GaussianMapView, Goal, LlmExchange, LlmFollowUp, MessageKind as K,
+    OccupancyGridView, PoseEstimate, ReplanReason, ReplanRequest, SmallMessage,
 };
 use activemap_splat::Gaussians;
 use nalgebra::Point2;
@@ -130,9 +130,7 @@ impl Config {
 
     /// True when the LLM policy needs map snapshots (a provider with the image prompt).
     fn needs_map(&self, llm: &LlmConfig) -> bool {
-        self.policy == Policy::Llm
-            && llm.provider.is_some()
-            && llm.prompt == activemap_llm::PromptStyle::Image
+        self.policy == Policy::Llm && llm.provider.is_some() && llm.prompt.sends_image()
     }
 }
 
@@ -328,12 +326,43 @@ pub fn exchange_to_wire(frame_id: u64, e: &Exchange) -> LlmExchange {
         decision: e.decision as i32,
         failure: e.fallback.as_ref().map(|f| f.kind.name().to_string()),
         failure_detail: e.fallback.as_ref().map(|f| f.detail.clone()),
+        finish_reason: c.finish_reason.clone(),
+        reasoning: c.reasoning.clone(),
+        schema_refused: c.schema_refused,
+        follow_up: e.follow_up.as_ref().map(|f| {
+            let c = &f.completion;
+            LlmFollowUp {
+                cause: f.cause.to_string(),
+                prompt: f.user.clone(),
+                request: c.request.clone(),
+                http_status: c.http_status,
+                attempts: c.attempts,
+                latency_ms: c.latency_ms,
+                prompt_tokens: c.usage.prompt_tokens,
+                completion_tokens: c.usage.completion_tokens,
+                reply: c.reply.clone(),
+                finish_reason: c.finish_reason.clone(),
+                reasoning: c.reasoning.clone(),
+                schema_refused: c.schema_refused,
+                failure: c.failure.as_ref().map(|f| f.kind.name().to_string()),
+                failure_detail: c.failure.as_ref().map(|f| f.detail.clone()),
+            }
+        }),
     }
+}
+
+/// The failure kind named `name`; `at` names the message in errors.
+fn recorded_kind(at: &str, name: Option<&str>) -> anyhow::Result<Option<FailureKind>> {
+    name.map(|k| {
+        FailureKind::from_name(k).ok_or_else(|| anyhow::anyhow!("{at}: unknown failure `{k}`"))
+    })
+    .transpose()
 }
 
 /// The replies a recorded provider serves: the exchanges on `{node}/llm` of the recording
 /// at `path`, in order, without those that never reached a provider (budget spent). Parse
-/// and model failures are served as they were, so the same fallbacks happen again.
+/// and model failures are served as they were, so the same fallbacks happen again; a
+/// follow-up turn is served with its exchange.
 pub fn recorded_replies(path: &Path, node: &str) -> anyhow::Result<Vec<RecordedReply>> {
     let recording = activemap_runtime::record::read_recording(path)?;
     let topic = format!("{node}/llm");
@@ -343,48 +372,9 @@ pub fn recorded_replies(path: &Path, node: &str) -> anyhow::Result<Vec<RecordedR
         .iter()
         .filter(|m| m.topic == topic && !m.bytes.is_empty())
     {
-        let e = LlmExchange::decode(&m.bytes).map_err(|e| {
-            anyhow::anyhow!("{}: message {} of `{topic}`: {e}", path.display(), m.seq)
-        })?;
-        let kind = e.failure.as_deref().map(|k| {
-            FailureKind::from_name(k).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{}: `{topic}` {}: unknown failure `{k}`",
-                    path.display(),
-                    m.seq
-                )
-            })
-        });
-        let kind = kind.transpose()?;
-        if kind == Some(FailureKind::Budget) {
-            continue;
-        }
-        // Parse failures are the planner's, not the provider's: the provider served a reply.
-        let provider_failure = kind.filter(|k| {
-            !matches!(
-                k,
-                FailureKind::NoJson | FailureKind::BadJson | FailureKind::BadTarget
-            )
-        });
-        replies.push(RecordedReply {
-            system: e.system,
-            user: e.prompt,
-            completion: Completion {
-                provider: e.provider,
-                model: e.model,
-                request: e.request,
-                http_status: e.http_status,
-                attempts: e.attempts,
-                latency_ms: e.latency_ms,
-                usage: Usage {
-                    prompt_tokens: e.prompt_tokens,
-                    completion_tokens: e.completion_tokens,
-                },
-                reply: e.reply,
-                failure: provider_failure
-                    .map(|k| Failure::new(k, e.failure_detail.unwrap_or_default())),
-            },
-        });
+        let at = format!("{}: message {} of `{topic}`", path.display(), m.seq);
+        let e = LlmExchange::decode(&m.bytes).map_err(|e| anyhow::anyhow!("{at}: {e}"))?;
+        replies.extend(recorded_reply(e, &at)?);
     }
     if replies.is_empty() {
         eprintln!(
@@ -393,6 +383,70 @@ pub fn recorded_replies(path: &Path, node: &str) -> anyhow::Result<Vec<RecordedR
         );
     }
     Ok(replies)
+}
+
+/// What a recorded provider serves for the recorded exchange `e` (`at` names it in errors);
+/// `None` when it never reached a provider (budget spent).
+pub fn recorded_reply(e: LlmExchange, at: &str) -> anyhow::Result<Option<RecordedReply>> {
+    let kind = recorded_kind(at, e.failure.as_deref())?;
+    if kind == Some(FailureKind::Budget) {
+        return Ok(None);
+    }
+    // Parse failures are the planner's, not the provider's: the provider served a reply.
+    // With a follow-up the first reply came back (the failure is the follow-up's).
+    let provider_failure = kind.filter(|k| {
+        e.follow_up.is_none()
+            && !matches!(
+                k,
+                FailureKind::NoJson | FailureKind::BadJson | FailureKind::BadTarget
+            )
+    });
+    let follow_up = match e.follow_up {
+        None => None,
+        Some(f) => {
+            let kind = recorded_kind(&format!("{at}, follow-up"), f.failure.as_deref())?;
+            Some(Completion {
+                provider: e.provider.clone(),
+                model: e.model.clone(),
+                request: f.request,
+                http_status: f.http_status,
+                attempts: f.attempts,
+                latency_ms: f.latency_ms,
+                usage: Usage {
+                    prompt_tokens: f.prompt_tokens,
+                    completion_tokens: f.completion_tokens,
+                },
+                reply: f.reply,
+                finish_reason: f.finish_reason,
+                reasoning: f.reasoning,
+                schema_refused: f.schema_refused,
+                failure: kind.map(|k| Failure::new(k, f.failure_detail.unwrap_or_default())),
+            })
+        }
+    };
+    Ok(Some(RecordedReply {
+        system: e.system,
+        user: e.prompt,
+        completion: Completion {
+            provider: e.provider,
+            model: e.model,
+            request: e.request,
+            http_status: e.http_status,
+            attempts: e.attempts,
+            latency_ms: e.latency_ms,
+            usage: Usage {
+                prompt_tokens: e.prompt_tokens,
+                completion_tokens: e.completion_tokens,
+            },
+            reply: e.reply,
+            finish_reason: e.finish_reason,
+            reasoning: e.reasoning,
+            schema_refused: e.schema_refused,
+            failure: provider_failure
+                .map(|k| Failure::new(k, e.failure_detail.unwrap_or_default())),
+        },
+        follow_up,
+    }))
 }
 
 /// The `llm` policy without transport: FBE's strikes pick the eligible regions, the library
@@ -966,6 +1020,100 @@ mod tests {
         );
         let fbe = check_config(&serde_json::json!({ "llm": {} })).unwrap_err();
         assert!(fbe.contains("policy: llm"), "{fbe}");
+    }
+
+    /// An exchange whose first reply was cut (with `<think>` and `reasoning_content`) and
+    /// whose follow-up answered goes on the wire and back to a recorded provider, which serves
+    /// both turns: the replayed planner takes the same decision and records the same exchange.
+    /// The evaluator's record keeps the reasoning and the `<think>` text apart.
+    #[test]
+    fn a_follow_up_exchange_replays_from_its_wire_record() {
+        use activemap_llm::PromptStyle;
+        use activemap_llm::provider::RecordedProvider;
+        let completion = |reply: &str, finish: &str, reasoning: &str| Completion {
+            provider: "openai".into(),
+            model: "m".into(),
+            request: "{\"model\":\"m\"}".into(),
+            http_status: Some(200),
+            attempts: 1,
+            latency_ms: 12.5,
+            usage: Usage {
+                prompt_tokens: Some(100),
+                completion_tokens: Some(50),
+            },
+            reply: reply.into(),
+            finish_reason: Some(finish.into()),
+            reasoning: reasoning.into(),
+            schema_refused: false,
+            failure: None,
+        };
+        let first = completion(
+            "<think>{\"target\": 0, \"reason\": \"no\"}</think>Exploration plan: 1. go",
+            "length",
+            "thinking aloud",
+        );
+        let mut second = completion("{\"target\": 2, \"reason\": \"hall\"}", "stop", "");
+        second.schema_refused = true;
+        let config = LlmConfig {
+            prompt: PromptStyle::Text,
+            ..LlmConfig::default()
+        };
+        let candidates: Vec<Candidate> = (0..3)
+            .map(|i| Candidate {
+                centroid: [i as f64, 1.0],
+                label_at: [i as f64, 1.0],
+                size_cells: 30 - i,
+                area_m2: 0.1,
+                path_distance_m: 1.0,
+            })
+            .collect();
+        let map = Gaussians::new();
+        let query = Query {
+            step: 7,
+            total_steps: 100,
+            map: &map,
+            map_version: 7,
+            camera_height_m: 1.0,
+            robot: [0.0; 3],
+            path: &[],
+            candidates: &candidates,
+        };
+        let run = |reply: RecordedReply| {
+            let provider = Box::new(RecordedProvider::new(vec![reply]));
+            let mut planner = LlmPlanner::new(config.clone(), Some(provider)).unwrap();
+            let d = planner.decide(&query).unwrap();
+            assert_eq!(planner.stats().follow_ups, 1);
+            assert_eq!(planner.stats().calls, 2);
+            (d.choice, exchange_to_wire(7, d.exchange.as_ref().unwrap()))
+        };
+        let (choice, live) = run(RecordedReply {
+            system: String::new(),
+            user: String::new(),
+            completion: first,
+            follow_up: Some(second),
+        });
+        assert_eq!(choice, LlmChoice::Frontier(2));
+        assert_eq!((live.target, live.failure.as_deref()), (Some(2), None));
+        assert_eq!(live.finish_reason.as_deref(), Some("length"));
+        assert_eq!(live.reasoning, "thinking aloud");
+        let f = live.follow_up.as_ref().unwrap();
+        assert!(f.cause.contains("no_json") && f.cause.contains("finish reason length"));
+        assert!(f.schema_refused && f.prompt.contains("only the JSON object"));
+        let wire = LlmExchange::decode(&live.encode()).unwrap();
+        let reply = recorded_reply(wire, "test").unwrap().unwrap();
+        assert!(reply.follow_up.is_some());
+        let (again, replayed) = run(reply);
+        assert_eq!((again, &replayed), (choice, &live));
+        let record = crate::evaluator::llm_record(&live, None);
+        assert_eq!(
+            record.thinking.as_deref(),
+            Some("{\"target\": 0, \"reason\": \"no\"}")
+        );
+        assert_eq!(record.reasoning.as_deref(), Some("thinking aloud"));
+        assert_eq!(
+            record.follow_up.unwrap().finish_reason.as_deref(),
+            Some("stop")
+        );
     }
 
     /// Replay swaps an LLM planner's provider for the recording's replies, and leaves other

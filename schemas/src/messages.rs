@@ -354,7 +354,8 @@ small_message!(FisherReport, 1);
 /// reply, the HTTP facts, the token usage, the decision and any fallback reason. A `recorded`
 /// provider serves these back in order.
 ///
-/// Version 2 added everything after `bev_png` but `reply`, `target`.
+/// Version 2 added everything after `bev_png` but `reply`, `target`; version 3 the finish
+/// reason, the reasoning, `schema_refused` and the follow-up turn.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LlmExchange {
     /// Frame the decision was made on.
@@ -395,8 +396,53 @@ pub struct LlmExchange {
     pub failure: Option<String>,
     /// What exactly failed.
     pub failure_detail: Option<String>,
+    /// Why the model stopped, as the server said (`stop`, `length`, …).
+    pub finish_reason: Option<String>,
+    /// The reasoning the server returned beside the reply (`reasoning_content`, Ollama's
+    /// `thinking`); empty when none. `<think>` blocks stay in `reply`.
+    pub reasoning: String,
+    /// The server refused the JSON schema of the reply and the request went again without.
+    pub schema_refused: bool,
+    /// The follow-up turn, when the reply was cut or held no JSON answer; `target`, `reason`
+    /// and `failure` are then its outcome.
+    pub follow_up: Option<LlmFollowUp>,
 }
-small_message!(LlmExchange, 2);
+small_message!(LlmExchange, 3);
+
+/// The follow-up turn of an [`LlmExchange`]: the conversation again, with the model's first
+/// reply as the assistant's message and a user message asking only for the JSON.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LlmFollowUp {
+    /// Why it was asked (`no_json: …`, with the finish reason when the reply was cut).
+    pub cause: String,
+    /// The user message of the turn.
+    pub prompt: String,
+    /// Request body as sent, without secrets, the image as `<bev.png: N bytes>`.
+    pub request: String,
+    /// Status of the last HTTP attempt, if an answer came.
+    pub http_status: Option<u16>,
+    /// HTTP attempts.
+    pub attempts: u32,
+    /// Model latency, milliseconds.
+    pub latency_ms: f64,
+    /// Prompt tokens reported.
+    pub prompt_tokens: Option<u64>,
+    /// Completion tokens reported.
+    pub completion_tokens: Option<u64>,
+    /// Raw reply text (on a failure, the body excerpt).
+    pub reply: String,
+    /// Why the model stopped.
+    pub finish_reason: Option<String>,
+    /// Reasoning returned beside the reply.
+    pub reasoning: String,
+    /// The server refused the JSON schema and the turn went again without.
+    pub schema_refused: bool,
+    /// Kind of the transport or body failure of the turn (`timeout`, `bad_body`, …), if any;
+    /// a reply that does not parse is the exchange's `failure`, not this.
+    pub failure: Option<String>,
+    /// What exactly failed.
+    pub failure_detail: Option<String>,
+}
 
 /// A counter sample, for diagnostics and the runtime's own tests.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -2,7 +2,9 @@
 //! processes on a small procedural house at 64×64, against a model server started inside the
 //! test on loopback that answers like OpenAI's Chat Completions: it reads the number of
 //! candidates from the prompt and picks the last one, except the second of every three queries, which it
-//! answers with rambling text and no JSON (the planner must fall back and go on). The key
+//! answers with rambling text and no JSON. The planner asks once more for the JSON alone (the
+//! follow-up turn): the first follow-up is answered with rambling again (the planner must fall
+//! back and go on), the next ones with the JSON. The key
 //! travels only in the `Authorization` header: it is in no log, recording or run file.
 //! Afterwards, with the server gone, `activemap replay --node planner` re-runs the planner on
 //! its recorded inputs with the `recorded` provider and reproduces every goal and exchange
@@ -25,11 +27,11 @@ const KEY: &str = "sk-activemap-test-9f3c";
 /// The scripted model.
 struct Model {
     queries: AtomicUsize,
+    follow_ups: AtomicUsize,
 }
 
 impl Respond for Model {
     fn respond(&self, request: &Request) -> ResponseTemplate {
-        let i = self.queries.fetch_add(1, Ordering::SeqCst);
         let authorised = request
             .headers
             .get("authorization")
@@ -45,7 +47,14 @@ impl Respond for Model {
             .and_then(|t| t.split(' ').next())
             .and_then(|t| t.parse().ok())
             .unwrap_or(1);
-        let content = if i % 3 == 1 {
+        let follow_up = body["messages"].as_array().map_or(0, Vec::len) == 4;
+        let i = if follow_up {
+            self.follow_ups.fetch_add(1, Ordering::SeqCst)
+        } else {
+            self.queries.fetch_add(1, Ordering::SeqCst)
+        };
+        let ramble = if follow_up { i == 0 } else { i % 3 == 1 };
+        let content = if ramble {
             "The map shows several rooms. I would explore carefully and thoroughly.".to_string()
         } else {
             format!(
@@ -151,6 +160,7 @@ fn an_llm_episode_records_every_exchange_and_replays_its_decisions() {
             .and(path("/v1/chat/completions"))
             .respond_with(Model {
                 queries: AtomicUsize::new(0),
+                follow_ups: AtomicUsize::new(0),
             })
             .mount(&server),
     );
@@ -179,12 +189,25 @@ fn an_llm_episode_records_every_exchange_and_replays_its_decisions() {
             .join("; ")
     );
     assert!(exchanges.len() >= 3, "too few queries: {}", exchanges.len());
-    assert_eq!(exchanges.len(), received.len(), "one exchange per request");
+    let follow_ups = exchanges.iter().filter(|e| e.follow_up.is_some()).count();
+    assert!(follow_ups >= 1, "a follow-up was exercised");
+    assert_eq!(
+        exchanges.len() + follow_ups,
+        received.len(),
+        "one exchange per first request, its follow-up within it"
+    );
     for e in &exchanges {
         assert!(e.bev_png.starts_with(b"\x89PNG"), "frame {}", e.frame_id);
         assert!(e.system.contains("blue star"));
         assert_eq!(e.http_status, Some(200));
         assert_eq!(e.prompt_tokens, Some(900));
+        assert_eq!(e.finish_reason.as_deref(), Some("stop"));
+        if let Some(f) = &e.follow_up {
+            assert!(f.cause.starts_with("no_json"), "{}", f.cause);
+            assert_eq!(f.http_status, Some(200));
+            assert!(f.request.contains("\"role\":\"assistant\""));
+            assert!(!f.request.contains(KEY));
+        }
         let goal = goals
             .iter()
             .find(|g| g.frame_id == e.frame_id)
@@ -197,6 +220,11 @@ fn an_llm_episode_records_every_exchange_and_replays_its_decisions() {
             }
             Some(kind) => {
                 assert_eq!(kind, "no_json", "frame {}", e.frame_id);
+                assert!(
+                    e.follow_up.is_some(),
+                    "frame {}: asked again first",
+                    e.frame_id
+                );
                 assert_eq!(e.decision, 0, "the largest frontier comes first");
             }
         }
@@ -236,6 +264,7 @@ fn an_llm_episode_records_every_exchange_and_replays_its_decisions() {
     assert_eq!(summary.queries as usize, exchanges.len());
     assert_eq!(summary.calls as usize, received.len());
     assert_eq!(summary.prompt_tokens, 900 * received.len() as u64);
+    assert_eq!(summary.follow_ups as usize, follow_ups);
     assert!(summary.failures.get("no_json").copied().unwrap_or(0) >= 1);
 
     // Replay, no network: the recorded replies give the same goals and exchanges.

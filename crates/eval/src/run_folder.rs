@@ -542,6 +542,12 @@ pub struct LlmSummary {
     pub completion_tokens: u64,
     /// Model latency summed over the queries, seconds.
     pub latency_s: f64,
+    /// First replies cut by the token limit (finish reason `length`).
+    pub cut: u64,
+    /// Follow-up turns asked (their calls, tokens and latency are in the totals above).
+    pub follow_ups: u64,
+    /// Follow-up turns that gave a valid answer.
+    pub recovered: u64,
 }
 
 impl LlmSummary {
@@ -558,6 +564,15 @@ impl LlmSummary {
             s.prompt_tokens += r.prompt_tokens.unwrap_or(0);
             s.completion_tokens += r.completion_tokens.unwrap_or(0);
             s.latency_s += r.latency_ms.unwrap_or(0.0) / 1e3;
+            s.cut += u64::from(r.finish_reason.as_deref() == Some("length"));
+            if let Some(f) = &r.follow_up {
+                s.follow_ups += 1;
+                s.recovered += u64::from(r.target.is_some());
+                s.calls += u64::from(f.attempts.unwrap_or(0));
+                s.prompt_tokens += f.prompt_tokens.unwrap_or(0);
+                s.completion_tokens += f.completion_tokens.unwrap_or(0);
+                s.latency_s += f.latency_ms.unwrap_or(0.0) / 1e3;
+            }
         }
         s
     }
@@ -569,7 +584,7 @@ impl LlmSummary {
             .iter()
             .map(|(k, n)| format!("{k} {n}"))
             .collect();
-        format!(
+        let mut line = format!(
             "{} queries, {} calls, {} fallbacks{}, {} + {} tokens, {:.1} s model latency",
             self.queries,
             self.calls,
@@ -582,7 +597,17 @@ impl LlmSummary {
             self.prompt_tokens,
             self.completion_tokens,
             self.latency_s
-        )
+        );
+        if self.cut > 0 {
+            line += &format!(", {} replies cut (finish reason length)", self.cut);
+        }
+        if self.follow_ups > 0 {
+            line += &format!(
+                ", {} follow-ups ({} recovered)",
+                self.follow_ups, self.recovered
+            );
+        }
+        line
     }
 }
 
@@ -872,6 +897,46 @@ pub struct LlmRecord {
     pub failure: Option<String>,
     /// What failed.
     pub failure_detail: Option<String>,
+    /// Why the model stopped (`stop`, `length`, …).
+    pub finish_reason: Option<String>,
+    /// The reasoning returned beside the reply (`reasoning_content`, Ollama's `thinking`).
+    pub reasoning: Option<String>,
+    /// The reply's `<think>` blocks, joined (they stay in `reply` too; never parsed).
+    pub thinking: Option<String>,
+    /// The server refused the reply's JSON schema and the request went again without.
+    pub schema_refused: Option<bool>,
+    /// The follow-up turn, when the reply was cut or held no JSON answer.
+    pub follow_up: Option<LlmFollowUpRecord>,
+}
+
+/// The follow-up turn of an [`LlmRecord`] (absent fields = not recorded).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LlmFollowUpRecord {
+    /// Why it was asked (the first reply's failure and finish reason).
+    pub cause: Option<String>,
+    /// The user message of the turn.
+    pub prompt: Option<String>,
+    /// Status of the last HTTP attempt.
+    pub http_status: Option<u16>,
+    /// HTTP attempts.
+    pub attempts: Option<u32>,
+    /// Model latency, milliseconds.
+    pub latency_ms: Option<f64>,
+    /// Prompt tokens.
+    pub prompt_tokens: Option<u64>,
+    /// Completion tokens.
+    pub completion_tokens: Option<u64>,
+    /// Raw reply.
+    pub reply: Option<String>,
+    /// Why the model stopped.
+    pub finish_reason: Option<String>,
+    /// Reasoning returned beside the reply.
+    pub reasoning: Option<String>,
+    /// The reply's `<think>` blocks, joined.
+    pub thinking: Option<String>,
+    /// The server refused the JSON schema and the turn went again without.
+    pub schema_refused: Option<bool>,
 }
 
 /// One cell of the bird's-eye view.
@@ -1239,6 +1304,9 @@ mod tests {
                 prompt_tokens: 2400,
                 completion_tokens: 90,
                 latency_s: 7.5,
+                cut: 1,
+                follow_ups: 1,
+                recovered: 1,
             }),
             warnings: Vec::new(),
         }

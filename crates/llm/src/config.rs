@@ -3,13 +3,15 @@
 //!
 //! ```yaml
 //! llm:
-//!   prompt: image              # image (the paper: annotated BEV) | text (models without vision)
+//!   prompt: image              # image (the paper) | json_first | text | text_compact
+//!   follow_up: { enabled: true, max_tokens: 256 }   # one "only the JSON" turn after a cut reply
 //!   provider:                  # absent: the offline default (largest frontier, SPEC §7 fallback)
 //!     kind: openai             # openai | ollama | recorded
 //!     base_url: http://127.0.0.1:8088/v1
 //!     model: gpt-4o
 //!     api_key_env: OPENAI_API_KEY   # the key is read from this variable only, never the YAML
 //!     max_tokens: 1000
+//!     structured_output: follow_up  # off | follow_up | auto | on (the reply's JSON schema)
 //!   ask: { min_interval_steps: 0, skip_unchanged_map: true }
 //!   budget: { max_calls: 200, max_tokens: 2000000 }
 //! ```
@@ -25,12 +27,115 @@ use crate::error::LlmError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PromptStyle {
-    /// The paper's: the appendix text with the annotated bird's-eye view as an image.
+    /// The paper's: the appendix text with the annotated bird's-eye view as an image, asking
+    /// for the exploration plan first and the JSON last (suits hosted models).
     #[default]
     Image,
-    /// For models without vision: the same task, with each candidate's id, position, size and
-    /// path distance listed in the text instead of the image.
+    /// The paper's image prompt, but asking for the JSON object first and the reasoning after
+    /// it: a reply cut by the token limit still holds the answer.
+    JsonFirst,
+    /// For models without vision: the paper's task, with each candidate's id, position, size
+    /// and path distance listed in the text instead of the image; plan first, JSON last.
     Text,
+    /// For small models without vision: a short instruction, the candidate list, and the JSON
+    /// object asked for first with a one-sentence reason.
+    TextCompact,
+}
+
+impl PromptStyle {
+    /// True when the prompt carries the annotated bird's-eye view (`image`, `json_first`).
+    pub fn sends_image(self) -> bool {
+        matches!(self, Self::Image | Self::JsonFirst)
+    }
+}
+
+/// The follow-up turn after a reply that was cut (finish reason `length`) or holds no JSON
+/// answer: the model's own text goes back as the assistant's turn, followed by a short user
+/// turn asking only for the JSON object (with the schema when `structured_output` allows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FollowUpConfig {
+    /// Ask the follow-up at all.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Completion token limit of the follow-up reply.
+    #[serde(default = "default_follow_up_tokens")]
+    pub max_tokens: u32,
+}
+
+fn default_follow_up_tokens() -> u32 {
+    256
+}
+
+impl Default for FollowUpConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_tokens: default_follow_up_tokens(),
+        }
+    }
+}
+
+/// When the request carries the reply's JSON schema (OpenAI-compatible `response_format`
+/// with `json_schema`, Ollama `format`). YAML `true` reads as `on`, `false` as `off`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StructuredOutput {
+    /// Never.
+    Off,
+    /// Only on the follow-up turn (which asks for the JSON alone); a server that refuses the
+    /// field gets the turn again without it, and never again this episode. The default: the
+    /// first reply stays the paper's free-text plan.
+    #[default]
+    FollowUp,
+    /// On every request, with the same fallback as `follow_up` when the server refuses it.
+    Auto,
+    /// On every request, required: a refusal is the query's failure (`http_status`).
+    On,
+}
+
+impl StructuredOutput {
+    /// The setting's name in the YAML.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Off => "off",
+            Self::FollowUp => "follow_up",
+            Self::Auto => "auto",
+            Self::On => "on",
+        }
+    }
+
+    /// Whether a request asks for the schema: the first one (`follow_up` false) or the
+    /// follow-up turn.
+    pub fn wanted(self, follow_up: bool) -> bool {
+        match self {
+            Self::Off => false,
+            Self::FollowUp => follow_up,
+            Self::Auto | Self::On => true,
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for StructuredOutput {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Flag(bool),
+            Name(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Flag(true) => Ok(Self::On),
+            Raw::Flag(false) => Ok(Self::Off),
+            Raw::Name(n) => [Self::Off, Self::FollowUp, Self::Auto, Self::On]
+                .into_iter()
+                .find(|v| v.name() == n)
+                .ok_or_else(|| {
+                    serde::de::Error::custom(format!(
+                        "structured_output: `{n}` is not off, follow_up, auto or on"
+                    ))
+                }),
+        }
+    }
 }
 
 /// Everything the LLM policy of the `planner` needs.
@@ -40,6 +145,9 @@ pub struct LlmConfig {
     /// Prompt variant.
     #[serde(default)]
     pub prompt: PromptStyle,
+    /// The follow-up turn after a cut reply or one without JSON.
+    #[serde(default)]
+    pub follow_up: FollowUpConfig,
     /// The model service; `None` is the offline default: the paper's fallback (the largest
     /// frontier) at every decision, announced once at start.
     #[serde(default)]
@@ -140,11 +248,12 @@ pub struct HttpProviderConfig {
     /// Sampling seed, for servers that honour it.
     #[serde(default)]
     pub seed: Option<u64>,
-    /// Ask the server for structured output: OpenAI `response_format` with a JSON schema of
-    /// `{target, reason}`, Ollama `format` with the same schema. Off by default (the paper's
-    /// reply is a free-text plan followed by the JSON).
+    /// When to ask the server for structured output (OpenAI `response_format` with a JSON
+    /// schema of `{target, reason}`, Ollama `format` with the same schema): by default only
+    /// on the follow-up turn, since the paper's reply is a free-text plan followed by the
+    /// JSON. A 400 or 422 whose body names the field drops it (except with `on`).
     #[serde(default)]
-    pub structured_output: bool,
+    pub structured_output: StructuredOutput,
     /// OpenAI `image_url.detail` (`low`, `high`, `auto`); `openai` only.
     #[serde(default)]
     pub detail: Option<String>,
@@ -203,7 +312,7 @@ impl HttpProviderConfig {
             max_tokens: default_max_tokens(),
             temperature: None,
             seed: None,
-            structured_output: false,
+            structured_output: StructuredOutput::default(),
             detail: None,
             connect_timeout_s: default_connect_timeout(),
             timeout_s: default_timeout(),
@@ -325,6 +434,9 @@ impl LlmConfig {
         if self.total_steps == Some(0) {
             return Err(LlmError::Config("total_steps: must be > 0".into()));
         }
+        if self.follow_up.max_tokens == 0 {
+            return Err(LlmError::Config("follow_up.max_tokens: must be > 0".into()));
+        }
         Ok(())
     }
 
@@ -370,6 +482,40 @@ mod tests {
         assert_eq!(h.max_tokens, 1000);
         assert!(h.is_loopback());
         assert_eq!(h.temperature, None);
+        assert_eq!(h.structured_output, StructuredOutput::FollowUp);
+        assert_eq!(p.follow_up, FollowUpConfig::default());
+    }
+
+    #[test]
+    fn prompt_variants_and_structured_output_values() {
+        for (name, style, image) in [
+            ("image", PromptStyle::Image, true),
+            ("json_first", PromptStyle::JsonFirst, true),
+            ("text", PromptStyle::Text, false),
+            ("text_compact", PromptStyle::TextCompact, false),
+        ] {
+            let c = LlmConfig::from_value(&json!({ "prompt": name })).unwrap();
+            assert_eq!((c.prompt, c.prompt.sends_image()), (style, image), "{name}");
+        }
+        for (value, mode) in [
+            (json!(true), StructuredOutput::On),
+            (json!(false), StructuredOutput::Off),
+            (json!("off"), StructuredOutput::Off),
+            (json!("follow_up"), StructuredOutput::FollowUp),
+            (json!("auto"), StructuredOutput::Auto),
+            (json!("on"), StructuredOutput::On),
+        ] {
+            let c = LlmConfig::from_value(&json!({"provider": {"kind": "ollama",
+                "base_url": "http://127.0.0.1:11434", "model": "m", "structured_output": value}}))
+            .unwrap();
+            let Some(ProviderConfig::Ollama(h)) = c.provider else {
+                panic!("ollama")
+            };
+            assert_eq!(h.structured_output, mode);
+        }
+        assert!(!StructuredOutput::FollowUp.wanted(false));
+        assert!(StructuredOutput::FollowUp.wanted(true));
+        assert!(StructuredOutput::Auto.wanted(false) && !StructuredOutput::Off.wanted(true));
     }
 
     #[test]
@@ -417,6 +563,16 @@ mod tests {
             (json!({"provider": {"kind": "gemini"}}), "gemini"),
             (json!({"ask": {"every": 3}}), "every"),
             (json!({"total_steps": 0}), "total_steps"),
+            (
+                json!({"follow_up": {"max_tokens": 0}}),
+                "follow_up.max_tokens",
+            ),
+            (json!({"prompt": "fancy"}), "fancy"),
+            (
+                json!({"provider": {"kind": "openai", "base_url": "http://localhost/v1",
+                "model": "m", "structured_output": "maybe"}}),
+                "structured_output",
+            ),
         ] {
             let e = LlmConfig::from_value(&v).unwrap_err().to_string();
             assert!(e.contains(field), "{field}: {e}");

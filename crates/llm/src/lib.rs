@@ -5,10 +5,11 @@
 //! - [`bev`]: the bird's-eye view of the 3DGS map (orthographic top-down splat, ceiling cut,
 //!   white background, cropped) and its annotations (blue star, green path, yellow diamond,
 //!   red numbers), encoded as PNG;
-//! - [`prompt`]: the paper's appendix prompt, or the `text` variant for models without vision;
+//! - [`prompt`]: the paper's appendix prompt, its `json_first` order, or the `text` and
+//!   `text_compact` variants for models without vision; the follow-up turn;
 //! - [`provider`]: `openai` (Chat Completions), `ollama` (`/api/chat`) and `recorded`, with
 //!   timeouts, bounded retries, `Retry-After`, a body cap, the key from the environment only;
-//! - [`parse`]: the reply's `{"target", "reason"}`;
+//! - [`parse`]: the reply's `{"target", "reason"}`, `<think>` blocks set aside;
 //! - [`planner`]: when to ask, the budget, the fallback to the largest frontier, the exchange
 //!   record and the episode's totals.
 //!
@@ -24,8 +25,8 @@ pub mod planner;
 pub mod prompt;
 pub mod provider;
 
-pub use config::{LlmConfig, PromptStyle, ProviderConfig};
+pub use config::{FollowUpConfig, LlmConfig, PromptStyle, ProviderConfig, StructuredOutput};
 pub use error::LlmError;
-pub use planner::{Choice, Decision, Exchange, LlmPlanner, Query, Source, Stats};
+pub use planner::{Choice, Decision, Exchange, FollowUp, LlmPlanner, Query, Source, Stats};
 pub use prompt::Candidate;
 pub use provider::{Completion, Failure, FailureKind, Provider};

@@ -7,6 +7,12 @@
 //! release takes the first `{…}`). The target must be a JSON integer in [−1, N−1] (−1 asks
 //! to refine the map) and `reason` a string; anything else is a [`ParseError`] that the
 //! planner records as the reason of its fallback.
+//!
+//! Reasoning models write `<think>…</think>` before their answer: those blocks are set aside
+//! ([`split_thinking`]) and never parsed, so a JSON object inside them is not taken. A block
+//! left open (the reply was cut while thinking) runs to the end of the reply; a `</think>`
+//! with no opening tag before it (chat templates that open the block in the prompt) closes a
+//! block that started at the reply's beginning.
 
 use serde_json::Value;
 
@@ -60,8 +66,54 @@ impl ParseError {
     }
 }
 
-/// Parses `reply` for a choice among `candidates` candidates.
+const THINK_OPEN: &str = "<think>";
+const THINK_CLOSE: &str = "</think>";
+
+/// A reply split into its answer text and its `<think>` blocks.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Split {
+    /// The reply without its `<think>` blocks (the only part parsed).
+    pub answer: String,
+    /// The blocks' contents, in order, each trimmed.
+    pub thinking: Vec<String>,
+}
+
+/// Splits `reply` into the answer and the `<think>` blocks (module doc).
+pub fn split_thinking(reply: &str) -> Split {
+    let mut split = Split::default();
+    let mut rest = reply;
+    if let Some(close) = rest.find(THINK_CLOSE)
+        && !rest[..close].contains(THINK_OPEN)
+    {
+        split.thinking.push(rest[..close].trim().to_string());
+        rest = &rest[close + THINK_CLOSE.len()..];
+    }
+    while let Some(open) = rest.find(THINK_OPEN) {
+        split.answer += &rest[..open];
+        let inner = &rest[open + THINK_OPEN.len()..];
+        match inner.find(THINK_CLOSE) {
+            Some(close) => {
+                split.thinking.push(inner[..close].trim().to_string());
+                rest = &inner[close + THINK_CLOSE.len()..];
+            }
+            None => {
+                split.thinking.push(inner.trim().to_string());
+                rest = "";
+            }
+        }
+    }
+    split.answer += rest;
+    split
+}
+
+/// Parses `reply` for a choice among `candidates` candidates; `<think>` blocks are skipped.
 pub fn parse_reply(reply: &str, candidates: usize) -> Result<Answer, ParseError> {
+    let split = split_thinking(reply);
+    parse_answer(&split.answer, candidates)
+}
+
+/// Parses the answer text (no `<think>` blocks) of a reply.
+fn parse_answer(reply: &str, candidates: usize) -> Result<Answer, ParseError> {
     let mut last_with_target: Option<serde_json::Map<String, Value>> = None;
     let mut any_object = false;
     let mut truncated: Option<String> = None;
@@ -172,6 +224,26 @@ mod tests {
             Ok(-1),
             "refine is valid with no candidates"
         );
+    }
+
+    /// JSON inside `<think>` is never the answer, whether the block is closed, left open by
+    /// a cut reply, or opened by the chat template (only `</think>` in the reply).
+    #[test]
+    fn think_blocks_are_set_aside() {
+        let r = "<think>maybe {\"target\": 0, \"reason\": \"t\"}</think>\n{\"target\": 2, \"reason\": \"hall\"}";
+        assert_eq!(ok(r, 3), (2, "hall".into()));
+        let s = split_thinking(r);
+        assert_eq!(s.thinking, ["maybe {\"target\": 0, \"reason\": \"t\"}"]);
+        assert_eq!(s.answer.trim(), "{\"target\": 2, \"reason\": \"hall\"}");
+        let cut = "<think>I pick {\"target\": 1, \"reason\": \"x\"} or maybe";
+        assert_eq!(parse_reply(cut, 3), Err(ParseError::NoJson));
+        assert_eq!(split_thinking(cut).answer, "");
+        let template = "so {\"target\": 1, \"reason\": \"x\"}</think>No JSON here.";
+        assert_eq!(parse_reply(template, 3), Err(ParseError::NoJson));
+        let two = "a<think>1</think>b<think>2</think>c";
+        let s = split_thinking(two);
+        assert_eq!((s.answer.as_str(), s.thinking.len()), ("abc", 2));
+        assert_eq!(split_thinking("plain").thinking, Vec::<String>::new());
     }
 
     #[test]

@@ -9,6 +9,11 @@
 //! candidates lies within [`HOLD_RADIUS_M`] of it, else the largest is taken), or the map
 //! version and the candidates are those of the last query (`skip_unchanged_map`: its answer is
 //! reused, as the same question would be asked again).
+//!
+//! A reply that was cut (finish reason `length`) or holds no JSON answer gets one follow-up
+//! turn in the same conversation ([`crate::config::FollowUpConfig`]): the model's own text
+//! as the assistant's message, then [`crate::prompt::follow_up_turn`] asking only for the
+//! JSON, with a small token limit. Its outcome is part of the same [`Exchange`].
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -16,11 +21,13 @@ use std::time::Instant;
 use activemap_splat::Gaussians;
 
 use crate::bev::{Annotations, render_bev};
-use crate::config::{LlmConfig, PromptStyle};
+use crate::config::LlmConfig;
 use crate::error::LlmError;
-use crate::parse::{Answer, parse_reply};
-use crate::prompt::{Candidate, Prompt, PromptFacts, build};
-use crate::provider::{ChatRequest, Completion, Failure, FailureKind, Provider, Usage};
+use crate::parse::{Answer, ParseError, parse_reply, split_thinking};
+use crate::prompt::{Candidate, Prompt, PromptFacts, build, follow_up_turn};
+use crate::provider::{
+    ChatRequest, Completion, Failure, FailureKind, FollowUpTurn, Provider, Usage,
+};
 
 /// A held target is the candidate nearest the last choice, if within this distance (m).
 pub const HOLD_RADIUS_M: f64 = 1.0;
@@ -91,7 +98,9 @@ pub struct Exchange {
     pub bev_png: Vec<u8>,
     /// What the provider made of it.
     pub completion: Completion,
-    /// The parsed answer, if valid.
+    /// The follow-up turn, if the first reply was cut or held no JSON answer.
+    pub follow_up: Option<FollowUp>,
+    /// The parsed answer (of the follow-up, if one was asked), if valid.
     pub answer: Option<Answer>,
     /// The decision taken: the candidate index, or −1.
     pub decision: i64,
@@ -99,6 +108,18 @@ pub struct Exchange {
     pub fallback: Option<Failure>,
     /// The planner's own time (BEV, PNG, prompt, request, parsing), without the model's.
     pub overhead_ms: f64,
+}
+
+/// The follow-up turn of an exchange.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FollowUp {
+    /// Why it was asked: the first reply's parse failure (its detail names the finish
+    /// reason when the reply was cut).
+    pub cause: Failure,
+    /// The user turn sent.
+    pub user: String,
+    /// What the provider made of it.
+    pub completion: Completion,
 }
 
 /// A decision and, when a query was made, its exchange.
@@ -127,6 +148,10 @@ pub struct Stats {
     pub usage: Usage,
     /// Model latency summed, milliseconds.
     pub latency_ms: f64,
+    /// Follow-up turns asked.
+    pub follow_ups: u64,
+    /// Follow-up turns whose reply held a valid answer.
+    pub recovered: u64,
 }
 
 /// The last query, to reuse its answer.
@@ -274,8 +299,7 @@ impl LlmPlanner {
         let spent_tokens = budget
             .max_tokens
             .is_some_and(|m| self.stats.usage.total() >= m);
-        let bev_png = if self.config.prompt == PromptStyle::Image && !(spent_calls || spent_tokens)
-        {
+        let bev_png = if self.config.prompt.sends_image() && !(spent_calls || spent_tokens) {
             let annotations = Annotations {
                 robot: query.robot,
                 path: query.path.to_vec(),
@@ -305,6 +329,7 @@ impl LlmPlanner {
                 system: &prompt.system,
                 user: &prompt.user,
                 image_png: (!bev_png.is_empty()).then_some(bev_png.as_slice()),
+                follow_up: None,
             };
             match self.provider.as_mut() {
                 Some(p) => p.complete(&request),
@@ -312,22 +337,23 @@ impl LlmPlanner {
             }
         };
         self.stats.queries += u64::from(completion.attempts > 0);
-        self.stats.calls += u64::from(completion.attempts);
-        self.stats.latency_ms += completion.latency_ms;
-        self.stats.usage.prompt_tokens = Some(
-            self.stats.usage.prompt_tokens.unwrap_or(0)
-                + completion.usage.prompt_tokens.unwrap_or(0),
-        );
-        self.stats.usage.completion_tokens = Some(
-            self.stats.usage.completion_tokens.unwrap_or(0)
-                + completion.usage.completion_tokens.unwrap_or(0),
-        );
-        let parsed = match &completion.failure {
-            Some(f) => Err(f.clone()),
-            None => {
-                parse_reply(&completion.reply, n).map_err(|e| Failure::new(e.kind(), e.to_string()))
-            }
-        };
+        self.count(&completion);
+        let mut parsed = parse(&completion, n);
+        let mut follow_up = None;
+        if let Err((first, Some(e))) = &parsed
+            && self.follow_up_due(&completion, e)
+        {
+            let cause = match completion.finish_reason.as_deref() {
+                Some(r) => {
+                    Failure::new(first.kind, format!("{} (finish reason {r})", first.detail))
+                }
+                None => first.clone(),
+            };
+            let (turn, outcome) = self.ask_follow_up(&completion, cause, &prompt, &bev_png, n);
+            parsed = outcome;
+            follow_up = Some(turn);
+        }
+        let parsed = parsed.map_err(|(f, _)| f);
         let (choice, source, answer, fallback_reason) = match parsed {
             Ok(answer) => {
                 let choice = match answer.target {
@@ -343,7 +369,9 @@ impl LlmPlanner {
                 Some(f),
             ),
         };
-        let overhead_ms = (started.elapsed().as_secs_f64() * 1e3 - completion.latency_ms).max(0.0);
+        let model_ms =
+            completion.latency_ms + follow_up.as_ref().map_or(0.0, |f| f.completion.latency_ms);
+        let overhead_ms = (started.elapsed().as_secs_f64() * 1e3 - model_ms).max(0.0);
         self.last_query = Some(LastQuery {
             step: query.step,
             map_version: query.map_version,
@@ -359,12 +387,107 @@ impl LlmPlanner {
                 prompt,
                 bev_png,
                 completion,
+                follow_up,
                 answer,
                 decision: choice.target(),
                 fallback: fallback_reason,
                 overhead_ms,
             }),
         })
+    }
+}
+
+impl LlmPlanner {
+    /// Adds a completion's calls, latency and tokens to the totals.
+    fn count(&mut self, c: &Completion) {
+        self.stats.calls += u64::from(c.attempts);
+        self.stats.latency_ms += c.latency_ms;
+        let u = &mut self.stats.usage;
+        u.prompt_tokens = Some(u.prompt_tokens.unwrap_or(0) + c.usage.prompt_tokens.unwrap_or(0));
+        u.completion_tokens =
+            Some(u.completion_tokens.unwrap_or(0) + c.usage.completion_tokens.unwrap_or(0));
+    }
+
+    /// Asks the follow-up turn after the reply `first` (which failed for `cause`) to the
+    /// query of `prompt` and `bev_png` among `n` candidates; returns the turn and the answer
+    /// it gave, or the failure (its detail naming the follow-up and the first failure).
+    fn ask_follow_up(
+        &mut self,
+        first: &Completion,
+        cause: Failure,
+        prompt: &Prompt,
+        bev_png: &[u8],
+        n: usize,
+    ) -> (FollowUp, Parsed) {
+        // The model's visible text; its reasoning when that is all it wrote.
+        let split = split_thinking(&first.reply);
+        let mut assistant = split.answer.trim().to_string();
+        if assistant.is_empty() {
+            assistant = if first.reasoning.trim().is_empty() {
+                split.thinking.join("\n")
+            } else {
+                first.reasoning.trim().to_string()
+            };
+        }
+        let user = follow_up_turn(n);
+        let request = ChatRequest {
+            system: &prompt.system,
+            user: &prompt.user,
+            image_png: (!bev_png.is_empty()).then_some(bev_png),
+            follow_up: Some(FollowUpTurn {
+                assistant: &assistant,
+                user: &user,
+                max_tokens: self.config.follow_up.max_tokens,
+            }),
+        };
+        let second = match self.provider.as_mut() {
+            Some(p) => p.complete(&request),
+            None => Completion::failed("", FailureKind::NoProvider, "no provider configured"),
+        };
+        self.count(&second);
+        self.stats.follow_ups += 1;
+        let parsed = parse(&second, n).map_err(|(f, e)| {
+            let detail = format!("follow-up after {}: {}", cause.kind.name(), f.detail);
+            (Failure::new(f.kind, detail), e)
+        });
+        self.stats.recovered += u64::from(parsed.is_ok());
+        let turn = FollowUp {
+            cause,
+            user,
+            completion: second,
+        };
+        (turn, parsed)
+    }
+
+    /// Whether a reply that came back but failed to parse with `error` gets the follow-up:
+    /// it was cut (finish reason `length`) or holds no JSON answer, follow-ups are on, and
+    /// the budget is not spent.
+    fn follow_up_due(&self, c: &Completion, error: &ParseError) -> bool {
+        let cut = c.finish_reason.as_deref() == Some("length");
+        let no_answer = matches!(
+            error,
+            ParseError::NoJson | ParseError::Truncated(_) | ParseError::MissingTarget
+        );
+        let budget = self.config.budget;
+        let spent = budget.max_calls.is_some_and(|m| self.stats.calls >= m)
+            || budget
+                .max_tokens
+                .is_some_and(|m| self.stats.usage.total() >= m);
+        self.config.follow_up.enabled && (cut || no_answer) && !spent
+    }
+}
+
+/// A completion's answer, or its failure and, when the reply came back but did not parse,
+/// the parse error.
+type Parsed = Result<Answer, (Failure, Option<ParseError>)>;
+
+/// The answer of a completion among `n` candidates ([`Parsed`]).
+fn parse(c: &Completion, n: usize) -> Parsed {
+    match &c.failure {
+        Some(f) => Err((f.clone(), None)),
+        None => {
+            parse_reply(&c.reply, n).map_err(|e| (Failure::new(e.kind(), e.to_string()), Some(e)))
+        }
     }
 }
 

@@ -3,6 +3,10 @@
 //! (the last chosen frontier) is there only once a frontier was chosen before. The `text`
 //! variant, for models without vision, keeps the task and the reply format and lists each
 //! candidate's id, position, size and path distance instead of describing an image.
+//! `json_first` is the paper's image prompt asking for the JSON object before the reasoning,
+//! so that a reply cut by the token limit still holds the answer; `text_compact` is a short
+//! text prompt for small models (the candidate list, the JSON first, a one-sentence reason).
+//! [`follow_up_turn`] is the user turn that asks only for the JSON after a cut reply.
 
 use crate::config::PromptStyle;
 
@@ -51,15 +55,29 @@ pub struct Prompt {
 /// The reply format and the closing lines, shared by both variants (the paper's example).
 const REPLY_FORMAT: &str = "Please provide a detailed exploration plan and select an exploration target with reasons in the JSON format as shown below.\n\n\n```\n{\n\"target\": 2, \"reason\": \"The target is located at an unvisited region of the image and seems to be an unvisited bedroom\"\n}\n```\nDo not cut off the JSON and generate the full JSON.";
 
+/// The reply format of `json_first`: the paper's example, asked for first.
+const REPLY_FORMAT_JSON_FIRST: &str = "Start your reply with the exploration target and its reason in the JSON format shown below, and only after the JSON give a short exploration plan.\n\n\n```\n{\n\"target\": 2, \"reason\": \"The target is located at an unvisited region of the image and seems to be an unvisited bedroom\"\n}\n```\nThe JSON object must come first and be complete.";
+
 /// The prompt of one query.
 pub fn build(style: PromptStyle, facts: &PromptFacts<'_>) -> Prompt {
     match style {
-        PromptStyle::Image => image_prompt(facts),
+        PromptStyle::Image => image_prompt(facts, false),
+        PromptStyle::JsonFirst => image_prompt(facts, true),
         PromptStyle::Text => text_prompt(facts),
+        PromptStyle::TextCompact => compact_prompt(facts),
     }
 }
 
-fn image_prompt(f: &PromptFacts<'_>) -> Prompt {
+/// The follow-up user turn after a reply cut off or without the JSON answer, for a choice
+/// among `candidates` candidates.
+pub fn follow_up_turn(candidates: usize) -> String {
+    format!(
+        "Your reply was cut off or did not contain the JSON answer. Reply now with only the JSON object of your choice, nothing else: {{\"target\": <a candidate number from 0 to {}, or -1 to refine the map>, \"reason\": \"<one short sentence>\"}}",
+        candidates.saturating_sub(1)
+    )
+}
+
+fn image_prompt(f: &PromptFacts<'_>, json_first: bool) -> Prompt {
     let n = f.candidates.len();
     let mut s = String::new();
     s += "You are an AI assistant that can analyze images and plan a long-term goal for the exploration task of a ground robot.\n";
@@ -85,11 +103,51 @@ fn image_prompt(f: &PromptFacts<'_>) -> Prompt {
         n.saturating_sub(1)
     );
     s += "If you find all the goals are not necessary to explore and we should instead focus on improving existing reconstruction, please give -1 in the `target` entry of the JSON.\n";
-    s += REPLY_FORMAT;
+    s += if json_first {
+        REPLY_FORMAT_JSON_FIRST
+    } else {
+        REPLY_FORMAT
+    };
+    let order = if json_first {
+        "provide an exploration target in the specified JSON format first and then the exploration plan"
+    } else {
+        "provide the exploration plan first and then an exploration target in the specified JSON format"
+    };
     Prompt {
         system: s,
-        user: "I have a bird-eye view image of a scene. The goal is to plan a long-term exploration mission for a robot to traverse the area. Please analyze the attached image and provide the exploration plan first and then an exploration target in the specified JSON format.".into(),
+        user: format!(
+            "I have a bird-eye view image of a scene. The goal is to plan a long-term exploration mission for a robot to traverse the area. Please analyze the attached image and {order}."
+        ),
     }
+}
+
+fn compact_prompt(f: &PromptFacts<'_>) -> Prompt {
+    let n = f.candidates.len();
+    let mut s = String::new();
+    s += "You choose where a ground robot exploring an indoor scene goes next.\n";
+    s += "Pick one candidate frontier (a boundary between mapped free space and unmapped space). Large frontiers close to the robot usually open onto unvisited rooms; small ones are often gaps along walls.\n";
+    s += &format!(
+        "Answer with one JSON object first, then nothing else: {{\"target\": <candidate number from 0 to {}>, \"reason\": \"<one short sentence>\"}}. Use -1 as the target only to improve the existing map instead of exploring.",
+        n.saturating_sub(1)
+    );
+    let [x, y, yaw] = f.robot.map(|v| v + 0.0);
+    let mut u = format!("Step {} of {}. ", f.step, f.total_steps);
+    u += &format!(
+        "Robot at x = {x:.2} m, y = {y:.2} m, heading {:.0} degrees.\n",
+        yaw.to_degrees()
+    );
+    if let Some([lx, ly]) = f.last_choice {
+        u += &format!("Last chosen frontier at x = {lx:.2} m, y = {ly:.2} m.\n");
+    }
+    u += "Candidates (number: position, size, path distance):\n";
+    for (i, c) in f.candidates.iter().enumerate() {
+        u += &format!(
+            "{i}: x = {:.2} m, y = {:.2} m; {:.2} m²; {:.1} m\n",
+            c.centroid[0], c.centroid[1], c.area_m2, c.path_distance_m
+        );
+    }
+    u += "The JSON object:";
+    Prompt { system: s, user: u }
 }
 
 fn text_prompt(f: &PromptFacts<'_>) -> Prompt {
@@ -175,6 +233,47 @@ mod tests {
         let p = build(PromptStyle::Image, &facts);
         assert!(p.system.contains("marked with a yellow diamond shape"));
         assert!(p.system.ends_with("generate the full JSON."));
+    }
+
+    #[test]
+    fn json_first_and_compact_ask_for_the_json_first() {
+        let c = candidates(3);
+        let facts = PromptFacts {
+            total_steps: 400,
+            step: 12,
+            candidates: &c,
+            has_last_choice: false,
+            robot: [0.5, 0.25, 0.0],
+            last_choice: None,
+        };
+        let p = build(PromptStyle::JsonFirst, &facts);
+        assert!(p.system.contains("there are 3 candidate points"));
+        assert!(
+            p.system
+                .contains("Start your reply with the exploration target")
+        );
+        assert!(
+            !p.system
+                .contains("Please provide a detailed exploration plan")
+        );
+        assert!(
+            p.user
+                .contains("JSON format first and then the exploration plan")
+        );
+        let p = build(PromptStyle::TextCompact, &facts);
+        assert!(p.system.contains("from 0 to 2") && p.system.contains("JSON object first"));
+        assert!(
+            p.system.len() + p.user.len() < 900,
+            "compact: {}",
+            p.system.len()
+        );
+        assert!(
+            p.user
+                .starts_with("Step 12 of 400. Robot at x = 0.50 m, y = 0.25 m")
+        );
+        let line = p.user.lines().find(|l| l.starts_with("1: ")).unwrap();
+        assert_eq!(line, "1: x = 1.00 m, y = 2.00 m; 0.05 m²; 1.5 m");
+        assert!(follow_up_turn(3).contains("from 0 to 2, or -1"));
     }
 
     #[test]

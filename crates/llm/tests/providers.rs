@@ -5,62 +5,19 @@
 
 use std::time::{Duration, Instant};
 
-use activemap_llm::config::{HttpProviderConfig, LlmConfig, PromptStyle, ProviderConfig};
+use activemap_llm::config::{
+    HttpProviderConfig, LlmConfig, PromptStyle, ProviderConfig, StructuredOutput,
+};
 use activemap_llm::provider::{ChatRequest, FailureKind, OllamaProvider, OpenAiProvider, Provider};
-use activemap_llm::{Candidate, Choice, LlmPlanner, Query, Source};
+use activemap_llm::{Choice, LlmPlanner, Source};
 use activemap_splat::Gaussians;
 use base64::Engine;
 use serde_json::{Value, json};
 use wiremock::matchers::{method, path};
-use wiremock::{Mock, MockServer, Request, ResponseTemplate};
+use wiremock::{Mock, ResponseTemplate};
 
-/// A loopback server and the runtime that serves it (the providers are blocking, so the
-/// tests run on the plain test thread and the server on the runtime's workers).
-struct Server {
-    runtime: tokio::runtime::Runtime,
-    server: MockServer,
-}
-
-impl Server {
-    fn start() -> Self {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .unwrap();
-        let server = runtime.block_on(MockServer::start());
-        Self { runtime, server }
-    }
-
-    fn mount(&self, mock: Mock) {
-        self.runtime.block_on(mock.mount(&self.server));
-    }
-
-    fn requests(&self) -> Vec<Request> {
-        self.runtime
-            .block_on(self.server.received_requests())
-            .unwrap_or_default()
-    }
-
-    fn openai(&self) -> HttpProviderConfig {
-        let mut c = HttpProviderConfig::new(&format!("{}/v1", self.server.uri()), "test-model");
-        c.timeout_s = 2.0;
-        c.connect_timeout_s = 1.0;
-        c.max_retries = 2;
-        c.backoff_s = 0.05;
-        c.backoff_max_s = 2.0;
-        c
-    }
-}
-
-fn chat_ok(content: &str) -> Value {
-    json!({
-        "id": "chatcmpl-1", "object": "chat.completion", "model": "test-model",
-        "choices": [{ "index": 0, "message": { "role": "assistant", "content": content },
-                      "finish_reason": "stop" }],
-        "usage": { "prompt_tokens": 812, "completion_tokens": 40, "total_tokens": 852 }
-    })
-}
+mod common;
+use common::{Server, candidates, chat_ok, planner, query};
 
 const PNG: &[u8] = b"\x89PNG\r\n\x1a\n-not-really-but-bytes";
 
@@ -69,6 +26,7 @@ fn request(image: bool) -> ChatRequest<'static> {
         system: "system text",
         user: "user text",
         image_png: image.then_some(PNG),
+        follow_up: None,
     }
 }
 
@@ -92,7 +50,7 @@ fn the_openai_request_is_right_and_the_key_stays_in_its_header() {
     config.detail = Some("high".into());
     config.seed = Some(7);
     config.temperature = Some(0.0);
-    config.structured_output = true;
+    config.structured_output = StructuredOutput::On;
     // SAFETY: set before any thread of this test reads the environment.
     unsafe { std::env::set_var("ACTIVEMAP_TEST_OPENAI_KEY", "sk-test-4242") };
     let mut p = OpenAiProvider::new(&config, 1).unwrap();
@@ -323,42 +281,6 @@ fn ollama_request_and_streamed_ndjson() {
         PNG
     );
     assert!(c.request.contains("<bev.png:"));
-}
-
-fn candidates(n: usize) -> Vec<Candidate> {
-    (0..n)
-        .map(|i| Candidate {
-            centroid: [i as f64, 1.0],
-            label_at: [i as f64, 1.1],
-            size_cells: 50 - i as u32,
-            area_m2: 0.1,
-            path_distance_m: 1.0 + i as f64,
-        })
-        .collect()
-}
-
-fn planner(s: &Server, prompt: PromptStyle) -> LlmPlanner {
-    let config = LlmConfig {
-        prompt,
-        provider: Some(ProviderConfig::Openai(s.openai())),
-        ..LlmConfig::default()
-    };
-    let provider =
-        activemap_llm::provider::from_config(config.provider.as_ref().unwrap(), None, 1).unwrap();
-    LlmPlanner::new(config, Some(provider)).unwrap()
-}
-
-fn query<'a>(map: &'a Gaussians<f32>, candidates: &'a [Candidate], step: u64) -> Query<'a> {
-    Query {
-        step,
-        total_steps: 2000,
-        map,
-        map_version: step,
-        camera_height_m: 1.0,
-        robot: [0.0, 0.0, 0.0],
-        path: &[],
-        candidates,
-    }
 }
 
 /// Replies the planner cannot use fall back to the largest frontier (candidate 0 here) with

@@ -792,6 +792,9 @@ fn llm_summary(x: &LlmExchange) -> (log::Level, String) {
     if let Some(reason) = &x.reason {
         text.push_str(&format!(": {reason}"));
     }
+    if let Some(f) = &x.follow_up {
+        text.push_str(&format!("; follow-up turn after {}", f.cause));
+    }
     match &x.failure {
         Some(failure) => {
             text.push_str(&format!("; fallback after {failure}"));

@@ -537,13 +537,27 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
                 .unwrap_or_else(|| format!("<p class=\"missing\">{} is missing</p>", escape(rel))),
             None => String::new(),
         };
+        let finish = r
+            .finish_reason
+            .as_deref()
+            .map_or(String::new(), |f| format!(" · finish {f}"));
+        let refused = if r.schema_refused == Some(true) {
+            " · JSON schema refused by the server, sent without"
+        } else {
+            ""
+        };
         let _ = write!(
             s,
-            "<details class=\"llm\"><summary>step {} — {} of {} candidates — {}</summary>{image}<p><b>reason</b> {}</p><p><b>model</b> {} {} · HTTP {} · {} attempts · {} ms · {} + {} tokens</p><b>system</b><pre>{}</pre><b>prompt</b><pre>{}</pre><b>reply</b><pre>{}</pre></details>",
+            "<details class=\"llm\"><summary>step {} — {} of {} candidates — {}{}</summary>{image}<p><b>reason</b> {}</p><p><b>model</b> {} {} · HTTP {} · {} attempts · {} ms · {} + {} tokens{}{}</p><b>system</b><pre>{}</pre><b>prompt</b><pre>{}</pre>{}<b>reply</b><pre>{}</pre>",
             escape(&r.step.map_or_else(dash, |v| v.to_string())),
             escape(&decided),
             escape(&r.candidates.map_or_else(dash, |v| v.to_string())),
             escape(r.failure_detail.as_deref().unwrap_or("valid reply")),
+            if r.follow_up.is_some() {
+                " (after a follow-up)"
+            } else {
+                ""
+            },
             escape(r.reason.as_deref().unwrap_or("—")),
             escape(r.provider.as_deref().unwrap_or("—")),
             escape(r.model.as_deref().unwrap_or("")),
@@ -552,10 +566,43 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
             escape(&r.latency_ms.map_or_else(dash, |v| format!("{v:.0}"))),
             escape(&r.prompt_tokens.map_or_else(dash, |v| v.to_string())),
             escape(&r.completion_tokens.map_or_else(dash, |v| v.to_string())),
+            escape(&finish),
+            refused,
             escape(r.system.as_deref().unwrap_or("—")),
             escape(r.prompt.as_deref().unwrap_or("—")),
+            reasoning_html("reasoning", r.reasoning.as_deref(), r.thinking.as_deref()),
             escape(r.reply.as_deref().unwrap_or("—"))
         );
+        if let Some(f) = &r.follow_up {
+            let _ = write!(
+                s,
+                "<p><b>follow-up</b> because {} · HTTP {} · {} attempts · {} ms · {} + {} tokens{}{}</p><b>follow-up prompt</b><pre>{}</pre>{}<b>follow-up reply</b><pre>{}</pre>",
+                escape(f.cause.as_deref().unwrap_or("—")),
+                escape(&f.http_status.map_or_else(dash, |v| v.to_string())),
+                escape(&f.attempts.map_or_else(dash, |v| v.to_string())),
+                escape(&f.latency_ms.map_or_else(dash, |v| format!("{v:.0}"))),
+                escape(&f.prompt_tokens.map_or_else(dash, |v| v.to_string())),
+                escape(&f.completion_tokens.map_or_else(dash, |v| v.to_string())),
+                escape(
+                    &f.finish_reason
+                        .as_deref()
+                        .map_or(String::new(), |v| format!(" · finish {v}"))
+                ),
+                if f.schema_refused == Some(true) {
+                    " · JSON schema refused by the server, sent without"
+                } else {
+                    ""
+                },
+                escape(f.prompt.as_deref().unwrap_or("—")),
+                reasoning_html(
+                    "follow-up reasoning",
+                    f.reasoning.as_deref(),
+                    f.thinking.as_deref()
+                ),
+                escape(f.reply.as_deref().unwrap_or("—"))
+            );
+        }
+        s += "</details>";
     }
     if records.is_empty() {
         s += "<p class=\"missing\">None: llm.jsonl is empty.</p>";
@@ -563,11 +610,30 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
     Ok(s + "</div>")
 }
 
+/// The reasoning of a reasoning model, titled `title`: the server's separate field and the
+/// reply's `<think>` blocks (never parsed as the answer); empty when there is neither.
+fn reasoning_html(title: &str, reasoning: Option<&str>, thinking: Option<&str>) -> String {
+    let parts: Vec<&str> = [reasoning, thinking]
+        .into_iter()
+        .flatten()
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .collect();
+    if parts.is_empty() {
+        return String::new();
+    }
+    format!(
+        "<b>{}</b> (not parsed)<pre class=\"reasoning\">{}</pre>",
+        escape(title),
+        escape(&parts.join("\n\n"))
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::run_eval::{EvalOptions, LpipsSource, evaluate_run};
-    use crate::run_folder::LlmRecord;
+    use crate::run_folder::{LlmFollowUpRecord, LlmRecord};
     use crate::testing::{MapKind, write_run};
     use activemap_geometry::Isometry3;
     use std::process::Command;
@@ -760,6 +826,62 @@ mod tests {
         assert!(html.contains(
             "step 90 — fallback to 0 (no_json) of 3 candidates — no JSON object in the reply"
         ));
+    }
+
+    /// A cut reply recovered by a follow-up shows both turns, the finish reasons, the
+    /// refused schema and the reasoning (set apart, marked as not parsed); the totals count
+    /// the cut reply, the follow-up and its calls and tokens.
+    #[test]
+    fn llm_follow_ups_finish_reasons_and_reasoning_are_shown() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunFolder::new(dir.path());
+        let record = LlmRecord {
+            step: Some(40),
+            candidates: Some(3),
+            attempts: Some(1),
+            latency_ms: Some(1000.0),
+            prompt_tokens: Some(500),
+            completion_tokens: Some(200),
+            reply: Some("<think>corridor <first></think>Plan: 1. look".into()),
+            thinking: Some("corridor <first>".into()),
+            reasoning: Some("separate field".into()),
+            finish_reason: Some("length".into()),
+            target: Some(1),
+            reason: Some("door".into()),
+            decision: Some(1),
+            follow_up: Some(LlmFollowUpRecord {
+                cause: Some("no_json: no JSON object in the reply (finish reason length)".into()),
+                prompt: Some("only the JSON".into()),
+                attempts: Some(2),
+                latency_ms: Some(1000.0),
+                prompt_tokens: Some(700),
+                completion_tokens: Some(20),
+                reply: Some("{\"target\": 1, \"reason\": \"door\"}".into()),
+                finish_reason: Some("stop".into()),
+                schema_refused: Some(true),
+                ..LlmFollowUpRecord::default()
+            }),
+            ..LlmRecord::default()
+        };
+        run.append_llm(&record).unwrap();
+        let html = llm_section(&run).unwrap();
+        assert!(
+            html.contains(
+                "1 queries, 3 calls, 0 fallbacks, 1200 + 220 tokens, 2.0 s model latency, \
+                 1 replies cut (finish reason length), 1 follow-ups (1 recovered)"
+            ),
+            "{html}"
+        );
+        assert!(html.contains("valid reply (after a follow-up)"));
+        assert!(html.contains("200 tokens · finish length</p>"));
+        assert!(
+            html.contains("because no_json: no JSON object in the reply (finish reason length)")
+        );
+        assert!(html.contains("20 tokens · finish stop · JSON schema refused by the server"));
+        assert!(html.contains(
+            "<b>reasoning</b> (not parsed)<pre class=\"reasoning\">separate field\n\ncorridor &lt;first&gt;</pre>"
+        ));
+        assert!(html.contains("<b>follow-up reply</b><pre>{&quot;target&quot;: 1"));
     }
 
     #[test]

@@ -12,7 +12,7 @@ mod ollama;
 mod openai;
 mod recorded;
 
-pub use http::{HttpClient, RetryPolicy};
+pub use http::{HttpClient, HttpOutcome, RetryPolicy};
 pub use ollama::OllamaProvider;
 pub use openai::OpenAiProvider;
 pub use recorded::RecordedProvider;
@@ -143,6 +143,20 @@ pub struct ChatRequest<'a> {
     pub user: &'a str,
     /// The annotated BEV as PNG bytes (`None` for the text prompt).
     pub image_png: Option<&'a [u8]>,
+    /// The follow-up turn of the same conversation, if this request is one.
+    pub follow_up: Option<FollowUpTurn<'a>>,
+}
+
+/// The second turn of a conversation whose first reply was cut or held no JSON: the model's
+/// own text as the assistant's message, then a user message asking only for the JSON.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FollowUpTurn<'a> {
+    /// The model's first reply (its visible text; its reasoning if that is all there was).
+    pub assistant: &'a str,
+    /// The user's follow-up message.
+    pub user: &'a str,
+    /// Completion token limit of this turn.
+    pub max_tokens: u32,
 }
 
 /// What a provider made of one query.
@@ -163,15 +177,36 @@ pub struct Completion {
     pub latency_ms: f64,
     /// Tokens used.
     pub usage: Usage,
-    /// The model's reply text, or on failure the body excerpt (≤ 64 KiB) if any.
+    /// The model's reply text (`<think>` blocks included, as sent), or on failure the body
+    /// excerpt (≤ 64 KiB) if any.
     pub reply: String,
+    /// Why the model stopped, as the server says (`stop`, `length`, …).
+    pub finish_reason: Option<String>,
+    /// The reasoning the server returned beside the reply (`reasoning_content` of
+    /// OpenAI-compatible servers, Ollama's `thinking`); empty when none.
+    pub reasoning: String,
+    /// The server refused the JSON schema (`response_format` / `format`): the request was
+    /// sent again without it.
+    pub schema_refused: bool,
     /// `None` when a reply text came back.
     pub failure: Option<Failure>,
 }
 
-/// A provider's reader of a 2xx body: the reply text and the usage, or why it is not the
-/// API's answer.
-pub(crate) type ReadReply = fn(&[u8]) -> Result<(String, Usage), Failure>;
+/// What a provider's reader finds in a 2xx body.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Reply {
+    /// The reply text.
+    pub text: String,
+    /// Tokens used.
+    pub usage: Usage,
+    /// Why the model stopped.
+    pub finish_reason: Option<String>,
+    /// Reasoning returned beside the text.
+    pub reasoning: String,
+}
+
+/// A provider's reader of a 2xx body: the reply, or why it is not the API's answer.
+pub(crate) type ReadReply = fn(&[u8]) -> Result<Reply, Failure>;
 
 impl Completion {
     /// A query that made no HTTP request and failed with `kind` (budget spent, nothing
@@ -186,6 +221,9 @@ impl Completion {
             latency_ms: 0.0,
             usage: Usage::default(),
             reply: String::new(),
+            finish_reason: None,
+            reasoning: String::new(),
+            schema_refused: false,
             failure: Some(Failure::new(kind, detail)),
         }
     }
@@ -209,6 +247,9 @@ impl Completion {
             latency_ms: out.latency_ms,
             usage: Usage::default(),
             reply: String::new(),
+            finish_reason: None,
+            reasoning: String::new(),
+            schema_refused: false,
             failure: out.failure,
         };
         let parsed = match completion.failure {
@@ -216,9 +257,11 @@ impl Completion {
             None => Some(read_reply(&out.body)),
         };
         match parsed {
-            Some(Ok((text, usage))) => {
-                completion.reply = text;
-                completion.usage = usage;
+            Some(Ok(reply)) => {
+                completion.reply = reply.text;
+                completion.usage = reply.usage;
+                completion.finish_reason = reply.finish_reason;
+                completion.reasoning = reply.reasoning;
             }
             Some(Err(f)) => {
                 completion.reply = excerpt(&out.body);
@@ -228,6 +271,41 @@ impl Completion {
         }
         completion
     }
+}
+
+/// One POST of a provider's body, with the JSON schema if `schema` is wanted and the server
+/// has not refused it before; a refusal (see [`refuses_field`]) unless `strict` sends the
+/// body again without the schema and is remembered in `refused` for the rest of the episode.
+/// `build(schema)` gives the body to send and the body to record. Returns the exchange's
+/// outcome (attempts and latency of both posts), the recorded body, and whether the schema
+/// was refused.
+pub(crate) fn post_with_schema(
+    http: &mut http::HttpClient,
+    url: &str,
+    field: &str,
+    schema: bool,
+    strict: bool,
+    refused: &mut bool,
+    build: impl Fn(bool) -> (Vec<u8>, String),
+) -> (http::HttpOutcome, String, bool) {
+    let with = schema && (strict || !*refused);
+    let (sent, recorded) = build(with);
+    let out = http.post_json(url, &sent);
+    if !(with && !strict && refuses_field(&out, field)) {
+        return (out, recorded, false);
+    }
+    *refused = true;
+    let (sent, recorded) = build(false);
+    let mut again = http.post_json(url, &sent);
+    again.attempts += out.attempts;
+    again.latency_ms += out.latency_ms;
+    (again, recorded, true)
+}
+
+/// True when `out` is a 400 or 422 whose body names `field` (`"response_format"`,
+/// `"format"`): the server does not take that request field.
+pub fn refuses_field(out: &http::HttpOutcome, field: &str) -> bool {
+    matches!(out.status, Some(400 | 422)) && String::from_utf8_lossy(&out.body).contains(field)
 }
 
 /// A model service.

@@ -3,6 +3,7 @@
 //! network and takes the same decisions (`activemap replay --node planner` checks them bit
 //! for bit). A query whose prompt differs from the recorded one still gets the recorded reply
 //! (the decisions stay those of the recording); the difference is counted and logged once.
+//! A follow-up turn is served the follow-up recorded with the exchange just served.
 
 use super::{ChatRequest, Completion, FailureKind, Provider};
 
@@ -15,11 +16,15 @@ pub struct RecordedReply {
     pub user: String,
     /// What the provider made of it then.
     pub completion: Completion,
+    /// What the provider made of the follow-up turn, if one was asked.
+    pub follow_up: Option<Completion>,
 }
 
 /// The recorded provider.
 pub struct RecordedProvider {
     replies: std::collections::VecDeque<RecordedReply>,
+    /// The follow-up recorded with the exchange served last, until asked for.
+    follow_up: Option<Completion>,
     served: usize,
     mismatches: usize,
 }
@@ -29,6 +34,7 @@ impl RecordedProvider {
     pub fn new(replies: Vec<RecordedReply>) -> Self {
         Self {
             replies: replies.into(),
+            follow_up: None,
             served: 0,
             mismatches: 0,
         }
@@ -42,6 +48,19 @@ impl RecordedProvider {
 
 impl Provider for RecordedProvider {
     fn complete(&mut self, request: &ChatRequest<'_>) -> Completion {
+        if request.follow_up.is_some() {
+            return self.follow_up.take().unwrap_or_else(|| {
+                Completion::failed(
+                    "recorded",
+                    FailureKind::Replay,
+                    format!(
+                        "the recording holds no follow-up for exchange {}",
+                        self.served
+                    ),
+                )
+            });
+        }
+        self.follow_up = None;
         let Some(next) = self.replies.pop_front() else {
             return Completion::failed(
                 "recorded",
@@ -60,6 +79,7 @@ impl Provider for RecordedProvider {
             }
             self.mismatches += 1;
         }
+        self.follow_up = next.follow_up;
         next.completion
     }
 
