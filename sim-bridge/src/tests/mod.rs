@@ -1,6 +1,7 @@
 //! Behavioural tests of the simulator against analytic truth and real data.
 
 mod artefacts;
+mod auto_up_tests;
 mod bridge_tests;
 mod fixtures;
 mod house_tests;
