@@ -5,6 +5,7 @@ mod auto_up_tests;
 mod bridge_tests;
 mod fixtures;
 mod house_tests;
+mod inspect_tests;
 mod load_tests;
 mod motion_tests;
 mod noise_tests;
