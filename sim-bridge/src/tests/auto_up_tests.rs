@@ -260,7 +260,7 @@ fn tilted_rooms_level_on_their_floor_in_y_down_and_z_up_files() {
             panic!("case {k} ({angle:.1}° in a {up} file, noise {noise}): {e}")
         });
         assert!(warnings.is_empty(), "{warnings:?}");
-        let l = report.levelling.clone().expect("levelled");
+        let l = report.levelling.expect("levelled");
         // The true up in the file's frame, after the placement.
         let true_up = vec3(up.from_world({
             let u = tilt * Vector3::z();
