@@ -12,6 +12,7 @@ mod integration {
     mod llm;
     mod processes;
     mod python_bridge;
+    mod scene;
     mod validate;
     mod view;
 }

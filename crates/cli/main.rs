@@ -22,6 +22,7 @@ mod bench_results;
 mod benches;
 mod daemons;
 mod evaluate;
+mod scene_inspect;
 
 #[derive(Parser)]
 #[command(
@@ -219,6 +220,11 @@ enum Command {
     },
     /// List the operators of this build.
     Operators,
+    /// Scene files: how one is placed, without running an episode.
+    Scene {
+        #[command(subcommand)]
+        which: SceneCommand,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -234,6 +240,15 @@ enum Command {
         #[arg(long)]
         node: String,
     },
+}
+
+/// What `activemap scene` does.
+#[derive(Subcommand)]
+enum SceneCommand {
+    /// Print the placement a scene file gets (up axis, transform, floor: with `up_axis=auto`
+    /// what was found and the runner-up), its navigable floor area and rooms, and write a
+    /// top-down PNG of the placed scene, without running an episode.
+    Inspect(scene_inspect::InspectArgs),
 }
 
 /// One subcommand per benchmark area: adding one is one variant here and one arm in `bench`.
@@ -539,6 +554,9 @@ fn real_main() -> anyhow::Result<ExitCode> {
         },
         Command::Node { run_dir, node } => run_node(&run_dir, &node)?,
         Command::Replay { recording, node } => return replay(&recording, &node),
+        Command::Scene { which } => match which {
+            SceneCommand::Inspect(args) => scene_inspect::run(&args)?,
+        },
         Command::Bench { which } => match which {
             BenchCommand::Transport(args) => bench_transport(&args)?,
             BenchCommand::Splat(args) => benches::splat(&args)?,

@@ -70,7 +70,7 @@ pub struct Config {
     /// As in `sim`.
     #[serde(default)]
     pub max_area: Option<f64>,
-    /// As in `sim` (`x`, `-x`, `y`, `-y`, `z` or `-z`, for scene files).
+    /// As in `sim` (`x`, `-x`, `y`, `-y`, `z`, `-z` or `auto`, for scene files).
     #[serde(default)]
     pub up_axis: Option<UpAxis>,
     /// As in `sim` (a scene file's scale, rotation and translation).

@@ -93,7 +93,8 @@ pub struct Config {
     #[serde(default)]
     pub max_area: Option<f64>,
     /// Up axis of a scene file: `x`, `-x`, `y` (glTF/OBJ default), `-y` (a scan in its camera's
-    /// frame, y down), `z` (PLY default; z-up glTF exports) or `-z`.
+    /// frame, y down), `z` (PLY default; z-up glTF exports), `-z`, or `auto` (found from the
+    /// mesh's floor and walls at any tilt; with `floor: auto` a scan needs nothing else).
     #[serde(default)]
     pub up_axis: Option<UpAxis>,
     /// Scale, rotation and translation of a scene file after its up axis:

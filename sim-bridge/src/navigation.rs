@@ -186,6 +186,25 @@ impl GridFrame {
     }
 }
 
+/// One room of [`NavigableMap::rooms`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Room {
+    /// Navigable area, m².
+    pub area: f64,
+    /// World (x, y) of the mean of its cells' centres.
+    pub centre: (f64, f64),
+}
+
+/// The rooms of a navigable map ([`NavigableMap::rooms`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rooms {
+    /// Per cell (as [`NavigableMap::cells`]): the index of its room in `rooms`, `u32::MAX`
+    /// for cells in none.
+    pub label: Vec<u32>,
+    /// The rooms, largest first.
+    pub rooms: Vec<Room>,
+}
+
 /// The navigable top-down map: one flag per cell, row-major with `j` (world y) as the row.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NavigableMap {
@@ -290,6 +309,114 @@ impl NavigableMap {
             }
         }
         d.iter().map(|v| v * self.frame.cell_size).collect()
+    }
+    /// A simple room segmentation, a marker watershed on the free space
+    /// ([`NavigableMap::clearance`]): a doorway or an opening between rooms is narrower than
+    /// the rooms, so the free space has a neck there.
+    ///
+    /// Markers are the connected parts (4-connectivity) of the cells with at least
+    /// `room_clearance` metres of free space, and then those of the cells with at least
+    /// `door_clearance` metres that hold no marker yet (a small room behind a door); parts under
+    /// `min_area` m² are dropped. The markers then flood the other navigable cells in order of
+    /// decreasing free space (ties by cell index: deterministic), so two rooms meet at the
+    /// neck between them. Navigable cells no marker reaches are left out. Rooms are numbered by
+    /// decreasing area.
+    pub fn rooms(&self, door_clearance: f64, room_clearance: f64, min_area: f64) -> Rooms {
+        use std::cmp::Reverse;
+        let (w, h) = (self.frame.width, self.frame.height);
+        let cell_area = self.frame.cell_size * self.frame.cell_size;
+        let clearance = self.clearance();
+        let mut label = vec![u32::MAX; w * h];
+        let mut next = 0u32;
+        for level in [room_clearance, door_clearance] {
+            let part_map = NavigableMap {
+                frame: self.frame,
+                cells: clearance
+                    .iter()
+                    .zip(&self.cells)
+                    .map(|(c, &n)| n && *c >= level)
+                    .collect(),
+            };
+            let (part, sizes) = part_map.components();
+            // A part becomes a marker when it is large and holds none yet.
+            let mut taken = vec![false; sizes.len()];
+            for (c, p) in part.iter().enumerate() {
+                if *p != u32::MAX && label[c] != u32::MAX {
+                    taken[*p as usize] = true;
+                }
+            }
+            let mut marker = vec![u32::MAX; sizes.len()];
+            for (k, size) in sizes.iter().enumerate() {
+                if !taken[k] && *size as f64 * cell_area >= min_area {
+                    marker[k] = next;
+                    next += 1;
+                }
+            }
+            for (c, p) in part.iter().enumerate() {
+                if *p != u32::MAX && marker[*p as usize] != u32::MAX {
+                    label[c] = marker[*p as usize];
+                }
+            }
+        }
+        // Flooding: the free space as an integer key (micrometres), larger first.
+        let key = |c: usize| (clearance[c] * 1e6).round() as i64;
+        let mut heap = std::collections::BinaryHeap::new();
+        let neighbours = |c: usize| {
+            let (i, j) = (c % w, c / w);
+            [
+                (i > 0).then(|| c - 1),
+                (i + 1 < w).then(|| c + 1),
+                (j > 0).then(|| c - w),
+                (j + 1 < h).then(|| c + w),
+            ]
+        };
+        for c in (0..w * h).filter(|&c| label[c] != u32::MAX) {
+            for n in neighbours(c).into_iter().flatten() {
+                if self.cells[n] && label[n] == u32::MAX {
+                    heap.push((key(n), Reverse(n), Reverse(label[c])));
+                }
+            }
+        }
+        while let Some((_, Reverse(c), Reverse(l))) = heap.pop() {
+            if label[c] != u32::MAX {
+                continue;
+            }
+            label[c] = l;
+            for n in neighbours(c).into_iter().flatten() {
+                if self.cells[n] && label[n] == u32::MAX {
+                    heap.push((key(n), Reverse(n), Reverse(l)));
+                }
+            }
+        }
+        let mut sums = vec![(0usize, 0.0, 0.0); next as usize];
+        for (c, l) in label.iter().enumerate() {
+            if *l != u32::MAX {
+                let (x, y) = self.frame.centre(c % w, c / w);
+                let s = &mut sums[*l as usize];
+                *s = (s.0 + 1, s.1 + x, s.2 + y);
+            }
+        }
+        // Largest first (ties by first cell), and the labels renumbered to match.
+        let mut order: Vec<usize> = (0..sums.len()).collect();
+        order.sort_by(|a, b| sums[*b].0.cmp(&sums[*a].0).then(a.cmp(b)));
+        let mut rank = vec![0u32; sums.len()];
+        for (r, k) in order.iter().enumerate() {
+            rank[*k] = r as u32;
+        }
+        for l in label.iter_mut().filter(|l| **l != u32::MAX) {
+            *l = rank[*l as usize];
+        }
+        let rooms = order
+            .iter()
+            .map(|&k| {
+                let (n, x, y) = sums[k];
+                Room {
+                    area: n as f64 * cell_area,
+                    centre: (x / n as f64, y / n as f64),
+                }
+            })
+            .collect();
+        Rooms { label, rooms }
     }
     /// Cells reachable from world point (x, y) through navigable cells (4-connectivity).
     pub fn reachable_from(&self, x: f64, y: f64) -> Vec<bool> {

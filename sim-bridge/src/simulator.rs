@@ -73,7 +73,7 @@ impl SimConfig {
         }
     }
 
-    fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let bad = |field, value: f64, reason| {
             Err(SimError::InvalidConfig {
                 field,

@@ -17,7 +17,9 @@ mod obj_scene;
 pub mod placement;
 mod ply_scene;
 
-pub use placement::{Floor, Levelling, Placement, PlacementReport, Transform};
+pub use placement::{
+    Floor, FloorCandidate, Levelling, Placement, PlacementReport, Transform, UpDecision,
+};
 
 use crate::error::{Result, SimError};
 use crate::scene::Scene;
@@ -37,6 +39,10 @@ use std::path::{Path, PathBuf};
 /// | `-y`    | −90° about x | `(x, z, −y)`             |
 /// | `z`     | none         | `(x, y, z)`              |
 /// | `-z`    | 180° about x | `(x, −y, −z)`            |
+/// | `auto`  | none (found) | `(x, y, z)`, then levelled |
+///
+/// `auto` is not an axis but a request: the file is read as it is and the placement finds
+/// which way is up from the mesh's own planes, at any tilt (see [`placement::auto_up`]).
 ///
 /// `-y` reads a mesh in an OpenCV camera frame (x right, y down, z forward, e.g. an RGB-D
 /// reconstruction in its first camera's frame) as x right, y forward, z up.
@@ -54,10 +60,12 @@ pub enum UpAxis {
     Z,
     /// −z is up.
     NegZ,
+    /// Unknown: found from the mesh (its floor and walls) by the placement.
+    Auto,
 }
 
 impl UpAxis {
-    /// Every up axis, in the order x, −x, y, −y, z, −z.
+    /// The six axes (every up axis but [`UpAxis::Auto`]), in the order x, −x, y, −y, z, −z.
     pub const ALL: [UpAxis; 6] = [
         UpAxis::X,
         UpAxis::NegX,
@@ -68,9 +76,12 @@ impl UpAxis {
     ];
 
     /// Parses an axis name, case-insensitive, e.g. from a node's configuration: `x`, `+x`, `-x`
-    /// (likewise y, z), optionally with an `-up` suffix (`y-up`, `-z-up`).
+    /// (likewise y, z), optionally with an `-up` suffix (`y-up`, `-z-up`), or `auto`.
     pub fn from_name(name: &str) -> Option<UpAxis> {
         let name = name.trim().to_ascii_lowercase();
+        if name == "auto" {
+            return Some(UpAxis::Auto);
+        }
         let name = name.strip_suffix("-up").unwrap_or(&name);
         let (negative, axis) = match name.strip_prefix('-') {
             Some(rest) => (true, rest),
@@ -87,7 +98,7 @@ impl UpAxis {
         })
     }
 
-    /// The name [`UpAxis::from_name`] reads back: `x`, `-x`, `y`, `-y`, `z` or `-z`.
+    /// The name [`UpAxis::from_name`] reads back: `x`, `-x`, `y`, `-y`, `z`, `-z` or `auto`.
     pub fn name(self) -> &'static str {
         match self {
             UpAxis::X => "x",
@@ -96,22 +107,24 @@ impl UpAxis {
             UpAxis::NegY => "-y",
             UpAxis::Z => "z",
             UpAxis::NegZ => "-z",
+            UpAxis::Auto => "auto",
         }
     }
 
     /// The accepted names, for error messages.
     pub const NAMES: &'static str =
-        "x, -x, y, -y, z or -z (case-insensitive, `+` and `-up` allowed)";
+        "x, -x, y, -y, z or -z, or auto (case-insensitive, `+` and `-up` allowed)";
 
     /// Maps a point of a file with this up axis to the z-up world frame (see the type's table;
-    /// exact: coordinates are only permuted and negated).
+    /// exact: coordinates are only permuted and negated). [`UpAxis::Auto`] keeps the point as
+    /// it is (the placement turns the scene once it has found the floor).
     pub fn to_world(self, p: [f32; 3]) -> [f32; 3] {
         match self {
             UpAxis::X => [-p[2], p[1], p[0]],
             UpAxis::NegX => [p[2], p[1], -p[0]],
             UpAxis::Y => [p[0], -p[2], p[1]],
             UpAxis::NegY => [p[0], p[2], -p[1]],
-            UpAxis::Z => p,
+            UpAxis::Z | UpAxis::Auto => p,
             UpAxis::NegZ => [p[0], -p[1], -p[2]],
         }
     }
@@ -123,7 +136,7 @@ impl UpAxis {
             UpAxis::NegX => [-p[2], p[1], p[0]],
             UpAxis::Y => [p[0], p[2], -p[1]],
             UpAxis::NegY => [p[0], -p[2], p[1]],
-            UpAxis::Z => p,
+            UpAxis::Z | UpAxis::Auto => p,
             UpAxis::NegZ => [p[0], -p[1], -p[2]],
         }
     }

@@ -6,7 +6,9 @@
 //! centimetres), rotates by `R` and translates by `t`. With [`Floor::Auto`] the floor plane is
 //! then found in the mesh and the scene levelled on it (see [`Floor::Auto`]), which is what a
 //! scan needs whose floor is tilted by a few degrees (an RGB-D reconstruction in its first
-//! camera's frame: `up_axis: -y`, `floor: auto`).
+//! camera's frame: `up_axis: -y`, `floor: auto`). With `up_axis: auto` the up direction itself
+//! is found from the mesh's planes at any tilt ([`auto_up`]), so such a scan needs no hints:
+//! `up_axis: auto`, `floor: auto`.
 //!
 //! Every step is a rotation (determinant +1) times a positive uniform scale plus a
 //! translation, so triangle winding is kept and the normals the simulator derives from it
@@ -18,7 +20,7 @@
 //!
 //! ```yaml
 //! scene: scans/room.obj
-//! up_axis: -y                 # x, -x, y, -y, z, -z
+//! up_axis: -y                 # x, -x, y, -y, z, -z, auto
 //! transform: { scale: 0.01, rotate_deg: [0, 0, 90], translate: [1.0, 0.0, 0.0] }
 //! # or: transform: { matrix: [16 numbers, row-major 4×4] }
 //! floor: auto                 # none (default) | auto | <floor height, metres>
@@ -35,12 +37,16 @@ use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
+pub mod auto_up;
+pub use auto_up::{FloorCandidate, UpDecision};
+
 /// Where a scene file goes in the world (see the module doc): one type for the node configs,
 /// [`crate::SceneSpec`] and [`super::LoadOptions`], so every consumer places a file alike.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Placement {
-    /// The file's up axis; `None` = the format's default (y for glTF and OBJ, z for PLY).
+    /// The file's up axis; `None` = the format's default (y for glTF and OBJ, z for PLY);
+    /// [`UpAxis::Auto`] = found from the mesh ([`auto_up`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub up_axis: Option<UpAxis>,
     /// Scale, rotation and translation, applied after the up axis; `None` = identity.
@@ -229,6 +235,9 @@ pub enum Floor {
     /// rotation taking the plane's normal to +z (about the origin) and moved down so the floor
     /// is at z = 0, and its floor height is set to 0. Fewer than 1 m² on the plane is an error:
     /// usually a wrong `up_axis` (more than 30° of tilt cannot be levelled this way).
+    ///
+    /// With `up_axis: auto` the floor is the plane [`auto_up`] chose instead, at any tilt; the
+    /// scene is levelled on it and moved down to z = 0 alike.
     Auto,
     /// The floor is the plane z = this (metres, after the up axis and transform): the scene's
     /// floor height, with no estimation and no move. Written as the number.
@@ -299,10 +308,12 @@ impl<'de> Deserialize<'de> for Floor {
     }
 }
 
-/// The floor plane that [`Floor::Auto`] found and how the scene was levelled on it.
+/// The floor plane that [`Floor::Auto`] or [`UpAxis::Auto`] found and how the scene was
+/// levelled on it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Levelling {
-    /// The tilt removed: the angle between the floor's normal and +z, degrees.
+    /// The tilt removed: the angle between the floor's normal and +z, degrees (with
+    /// [`UpAxis::Auto`]: and the nearest of the six axes, which is turned up first).
     pub tilt_deg: f64,
     /// The horizontal unit axis the scene was turned about by `tilt_deg` (right-hand rule; any
     /// horizontal axis when the tilt is 0).
@@ -310,7 +321,8 @@ pub struct Levelling {
     /// The floor plane's unit normal before levelling (pointing up).
     pub normal: Vector3<f64>,
     /// The plane's offset before levelling (`normal · p = height`): how far the scene was
-    /// moved down after the rotation, metres.
+    /// moved down after the rotation with `floor: auto` (with `up_axis: auto` and another
+    /// floor setting the scene is only turned, and its floor stays at this height), metres.
     pub height: f64,
     /// Area of the triangles on the plane, m².
     pub area: f64,
@@ -332,8 +344,10 @@ pub struct PlacementReport {
     pub transform: Option<Transform>,
     /// The floor setting.
     pub floor: Floor,
-    /// With [`Floor::Auto`]: the plane found and the tilt removed.
+    /// With [`Floor::Auto`] or [`UpAxis::Auto`]: the plane found and the tilt removed.
     pub levelling: Option<Levelling>,
+    /// With [`UpAxis::Auto`]: the floor chosen and the runner-up.
+    pub auto_up: Option<UpDecision>,
     /// The scene's floor height after placement (0 after levelling), if it has one.
     pub floor_z: Option<f64>,
 }
@@ -343,6 +357,43 @@ impl std::fmt::Display for PlacementReport {
         write!(f, "placement: {}: up axis {}", self.scene, self.up_axis)?;
         if let Some(t) = &self.transform {
             write!(f, "; transform {t}")?;
+        }
+        if let (Some(d), Some(l)) = (&self.auto_up, &self.levelling) {
+            let c = &d.chosen;
+            let n = c.file_normal;
+            write!(
+                f,
+                ": the floor faces ({:.3}, {:.3}, {:.3}) in the file's frame, read as up axis {} \
+                 and removed a tilt of {:.2}° (turned about ({:.3}, {:.3}, {:.3})); floor plane \
+                 fitted on {:.1} m², rms {:.1} mm, net facing area {:.1} m², walls {:.1} m²",
+                n.x,
+                n.y,
+                n.z,
+                c.up_axis,
+                l.tilt_deg,
+                l.axis.x,
+                l.axis.y,
+                l.axis.z,
+                c.area,
+                c.rms * 1e3,
+                c.facing_area,
+                c.wall_area
+            )?;
+            match self.floor {
+                Floor::Auto => write!(f, ", moved from {:.3} m to z = 0", l.height)?,
+                Floor::Height(h) => write!(f, "; floor at z = {h} m")?,
+                Floor::None => write!(f, ", at z = {:.3} m", l.height)?,
+            }
+            write!(f, "; same as [{}]", c.pick)?;
+            return match &d.runner_up {
+                Some(r) => write!(
+                    f,
+                    "; runner-up: {}, lost: {}",
+                    r.describe(),
+                    d.runner_up_lost
+                ),
+                None => write!(f, "; no runner-up ({})", d.runner_up_lost),
+            };
         }
         match (&self.floor, &self.levelling) {
             (Floor::Auto, Some(l)) => write!(
@@ -417,7 +468,44 @@ impl Placement {
             total = s * total;
         }
         let mut levelling = None;
+        let mut auto_up = None;
+        if let (UpAxis::Auto, Floor::Height(h)) = (up, self.floor)
+            && !h.is_finite()
+        {
+            return Err(fail(format!("floor must be a finite height, got {h}")));
+        }
         match self.floor {
+            _ if up == UpAxis::Auto => {
+                let decision = auto_up::find_up(scene, &total, self.transform.as_ref(), self.floor)
+                    .map_err(|why| fail(format!("`up_axis: auto` {why}")))?;
+                let c = &decision.chosen;
+                // The rotation keeps the plane's offset: n·p = d becomes z = d.
+                let down = if self.floor == Floor::Auto {
+                    -c.offset
+                } else {
+                    0.0
+                };
+                let level =
+                    Similarity3::from_parts(Translation3::new(0.0, 0.0, down), c.rotation, 1.0);
+                transform_vertices(scene, &level);
+                total = level * total;
+                // The tilt is what is left after the nearest axis: turn about its axis.
+                let residual = Rotation3::rotation_between(
+                    &(c.up_axis.rotation() * c.file_normal),
+                    &Vector3::z(),
+                )
+                .unwrap_or_else(Rotation3::identity);
+                levelling = Some(Levelling {
+                    tilt_deg: c.tilt_deg,
+                    axis: residual.axis().map_or_else(Vector3::x, |a| a.into_inner()),
+                    normal: c.normal,
+                    height: c.offset,
+                    area: c.area,
+                    rms: c.rms,
+                    transform: level,
+                });
+                auto_up = Some(decision);
+            }
             Floor::Auto => {
                 let plane = find_floor(scene).map_err(|why| {
                     fail(format!(
@@ -496,6 +584,7 @@ impl Placement {
             transform: self.transform,
             floor: self.floor,
             levelling,
+            auto_up,
             floor_z: scene.floor_z,
         };
         Ok((report, warnings))
@@ -636,11 +725,46 @@ fn find_floor(scene: &Scene) -> std::result::Result<FloorPlane, String> {
             best = Some((score, n, d));
         }
     }
-    let (_, mut normal, mut offset) = best.ok_or("no plane hypothesis within 30° of +z")?;
+    let (_, normal, offset) = best.ok_or("no plane hypothesis within 30° of +z")?;
+    let FloorPlane {
+        normal,
+        offset,
+        area,
+        rms,
+    } = refine_plane(&patches, normal, offset, &Vector3::z(), REFINEMENTS);
+    if area.is_nan() || area < MIN_FLOOR_AREA {
+        let on_plane: f64 = patches
+            .iter()
+            .filter(|p| is_inlier(p, &normal, offset))
+            .map(|p| p.area)
+            .sum();
+        return Err(format!(
+            "the best plane among the {total:.2} m² of upward-facing surface in the lower half \
+             of the scene holds only {on_plane:.2} m², need at least {MIN_FLOOR_AREA} m²"
+        ));
+    }
+    Ok(FloorPlane {
+        normal,
+        offset,
+        area,
+        rms,
+    })
+}
+
+/// Refines the plane `normal · p = offset` by area-weighted least squares on the patches lying
+/// on it ([`is_inlier`]: exact second moments of the inlier triangles), re-selecting them
+/// `rounds` times, the normal kept on the side of `facing` and within 30° of it. The plane
+/// returned has `area` 0 when no round held [`MIN_FLOOR_AREA`] (the input plane unchanged).
+fn refine_plane(
+    patches: &[Patch],
+    mut normal: Vector3<f64>,
+    mut offset: f64,
+    facing: &Vector3<f64>,
+    rounds: usize,
+) -> FloorPlane {
     let (mut area, mut rms) = (0.0, 0.0);
-    for _ in 0..REFINEMENTS {
-        // Area-weighted least squares: exact second moments of the inlier triangles, taken
-        // about a reference point on the plane for numerical range.
+    for _ in 0..rounds {
+        // Taken about a reference point on the plane for numerical range.
         let origin = offset * normal;
         let (mut a_sum, mut first, mut second) = (0.0, Vector3::zeros(), Matrix3::zeros());
         for p in patches.iter().filter(|p| is_inlier(p, &normal, offset)) {
@@ -662,8 +786,8 @@ fn find_floor(scene: &Scene) -> std::result::Result<FloorPlane, String> {
         let eigen = cov.symmetric_eigen();
         let k = eigen.eigenvalues.imin();
         let n = eigen.eigenvectors.column(k).normalize();
-        let n = if n.z < 0.0 { -n } else { n };
-        if n.z < UP_COS {
+        let n = if n.dot(facing) < 0.0 { -n } else { n };
+        if n.dot(facing) < UP_COS {
             break;
         }
         normal = n;
@@ -671,21 +795,10 @@ fn find_floor(scene: &Scene) -> std::result::Result<FloorPlane, String> {
         area = a_sum;
         rms = eigen.eigenvalues[k].max(0.0).sqrt();
     }
-    if area.is_nan() || area < MIN_FLOOR_AREA {
-        let on_plane: f64 = patches
-            .iter()
-            .filter(|p| is_inlier(p, &normal, offset))
-            .map(|p| p.area)
-            .sum();
-        return Err(format!(
-            "the best plane among the {total:.2} m² of upward-facing surface in the lower half \
-             of the scene holds only {on_plane:.2} m², need at least {MIN_FLOOR_AREA} m²"
-        ));
-    }
-    Ok(FloorPlane {
+    FloorPlane {
         normal,
         offset,
         area,
         rms,
-    })
+    }
 }
