@@ -150,10 +150,7 @@ fn homes_and_offices_are_large_corridor_served_and_reachable() {
             );
             // The hall rises above one storey; the rest stop at the wall height.
             let top = h.scene.bounds().unwrap().max.z;
-            assert!(
-                (top - c.hall_height).abs() < 1e-4,
-                "{what}: top {top}"
-            );
+            assert!((top - c.hall_height).abs() < 1e-4, "{what}: top {top}");
             // Every room touching a corridor along a side has a door onto it.
             for corridor in h.rooms.iter().filter(|r| r.kind == RoomKind::Corridor) {
                 for room in h.rooms.iter().filter(|r| r.kind == RoomKind::Room) {
