@@ -68,6 +68,35 @@ pub struct Config {
     /// keyframes and their Gaussians with them.
     #[serde(default)]
     pub pose_graph: bool,
+    /// A tracked frame whose estimate lies farther than this (metres) from where the
+    /// commanded action should have taken the previous estimate is logged as a suspect
+    /// tracking event (`tracker: frame K: …`): a jump the actuation cannot explain. A blocked
+    /// forward move disagrees by one forward step (5 cm); realistic actuation by about 1 cm.
+    #[serde(default = "default_suspect_m")]
+    pub suspect_jump_m: f64,
+    /// The same for the rotation, degrees.
+    #[serde(default = "default_suspect_deg")]
+    pub suspect_turn_deg: f64,
+}
+
+fn default_suspect_m() -> f64 {
+    0.08
+}
+
+fn default_suspect_deg() -> f64 {
+    10.0
+}
+
+/// How far the estimate `current` lies from where the commanded camera motion `commanded`
+/// (`T_prev_current`, [`action_motion`]) takes the previous estimate `previous`: the
+/// translation (metres) and rotation angle (radians) of `(T_prev · M)⁻¹ · T_current`.
+pub fn motion_disagreement(
+    previous: &Isometry3<f64>,
+    current: &Isometry3<f64>,
+    commanded: &Isometry3<f64>,
+) -> (f64, f64) {
+    let d = (previous * commanded).inverse() * current;
+    (d.translation.vector.norm(), d.rotation.angle())
 }
 
 fn default_rereference() -> f64 {
@@ -125,14 +154,29 @@ impl Config {
 pub struct Tracker {
     config: Config,
     session: TrackingSession,
+    /// Commanded camera motion from frame `step` to `step + 1`, until that frame is tracked.
+    commanded: std::collections::BTreeMap<u64, Isometry3<f64>>,
+    /// The last estimate (frame, pose), for the suspect-jump check.
+    last: Option<(u64, Isometry3<f64>)>,
+    /// Frames logged as suspect tracking events so far.
+    suspect_frames: u64,
 }
 
 impl Tracker {
     /// A tracker at the start anchor with an empty map.
     pub fn from_config(config: Config) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            config.suspect_jump_m > 0.0 && config.suspect_turn_deg > 0.0,
+            "tracker: suspect_jump_m and suspect_turn_deg must be positive, got {} and {}",
+            config.suspect_jump_m,
+            config.suspect_turn_deg
+        );
         Ok(Self {
             session: TrackingSession::new(config.tracking_config()?)?,
             config,
+            commanded: Default::default(),
+            last: None,
+            suspect_frames: 0,
         })
     }
 
@@ -158,6 +202,44 @@ impl Tracker {
     pub fn add_action(&mut self, step: u64, action: ActionKind) {
         let motion = self.config.motion(action);
         self.session.add_motion(step, motion);
+        self.commanded
+            .insert(step, action_motion(action, &self.config.robot));
+    }
+
+    /// Frames logged as suspect tracking events so far ([`Tracker::suspect_event`]).
+    pub fn suspect_frames(&self) -> u64 {
+        self.suspect_frames
+    }
+
+    /// The log line of a suspect tracking event for `frame`, or `None`: a frame tracked `Ok`,
+    /// not closing a loop, whose estimate disagrees with the commanded motion from the
+    /// previous estimate by more than `suspect_jump_m` or `suspect_turn_deg`.
+    pub fn suspect_event(
+        &self,
+        frame: &TrackedFrame,
+        commanded: &Isometry3<f64>,
+    ) -> Option<String> {
+        let (prev_id, prev) = self.last?;
+        if prev_id + 1 != frame.frame_id
+            || frame.status != SlamStatus::Ok
+            || frame.loop_closure.is_some()
+        {
+            return None;
+        }
+        let (metres, radians) = motion_disagreement(&prev, &frame.pose, commanded);
+        (metres > self.config.suspect_jump_m || radians.to_degrees() > self.config.suspect_turn_deg)
+            .then(|| {
+                format!(
+                    "tracker: frame {}: suspect tracking event: the estimate lies {:.1} cm and \
+                     {:.1}° from where the commanded motion takes frame {prev_id}'s \
+                     (thresholds {:.1} cm, {:.1}°)",
+                    frame.frame_id,
+                    100.0 * metres,
+                    radians.to_degrees(),
+                    100.0 * self.config.suspect_jump_m,
+                    self.config.suspect_turn_deg
+                )
+            })
     }
 
     /// Tracks every frame whose inputs are complete, in order; returns their estimates. Logs
@@ -165,6 +247,17 @@ impl Tracker {
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<PoseEstimate>> {
         let tracked = self.session.process_ready()?;
         for t in &tracked {
+            if let Some(commanded) = t
+                .frame_id
+                .checked_sub(1)
+                .and_then(|k| self.commanded.get(&k).copied())
+                && let Some(line) = self.suspect_event(t, &commanded)
+            {
+                self.suspect_frames += 1;
+                eprintln!("{line}");
+            }
+            self.commanded = self.commanded.split_off(&t.frame_id);
+            self.last = Some((t.frame_id, t.pose));
             if let Some(c) = t
                 .loop_closure
                 .as_ref()
@@ -327,8 +420,71 @@ mod tests {
             rereference_below: default_rereference(),
             map_lag: 0,
             pose_graph: false,
+            suspect_jump_m: default_suspect_m(),
+            suspect_turn_deg: default_suspect_deg(),
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);
+    }
+
+    /// Issue 34: a jump the commanded motion cannot explain is a suspect tracking event; a
+    /// step as commanded, a blocked step (5 cm short) and a loop closure's correction are not.
+    #[test]
+    fn an_estimate_far_from_the_commanded_motion_is_a_suspect_tracking_event() {
+        let robot = RobotModel::default();
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        assert_eq!(
+            (config.suspect_jump_m, config.suspect_turn_deg),
+            (0.08, 10.0)
+        );
+        let mut tracker = Tracker::from_config(config).unwrap();
+        let start = start_anchor(&robot);
+        let forward = action_motion(ActionKind::Forward, &robot);
+        let frame = |id: u64, pose: Isometry3<f64>| TrackedFrame {
+            frame_id: id,
+            stamp: id as f64,
+            pose,
+            status: SlamStatus::Ok,
+            residuals: Default::default(),
+            iterations: 10,
+            seconds: 0.0,
+            loop_closure: None,
+            graph_anchor: None,
+        };
+        // No previous estimate yet: nothing to compare with.
+        assert!(tracker.suspect_event(&frame(1, start), &forward).is_none());
+        tracker.last = Some((0, start));
+        let (d, a) = motion_disagreement(&start, &(start * forward), &forward);
+        assert!(d < 1e-12 && a < 1e-12);
+        assert!(
+            tracker
+                .suspect_event(&frame(1, start * forward), &forward)
+                .is_none()
+        );
+        // Blocked: the robot stayed, 5 cm short of the command.
+        let (d, _) = motion_disagreement(&start, &start, &forward);
+        assert!((d - 0.05).abs() < 1e-12);
+        assert!(tracker.suspect_event(&frame(1, start), &forward).is_none());
+        // A 32 cm jump sideways (the house-3 episode of the issue), and a 15° twist.
+        let jump = start * forward * Isometry3::translation(0.32, 0.0, 0.0);
+        let line = tracker.suspect_event(&frame(1, jump), &forward).unwrap();
+        assert!(
+            line.starts_with("tracker: frame 1: suspect tracking event"),
+            "{line}"
+        );
+        assert!(line.contains("32.0 cm"), "{line}");
+        let twist =
+            start * forward * Isometry3::rotation(nalgebra::Vector3::y() * 15f64.to_radians());
+        assert!(tracker.suspect_event(&frame(1, twist), &forward).is_some());
+        // Not for a frame that is not the next one, a lost frame or a loop closure's.
+        assert!(tracker.suspect_event(&frame(2, jump), &forward).is_none());
+        let mut lost = frame(1, jump);
+        lost.status = SlamStatus::Lost;
+        assert!(tracker.suspect_event(&lost, &forward).is_none());
+        let bad = serde_json::json!({ "suspect_jump_m": 0.0 });
+        let e = Tracker::from_config(serde_json::from_value(bad).unwrap())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("suspect_jump_m"), "{e}");
     }
 }
