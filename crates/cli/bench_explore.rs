@@ -188,9 +188,7 @@ pub fn house_flow(
     noise: Option<&str>,
 ) -> anyhow::Result<String> {
     // The size limits shape procedural houses only; a scene file refuses them.
-    let is_house = activemap_sim::SceneSpec::new(scene)
-        .house_seed()
-        .is_ok_and(|seed| seed.is_some());
+    let is_house = activemap_sim::SceneSpec::new(scene).is_procedural();
     let (max_rooms, max_area) = if is_house {
         (max_rooms, max_area)
     } else {

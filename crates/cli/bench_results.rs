@@ -131,10 +131,7 @@ fn plan_from_args(args: &ResultsArgs) -> anyhow::Result<Plan> {
     let mut scenes = crate::bench_explore::house_scenes(&args.houses, &args.scenes);
     for file in &args.scenes {
         // A procedural home or office (`home:3`, `office:2`) is a scene without a file.
-        if activemap_sim::SceneSpec::new(file.clone())
-            .house_seed()
-            .is_ok_and(|seed| seed.is_some())
-        {
+        if activemap_sim::SceneSpec::new(file.clone()).is_procedural() {
             scenes.push(file.clone());
             continue;
         }

@@ -446,7 +446,6 @@ fn corridor_plan(rng: &mut ChaCha8Rng, c: &HouseConfig) -> Option<Plan> {
         rect: [0, 0, width, depth],
         split: None,
     }];
-    let mut kinds = Vec::new();
     let (hall, mut rest) = split(&mut nodes, 0, 0, hall_w);
     let mut strips = Vec::new();
     let mut corridor_ids = Vec::new();
@@ -470,7 +469,7 @@ fn corridor_plan(rng: &mut ChaCha8Rng, c: &HouseConfig) -> Option<Plan> {
         n_rooms.saturating_sub(1),
         min_side,
     )?;
-    kinds.resize(nodes.len(), RoomKind::Room);
+    let mut kinds = vec![RoomKind::Room; nodes.len()];
     kinds[hall] = RoomKind::Hall;
     for &id in &corridor_ids {
         kinds[id] = RoomKind::Corridor;

@@ -56,6 +56,12 @@ impl SceneSpec {
             })
     }
 
+    /// Whether the scene is a well-formed procedural one (`house:`, `home:` or `office:` with
+    /// a seed), not a scene file.
+    pub fn is_procedural(&self) -> bool {
+        self.procedural().is_ok_and(|p| p.is_some())
+    }
+
     /// The seed of a procedural scene (any style); `None` for a scene file.
     pub fn house_seed(&self) -> Result<Option<u64>> {
         Ok(self.procedural()?.map(|(_, seed)| seed))

@@ -405,20 +405,11 @@ fn think_blocks_and_reasoning_content_are_kept_and_never_parsed() {
 
     // Ollama's `thinking`, streamed.
     let s = Server::start();
-    let ndjson = [
+    s.ollama_stream(&[
         json!({"message": {"role": "assistant", "content": "", "thinking": "Room 1 "}, "done": false}),
         json!({"message": {"role": "assistant", "content": "{\"target\": 1, \"reason\": \"r\"}", "thinking": "is open."}, "done": false}),
         json!({"message": {"role": "assistant", "content": ""}, "done": true, "done_reason": "stop"}),
-    ]
-    .iter()
-    .map(Value::to_string)
-    .collect::<Vec<_>>()
-    .join("\n");
-    s.mount(
-        Mock::given(method("POST"))
-            .and(path("/api/chat"))
-            .respond_with(ResponseTemplate::new(200).set_body_raw(ndjson, "application/x-ndjson")),
-    );
+    ]);
     let mut http = s.openai();
     http.base_url = s.server.uri();
     let out = OllamaProvider::new(&http, 1)

@@ -243,21 +243,12 @@ fn a_body_that_is_not_json_or_too_large() {
 #[test]
 fn ollama_request_and_streamed_ndjson() {
     let s = Server::start();
-    let ndjson = [
+    s.ollama_stream(&[
         json!({"model": "llava", "message": {"role": "assistant", "content": "Plan. {\"target\": "}, "done": false}),
         json!({"model": "llava", "message": {"role": "assistant", "content": "2, \"reason\": \"hall\"}"}, "done": false}),
         json!({"model": "llava", "message": {"role": "assistant", "content": ""}, "done": true,
                "prompt_eval_count": 600, "eval_count": 25}),
-    ]
-    .iter()
-    .map(Value::to_string)
-    .collect::<Vec<_>>()
-    .join("\n");
-    s.mount(
-        Mock::given(method("POST"))
-            .and(path("/api/chat"))
-            .respond_with(ResponseTemplate::new(200).set_body_raw(ndjson, "application/x-ndjson")),
-    );
+    ]);
     let mut config = s.openai();
     config.base_url = s.server.uri();
     config.seed = Some(3);

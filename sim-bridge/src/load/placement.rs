@@ -621,11 +621,29 @@ const RANSAC_SEED: u64 = 0x0066_6c6f_6f72;
 /// Least-squares refinements (each re-selects the inliers of the refined plane).
 const REFINEMENTS: usize = 4;
 
-/// An upward-facing triangle: corners, unit normal, area.
+/// A triangle of the scene: corners, unit normal, area.
 struct Patch {
     corners: [Vector3<f64>; 3],
     normal: Vector3<f64>,
     area: f64,
+}
+
+/// Every non-degenerate triangle of `scene` as a patch.
+fn all_patches(scene: &Scene) -> Vec<Patch> {
+    scene
+        .triangles
+        .iter()
+        .filter_map(|t| {
+            let [a, b, c] = scene.corners(t).map(|p| p.coords);
+            let n = (b - a).cross(&(c - a));
+            let len = n.norm();
+            (len > 0.0 && len.is_finite()).then(|| Patch {
+                corners: [a, b, c],
+                normal: n / len,
+                area: 0.5 * len,
+            })
+        })
+        .collect()
 }
 
 /// A plane `normal · p = offset` and the surface that supports it.
@@ -652,19 +670,10 @@ fn find_floor(scene: &Scene) -> std::result::Result<FloorPlane, String> {
     } else {
         f64::INFINITY
     };
-    let patches: Vec<Patch> = scene
-        .triangles
-        .iter()
-        .filter_map(|t| {
-            let [a, b, c] = scene.corners(t).map(|p| p.coords);
-            let n = (b - a).cross(&(c - a));
-            let len = n.norm();
-            (len > 0.0 && n.z >= UP_COS * len && (a.z + b.z + c.z) / 3.0 <= top).then(|| Patch {
-                corners: [a, b, c],
-                normal: n / len,
-                area: 0.5 * len,
-            })
-        })
+    // Upward-facing triangles in the lower half.
+    let patches: Vec<Patch> = all_patches(scene)
+        .into_iter()
+        .filter(|p| p.normal.z >= UP_COS && p.corners.iter().map(|c| c.z).sum::<f64>() / 3.0 <= top)
         .collect();
     let total: f64 = patches.iter().map(|p| p.area).sum();
     if total.is_nan() || total < MIN_FLOOR_AREA {

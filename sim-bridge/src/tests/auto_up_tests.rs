@@ -3,14 +3,13 @@
 //! larger than the floor; ambiguous scans refused with candidates that each level in one step;
 //! the furnished house and a procedural house placed as with their known up axis.
 
-use super::fixtures::{flat, push_quad};
+use super::fixtures::{facing_quad as quad, flat, write_obj};
 use crate::load::{LoadOptions, load_scene};
 use crate::scene::Scene;
 use crate::simulator::{SimConfig, Simulator};
 use crate::{Floor, Placement, SceneSpec, SimError, Transform, UpAxis};
 use nalgebra::{Rotation3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
-use std::fmt::Write as _;
 use std::path::Path;
 
 fn vec3(p: [f32; 3]) -> Vector3<f64> {
@@ -22,15 +21,6 @@ fn angle_deg(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
         .clamp(-1.0, 1.0)
         .acos()
         .to_degrees()
-}
-
-/// A quad wound so that its surface faces `facing`.
-fn quad(s: &mut Scene, mut p: [[f32; 3]; 4], facing: [f64; 3], material: u32) {
-    let [a, b, c] = [p[0], p[1], p[2]].map(vec3);
-    if (b - a).cross(&(c - a)).dot(&Vector3::from(facing)) < 0.0 {
-        p.reverse();
-    }
-    push_quad(s, p, [[0.0; 2]; 4], material);
 }
 
 /// The faces of the box [lo, hi] facing out, without its bottom (a piece of furniture on the
@@ -448,20 +438,6 @@ fn a_scan_with_no_wall_is_refused_listing_its_floor() {
         "{e}"
     );
     assert!(e.contains("[up_axis: z, transform: {rotate_deg: ["), "{e}");
-}
-
-/// Writes `scene` as an OBJ (positions only).
-fn write_obj(path: &Path, scene: &Scene) {
-    let mut text = String::new();
-    for v in &scene.vertices {
-        let p = v.position;
-        writeln!(text, "v {:.7} {:.7} {:.7}", p[0], p[1], p[2]).unwrap();
-    }
-    for t in &scene.triangles {
-        let [a, b, c] = t.vertices.map(|i| i + 1);
-        writeln!(text, "f {a} {b} {c}").unwrap();
-    }
-    std::fs::write(path, text).unwrap();
 }
 
 #[test]

@@ -20,6 +20,31 @@ pub fn push_quad(s: &mut Scene, p: [[f32; 3]; 4], uv: [[f32; 2]; 4], material: u
     }
 }
 
+/// Appends a quad (corners in order, no uvs) wound so that its surface faces `facing`.
+pub fn facing_quad(s: &mut Scene, mut p: [[f32; 3]; 4], facing: [f64; 3], material: u32) {
+    let v = |q: [f32; 3]| nalgebra::Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64);
+    let normal = (v(p[1]) - v(p[0])).cross(&(v(p[2]) - v(p[0])));
+    if normal.dot(&nalgebra::Vector3::from(facing)) < 0.0 {
+        p.reverse();
+    }
+    push_quad(s, p, [[0.0; 2]; 4], material);
+}
+
+/// Writes `scene` as an OBJ file (positions and faces only).
+pub fn write_obj(path: &std::path::Path, scene: &Scene) {
+    use std::fmt::Write as _;
+    let mut text = String::new();
+    for v in &scene.vertices {
+        let p = v.position;
+        writeln!(text, "v {:.7} {:.7} {:.7}", p[0], p[1], p[2]).unwrap();
+    }
+    for t in &scene.triangles {
+        let [a, b, c] = t.vertices.map(|i| i + 1);
+        writeln!(text, "f {a} {b} {c}").unwrap();
+    }
+    std::fs::write(path, text).unwrap();
+}
+
 /// Flat-coloured material.
 pub fn flat(s: &mut Scene, rgb: [f32; 3]) -> u32 {
     s.materials.push(Material {

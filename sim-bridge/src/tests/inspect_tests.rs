@@ -1,22 +1,11 @@
 //! `inspect`: a tilted y-down scan of two rooms joined by a door, placed with `up_axis: auto`,
 //! split into its two rooms, with a top-down view that shows both.
 
-use super::fixtures::{flat, push_quad};
+use super::fixtures::{facing_quad as quad, flat, write_obj};
 use crate::inspect::{inspect, room_colour};
 use crate::scene::Scene;
 use crate::{Floor, Placement, SceneSpec, SimConfig, UpAxis};
 use nalgebra::{Rotation3, Unit, Vector3};
-use std::fmt::Write as _;
-
-/// A quad wound to face `facing`.
-fn quad(s: &mut Scene, mut p: [[f32; 3]; 4], facing: [f32; 3], m: u32) {
-    let v = |q: [f32; 3]| Vector3::new(q[0], q[1], q[2]);
-    let n = (v(p[1]) - v(p[0])).cross(&(v(p[2]) - v(p[0])));
-    if n.dot(&v(facing)) < 0.0 {
-        p.reverse();
-    }
-    push_quad(s, p, [[0.0; 2]; 4], m);
-}
 
 /// Two 4 m × 4 m rooms side by side (x 0–4 and 4–8), 2.5 m walls, no ceiling, joined by a
 /// 0.9 m door at y 1.5–2.4 in the wall x = 4; a bed (top 0.5 m) in the first room.
@@ -84,8 +73,8 @@ fn two_rooms() -> Scene {
     );
     // The dividing wall, both faces, with its door.
     for (y0, y1) in [(0.0, 1.5), (2.4, 4.0)] {
-        for facing in [[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]] {
-            let x = 4.0 + 0.05 * facing[0];
+        for facing in [[-1.0f64, 0.0, 0.0], [1.0, 0.0, 0.0]] {
+            let x = 4.0 + 0.05 * facing[0] as f32;
             quad(
                 &mut s,
                 [[x, y0, 0.0], [x, y1, 0.0], [x, y1, h], [x, y0, h]],
@@ -138,25 +127,14 @@ fn a_tilted_scan_of_two_rooms_inspects_as_two_rooms_with_a_top_down_view() {
         &Unit::new_normalize(Vector3::new(0.3, 1.0, 0.2)),
         40f64.to_radians(),
     );
-    let scene = two_rooms();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("two_rooms.obj");
-    let mut text = String::new();
-    for v in &scene.vertices {
-        let p = tilt
-            * Vector3::new(
-                v.position[0] as f64,
-                v.position[1] as f64,
-                v.position[2] as f64,
-            );
-        let f = UpAxis::NegY.from_world([p.x as f32, p.y as f32, p.z as f32]);
-        writeln!(text, "v {} {} {}", f[0], f[1], f[2]).unwrap();
+    let mut file = two_rooms();
+    for v in &mut file.vertices {
+        let p = tilt * Vector3::new(v.position[0], v.position[1], v.position[2]).cast::<f64>();
+        v.position = UpAxis::NegY.from_world([p.x as f32, p.y as f32, p.z as f32]);
     }
-    for t in &scene.triangles {
-        let [a, b, c] = t.vertices.map(|i| i + 1);
-        writeln!(text, "f {a} {b} {c}").unwrap();
-    }
-    std::fs::write(&path, text).unwrap();
+    write_obj(&path, &file);
     let spec = SceneSpec {
         placement: Placement {
             up_axis: Some(UpAxis::Auto),

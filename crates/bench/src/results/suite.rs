@@ -584,11 +584,10 @@ impl Parser<'_> {
 
     /// The house generator's own check of the size limits (on the first procedural scene).
     fn check_house_sizes(&mut self, scenes: &[SuiteScene], settings: &GridSettings, root: &Node) {
-        let Some(house) = scenes.iter().find(|s| {
-            SceneSpec::new(s.scene.clone())
-                .house_seed()
-                .is_ok_and(|seed| seed.is_some())
-        }) else {
+        let Some(house) = scenes
+            .iter()
+            .find(|s| SceneSpec::new(s.scene.clone()).is_procedural())
+        else {
             return;
         };
         let spec = SceneSpec {

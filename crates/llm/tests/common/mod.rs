@@ -33,6 +33,23 @@ impl Server {
         self.runtime.block_on(mock.mount(&self.server));
     }
 
+    /// Answers every `POST /api/chat` with Ollama's streamed reply: `chunks` as NDJSON lines.
+    pub fn ollama_stream(&self, chunks: &[Value]) {
+        let ndjson = chunks
+            .iter()
+            .map(Value::to_string)
+            .collect::<Vec<_>>()
+            .join("\n");
+        self.mount(
+            Mock::given(wiremock::matchers::method("POST"))
+                .and(wiremock::matchers::path("/api/chat"))
+                .respond_with(
+                    wiremock::ResponseTemplate::new(200)
+                        .set_body_raw(ndjson, "application/x-ndjson"),
+                ),
+        );
+    }
+
     /// The requests received so far.
     pub fn requests(&self) -> Vec<Request> {
         self.runtime

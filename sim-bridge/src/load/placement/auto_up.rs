@@ -31,7 +31,8 @@
 //! candidate is that small rotation (`rotate_deg`).
 
 use super::{
-    INLIER_DISTANCE, MIN_FLOOR_AREA, Patch, RANSAC_SEED, Transform, UP_COS, UpAxis, refine_plane,
+    INLIER_DISTANCE, MIN_FLOOR_AREA, Patch, RANSAC_SEED, Transform, UP_COS, UpAxis, all_patches,
+    refine_plane,
 };
 use crate::scene::Scene;
 use nalgebra::{Rotation3, Similarity3, UnitQuaternion, Vector3};
@@ -143,24 +144,6 @@ struct Found {
     offset: f64,
     area: f64,
     rms: f64,
-}
-
-/// Every non-degenerate triangle of `scene` as a patch.
-fn all_patches(scene: &Scene) -> Vec<Patch> {
-    scene
-        .triangles
-        .iter()
-        .filter_map(|t| {
-            let [a, b, c] = scene.corners(t).map(|p| p.coords);
-            let n = (b - a).cross(&(c - a));
-            let len = n.norm();
-            (len > 0.0 && len.is_finite()).then(|| Patch {
-                corners: [a, b, c],
-                normal: n / len,
-                area: 0.5 * len,
-            })
-        })
-        .collect()
 }
 
 /// Area-weighted draws of patch indices (with replacement), seeded.
