@@ -81,6 +81,7 @@ pub fn up(
         allow_exec,
         insecure,
         tls: tls.files()?,
+        derived: Some(Arc::new(crate::view::FoxgloveView)),
     };
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;

@@ -23,6 +23,7 @@ mod benches;
 mod daemons;
 mod evaluate;
 mod scene_inspect;
+mod view;
 
 #[derive(Parser)]
 #[command(
@@ -623,6 +624,7 @@ fn run(
     opts.record = outputs.record;
     opts.record_maps = outputs.record_maps;
     opts.view = outputs.view;
+    opts.derived = Some(Arc::new(view::FoxgloveView));
     opts.progress = true;
     if let Some((machine, run_id)) = distributed {
         opts.machine = Some(machine);

@@ -56,6 +56,8 @@ pub struct DaemonOptions {
     /// the `quic/` and `tls/` control endpoints, and the default for those of the runs it
     /// starts (a flow's own `machines[].tls` wins).
     pub tls: Option<TlsFiles>,
+    /// Makes the derived channels (the view) of the recordings of the runs it starts.
+    pub derived: Option<Arc<dyn crate::derived::DerivedFactory>>,
 }
 
 /// True when a Zenoh endpoint (`tcp/HOST:PORT`, `udp/…`, `tls/…`, optionally with a
@@ -394,6 +396,7 @@ fn start_run(
     launch.machine = Some(opts.machine.clone());
     launch.run_id = Some(request.run_id.clone());
     launch.tls = opts.tls.as_ref().map(TlsFiles::zenoh_config);
+    launch.derived = opts.derived.clone();
     let state = Arc::new(Mutex::new(RunState::Running));
     let stop = Arc::new(AtomicBool::new(false));
     let thread = {

@@ -31,9 +31,11 @@ pub struct LaunchOptions {
     pub record: bool,
     /// How the recording stores Gaussian maps (`--record-maps`).
     pub record_maps: crate::record::MapRecording,
-    /// Serve the view channels live over the Foxglove WebSocket protocol on this `HOST:PORT`
-    /// (`--view`).
+    /// Serve the view channels live on this `HOST:PORT` (`--view`); needs `derived`.
     pub view: Option<String>,
+    /// Makes the derived channels of the recording (the view of the run), registered by the CLI;
+    /// without it the recording holds the exact channels only.
+    pub derived: Option<std::sync::Arc<dyn crate::derived::DerivedFactory>>,
     /// Show a progress bar on stderr.
     pub progress: bool,
     /// Give up when the nodes are not all ready after this long.
@@ -60,6 +62,7 @@ impl LaunchOptions {
             record: true,
             record_maps: crate::record::MapRecording::default(),
             view: None,
+            derived: None,
             progress: false,
             startup_timeout: Duration::from_secs(60),
             stop_grace: Duration::from_secs(5),
@@ -348,30 +351,22 @@ pub fn run_local(
         )?,
         None => None,
     };
-    let live = match &opts.view {
-        Some(address) => {
-            let live = activemap_view::LiveView::start(address)
-                .map_err(|e| RuntimeError::Other(e.to_string()))?;
-            let host = address.rsplit_once(':').map_or("", |(h, _)| h);
-            if !activemap_view::live::is_loopback_host(host) {
-                eprintln!(
-                    "activemap: WARNING: the live view listens on {address}, not on loopback: \
-                     anyone who can reach it can watch the run"
-                );
-            }
-            eprintln!(
-                "activemap: live view at {} (Foxglove: Open connection → Foxglove WebSocket)",
-                live.url()
-            );
-            Some(live)
+    let derived = match (&opts.derived, &opts.view) {
+        (Some(factory), live) if opts.record || live.is_some() => {
+            Some(factory.start(live.as_deref())?)
         }
-        None => None,
+        (None, Some(address)) => {
+            return Err(RuntimeError::Other(format!(
+                "--view {address}: this build registered no view to serve"
+            )));
+        }
+        _ => None,
     };
-    let recorder = if opts.record || live.is_some() {
+    let recorder = if opts.record || opts.view.is_some() {
         Some(Recorder::start(
             RecorderOutputs {
                 file: opts.record.then(|| opts.run_dir.join("recording.mcap")),
-                live,
+                derived,
                 maps: opts.record_maps,
             },
             dataflow,

@@ -82,6 +82,7 @@ pub mod catalog;
 pub mod daemon;
 pub mod dataflow;
 pub mod delta;
+pub mod derived;
 mod error;
 mod finish_barrier;
 #[doc(hidden)]
