@@ -63,6 +63,7 @@ use nalgebra::Point3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
+use yaml_rust2::{Yaml, YamlLoader};
 
 /// Seed of the test poses: fixed so every method is scored on the same views (SPEC §8).
 pub const TEST_POSE_SEED: u64 = 2025;
@@ -89,7 +90,7 @@ pub fn scene_simulator(
 
 /// The scene of the run in `dir`: `summary.json` (`scene`, `max_rooms`, `max_area` and the
 /// placement: `up_axis`, `transform`, `floor`), else one consistent value of each key in
-/// `dataflow.yaml` (`transform` there only on one line, `transform: { ... }`).
+/// `dataflow.yaml`.
 pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunError> {
     let run = RunFolder::new(dir);
     let up_axis = |value: Option<String>, source: &Path| -> Result<Option<UpAxis>, RunError> {
@@ -122,7 +123,8 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
             path.display()
         ))
     })?;
-    let scene = yaml_scalar(&text, "scene", &path)?.ok_or_else(|| {
+    let doc = parse_yaml(&text, &path)?;
+    let scene = yaml_scalar(&doc, "scene", &path)?.ok_or_else(|| {
         RunError::Scene(format!(
             "neither {} nor {} names the scene; pass it explicitly",
             run.path(RunFolder::SUMMARY).display(),
@@ -130,7 +132,7 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
         ))
     })?;
     let parse_num = |key: &str| -> Result<Option<f64>, RunError> {
-        yaml_scalar(&text, key, &path)?
+        yaml_scalar(&doc, key, &path)?
             .map(|v| {
                 v.parse::<f64>().map_err(|e| RunError::Malformed {
                     path: path.clone(),
@@ -144,9 +146,9 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
         max_rooms: parse_num("max_rooms")?.map(|v| v.clamp(0.0, u32::MAX as f64) as u32),
         max_area: parse_num("max_area")?,
         placement: Placement {
-            up_axis: up_axis(yaml_scalar(&text, "up_axis", &path)?, &path)?,
-            transform: yaml_transform(&text, &path)?,
-            floor: yaml_scalar(&text, "floor", &path)?
+            up_axis: up_axis(yaml_scalar(&doc, "up_axis", &path)?, &path)?,
+            transform: yaml_transform(&doc, &path)?,
+            floor: yaml_scalar(&doc, "floor", &path)?
                 .map(|v| {
                     let value = v
                         .parse::<f64>()
@@ -162,91 +164,65 @@ pub fn scene_from_run(dir: &Path, summary: &Summary) -> Result<SceneSpec, RunErr
     })
 }
 
-/// The `transform:` of a YAML text, written on one line as a flow mapping of numbers
-/// (`transform: { scale: 0.01, rotate_deg: [0, 0, 90] }`); `None` when absent, an error when
-/// lines disagree, when one is malformed or when it is a block mapping (which this line reader
-/// cannot follow).
-fn yaml_transform(text: &str, path: &Path) -> Result<Option<Transform>, RunError> {
-    let mut found: Option<Transform> = None;
-    for line in text.lines() {
-        let line = line.split(" #").next().unwrap_or("").trim();
-        let line = line.strip_prefix("- ").unwrap_or(line);
-        let Some(value) = line.strip_prefix("transform:") else {
-            continue;
-        };
-        let value = value.trim();
-        let malformed = |detail: String| RunError::Malformed {
-            path: path.to_path_buf(),
-            detail,
-        };
-        if !value.starts_with('{') {
-            return Err(malformed(format!(
-                "`transform:` must be written on one line as `transform: {{ ... }}` for \
-                 `activemap eval` to read it here, got `{value}` (or pass the scene explicitly)"
-            )));
-        }
-        // Numbers and lists of numbers only: quoting the keys makes the flow mapping JSON.
-        let t: Transform = serde_json::from_str(&quote_keys(value))
-            .map_err(|e| malformed(format!("`transform: {value}`: {e}")))?;
-        match found {
-            Some(f) if f != t => {
-                return Err(malformed(format!(
-                    "`transform` is set to both `{f}` and `{t}`"
-                )));
-            }
-            _ => found = Some(t),
-        }
-    }
-    Ok(found)
-}
-
-/// `text` with every bare key (an identifier followed by `:`) in double quotes.
-fn quote_keys(text: &str) -> String {
-    let mut out = String::with_capacity(text.len() + 16);
-    let mut chars = text.char_indices().peekable();
-    while let Some((i, c)) = chars.next() {
-        if c.is_ascii_alphabetic() || c == '_' {
-            let mut end = i + c.len_utf8();
-            while let Some(&(j, d)) = chars.peek() {
-                if d.is_ascii_alphanumeric() || d == '_' {
-                    end = j + d.len_utf8();
-                    chars.next();
-                } else {
-                    break;
+/// Every value of `key` in the mappings of a YAML document (at any depth), in document order.
+fn yaml_values<'a>(node: &'a Yaml, key: &str, out: &mut Vec<&'a Yaml>) {
+    match node {
+        Yaml::Hash(map) => {
+            for (k, v) in map {
+                if k.as_str() == Some(key) {
+                    out.push(v);
                 }
+                yaml_values(v, key, out);
             }
-            let word = &text[i..end];
-            if text[end..].trim_start().starts_with(':') {
-                out.push('"');
-                out.push_str(word);
-                out.push('"');
-            } else {
-                out.push_str(word);
-            }
-        } else {
-            out.push(c);
         }
+        Yaml::Array(items) => items.iter().for_each(|v| yaml_values(v, key, out)),
+        _ => {}
     }
-    out
 }
 
-/// The value of `key:` lines of a YAML text (any indentation, quotes and trailing comments
-/// stripped); `None` when absent, an error when the lines disagree.
-fn yaml_scalar(text: &str, key: &str, path: &Path) -> Result<Option<String>, RunError> {
-    let mut found: Option<String> = None;
-    for line in text.lines() {
-        let line = line.split(" #").next().unwrap_or("").trim();
-        let line = line.strip_prefix("- ").unwrap_or(line);
-        let Some(value) = line.strip_prefix(key).and_then(|r| r.strip_prefix(':')) else {
+/// The run's `dataflow.yaml`, parsed (yaml-rust2, the parser the runtime reads flows with).
+fn parse_yaml(text: &str, path: &Path) -> Result<Yaml, RunError> {
+    let docs = YamlLoader::load_from_str(text).map_err(|e| RunError::Malformed {
+        path: path.to_path_buf(),
+        detail: format!("not YAML: {e}"),
+    })?;
+    Ok(docs.into_iter().next().unwrap_or(Yaml::Null))
+}
+
+/// A YAML value as JSON (numbers, strings, booleans, lists and mappings with string keys).
+fn yaml_to_json(node: &Yaml) -> Option<serde_json::Value> {
+    use serde_json::Value;
+    Some(match node {
+        Yaml::Real(r) => Value::from(r.parse::<f64>().ok()?),
+        Yaml::Integer(i) => Value::from(*i),
+        Yaml::String(s) => Value::from(s.as_str()),
+        Yaml::Boolean(b) => Value::from(*b),
+        Yaml::Null => Value::Null,
+        Yaml::Array(items) => Value::Array(items.iter().map(yaml_to_json).collect::<Option<_>>()?),
+        Yaml::Hash(map) => Value::Object(
+            map.iter()
+                .map(|(k, v)| Some((k.as_str()?.to_string(), yaml_to_json(v)?)))
+                .collect::<Option<_>>()?,
+        ),
+        _ => return None,
+    })
+}
+
+/// The one value of `key` in the flow (the same in every node that sets it); `None` when no node
+/// sets it, an error naming both values when two disagree.
+fn yaml_one<T: PartialEq + std::fmt::Display>(
+    doc: &Yaml,
+    key: &str,
+    path: &Path,
+    read: impl Fn(&Yaml) -> Result<Option<T>, RunError>,
+) -> Result<Option<T>, RunError> {
+    let mut values = Vec::new();
+    yaml_values(doc, key, &mut values);
+    let mut found: Option<T> = None;
+    for value in values {
+        let Some(value) = read(value)? else {
             continue;
         };
-        let value = value
-            .trim()
-            .trim_matches(|c| c == '"' || c == '\'')
-            .to_string();
-        if value.is_empty() {
-            continue;
-        }
         match &found {
             Some(v) if *v != value => {
                 return Err(RunError::Malformed {
@@ -258,6 +234,37 @@ fn yaml_scalar(text: &str, key: &str, path: &Path) -> Result<Option<String>, Run
         }
     }
     Ok(found)
+}
+
+/// The value of `key` in the flow as text (a scalar: string, number or boolean; null skipped).
+fn yaml_scalar(doc: &Yaml, key: &str, path: &Path) -> Result<Option<String>, RunError> {
+    yaml_one(doc, key, path, |v| match v {
+        Yaml::Real(r) => Ok(Some(r.clone())),
+        Yaml::Integer(i) => Ok(Some(i.to_string())),
+        Yaml::String(s) => Ok(Some(s.clone())),
+        Yaml::Boolean(b) => Ok(Some(b.to_string())),
+        Yaml::Null => Ok(None),
+        _ => Err(RunError::Malformed {
+            path: path.to_path_buf(),
+            detail: format!("`{key}` must be a single value, got {v:?}"),
+        }),
+    })
+}
+
+/// The `transform:` of the flow (a mapping, in flow or block style), checked as the simulator
+/// checks it.
+fn yaml_transform(doc: &Yaml, path: &Path) -> Result<Option<Transform>, RunError> {
+    yaml_one(doc, "transform", path, |v| {
+        let malformed = |detail: String| RunError::Malformed {
+            path: path.to_path_buf(),
+            detail,
+        };
+        let json = yaml_to_json(v)
+            .ok_or_else(|| malformed(format!("`transform`: not a mapping of numbers: {v:?}")))?;
+        serde_json::from_value::<Transform>(json.clone())
+            .map(Some)
+            .map_err(|e| malformed(format!("`transform: {json}`: {e}")))
+    })
 }
 
 /// Where LPIPS weights come from.
@@ -1138,6 +1145,10 @@ mod tests {
                 floor: Floor::Height(0.5),
             }
         );
+        // A block mapping reads like the one-line form.
+        write("      transform:\n        scale: 0.01");
+        let spec = scene_from_run(dir.path(), &summary).unwrap();
+        assert_eq!(spec.placement.transform.and_then(|t| t.scale), Some(0.01));
         write("      floor: auto");
         assert_eq!(
             scene_from_run(dir.path(), &summary)
@@ -1149,10 +1160,11 @@ mod tests {
         for (extra, needle) in [
             ("      up_axis: w", "up_axis: w"),
             ("      floor: flat", "floor: flat"),
-            ("      transform:\n        scale: 0.01", "on one line"),
+            ("      transform: [1, 2]", "transform"),
+            ("      scene: [unclosed", "not YAML"),
             (
                 "      transform: { matrix: [1, 0, 0] }",
-                "transform: { matrix",
+                "\"matrix\":[1,0,0]",
             ),
             (
                 "      transform: { matrix: [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1] }",

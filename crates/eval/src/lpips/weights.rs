@@ -1,6 +1,6 @@
 //! Reading the LPIPS AlexNet weights from the safetensors file that
-//! `tools/lpips/fetch_weights.py` writes: an 8-byte little-endian header length, a JSON header
-//! `{name: {dtype, shape, data_offsets}}`, then the raw little-endian data.
+//! `tools/lpips/fetch_weights.py` writes, with the `safetensors` crate (the format's reference
+//! implementation, which checks the header, the offsets and the sizes).
 
 use crate::error::EvalError;
 use std::collections::HashMap;
@@ -47,63 +47,22 @@ impl TensorFile {
 
     /// Parses safetensors bytes; `path` names the source in errors.
     pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<Self, EvalError> {
-        let Some((len_bytes, rest)) = bytes.split_first_chunk::<8>() else {
-            return Err(invalid(
-                path,
-                "shorter than the 8-byte header length".into(),
-            ));
-        };
-        let header_len = u64::from_le_bytes(*len_bytes);
-        let header_len = usize::try_from(header_len)
-            .ok()
-            .filter(|&n| n <= rest.len())
-            .ok_or_else(|| {
-                invalid(
-                    path,
-                    format!(
-                        "header length {header_len} exceeds the file ({} bytes)",
-                        bytes.len()
-                    ),
-                )
-            })?;
-        let (header, data) = rest.split_at(header_len);
-        let header: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(header)
-            .map_err(|e| invalid(path, format!("header is not a JSON object: {e}")))?;
+        let file = safetensors::SafeTensors::deserialize(bytes)
+            .map_err(|e| invalid(path, format!("not a safetensors file: {e}")))?;
         let mut tensors = HashMap::new();
-        for (name, entry) in header {
-            if name == "__metadata__" {
-                continue;
+        for (name, view) in file.tensors() {
+            if view.dtype() != safetensors::Dtype::F32 {
+                return Err(invalid(
+                    path,
+                    format!("tensor `{name}`: dtype {:?}, expected F32", view.dtype()),
+                ));
             }
-            let bad = |what: &str| invalid(path, format!("tensor `{name}`: {what}"));
-            let dtype = entry.get("dtype").and_then(|d| d.as_str());
-            if dtype != Some("F32") {
-                return Err(bad(&format!("dtype {dtype:?}, expected \"F32\"")));
-            }
-            let numbers = |key: &str| -> Option<Vec<usize>> {
-                entry
-                    .get(key)?
-                    .as_array()?
-                    .iter()
-                    .map(|v| v.as_u64().and_then(|n| usize::try_from(n).ok()))
-                    .collect()
-            };
-            let shape = numbers("shape").ok_or_else(|| bad("missing or bad `shape`"))?;
-            let offsets = numbers("data_offsets")
-                .filter(|o| o.len() == 2 && o[0] <= o[1] && o[1] <= data.len())
-                .ok_or_else(|| bad("missing `data_offsets` or outside the data"))?;
-            let count: usize = shape.iter().product();
-            if offsets[1] - offsets[0] != 4 * count {
-                return Err(bad(&format!(
-                    "shape {shape:?} needs {} bytes, offsets give {}",
-                    4 * count,
-                    offsets[1] - offsets[0]
-                )));
-            }
-            let values = data[offsets[0]..offsets[1]]
+            let values = view
+                .data()
                 .chunks_exact(4)
                 .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect();
-            tensors.insert(name, (shape, values));
+            tensors.insert(name, (view.shape().to_vec(), values));
         }
         Ok(Self {
             path: path.to_path_buf(),
@@ -142,25 +101,19 @@ fn invalid(path: &Path, detail: String) -> EvalError {
 }
 
 #[cfg(test)]
-/// Builds a safetensors byte string by hand (the format is tiny).
+/// A safetensors byte string written by the `safetensors` crate itself.
 pub(crate) fn encode_safetensors(entries: &[(&str, Vec<usize>, Vec<f32>)]) -> Vec<u8> {
-    let mut header = serde_json::Map::new();
-    let mut data = Vec::new();
-    for (name, shape, values) in entries {
-        let start = data.len();
-        for v in values {
-            data.extend_from_slice(&v.to_le_bytes());
-        }
-        header.insert(
-            (*name).to_string(),
-            serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [start, data.len()]}),
-        );
-    }
-    let header = serde_json::to_vec(&header).unwrap();
-    let mut out = (header.len() as u64).to_le_bytes().to_vec();
-    out.extend_from_slice(&header);
-    out.extend_from_slice(&data);
-    out
+    let bytes: Vec<Vec<u8>> = entries
+        .iter()
+        .map(|(_, _, values)| values.iter().flat_map(|v| v.to_le_bytes()).collect())
+        .collect();
+    let views = entries.iter().zip(&bytes).map(|((name, shape, _), data)| {
+        let view =
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape.clone(), data)
+                .unwrap();
+        ((*name).to_string(), view)
+    });
+    safetensors::serialize(views, None).unwrap()
 }
 
 #[cfg(test)]
@@ -188,24 +141,25 @@ mod tests {
     #[test]
     fn corrupt_files_are_refused() {
         let p = Path::new("bad.st");
+        let refused = |bytes: &[u8]| TensorFile::parse(p, bytes).unwrap_err().to_string();
+        let e = refused(&[1, 2]);
         assert!(
-            TensorFile::parse(p, &[1, 2])
-                .unwrap_err()
-                .to_string()
-                .contains("8-byte")
+            e.contains("bad.st") && e.contains("not a safetensors file"),
+            "{e}"
         );
         let mut huge = u64::MAX.to_le_bytes().to_vec();
         huge.extend_from_slice(b"{}");
-        assert!(
-            TensorFile::parse(p, &huge)
-                .unwrap_err()
-                .to_string()
-                .contains("exceeds")
-        );
+        assert!(refused(&huge).contains("not a safetensors file"));
         let mut bytes = encode_safetensors(&[("a", vec![3], vec![1.0, 2.0, 3.0])]);
         bytes.truncate(bytes.len() - 4);
-        let e = TensorFile::parse(p, &bytes).unwrap_err().to_string();
-        assert!(e.contains("`a`") && e.contains("outside the data"), "{e}");
+        assert!(refused(&bytes).contains("not a safetensors file"));
+        // Another dtype than F32.
+        let data = [0u8; 6];
+        let view =
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F16, vec![3], &data).unwrap();
+        let f16 = safetensors::serialize([("h", view)], None).unwrap();
+        let e = refused(&f16);
+        assert!(e.contains("`h`") && e.contains("F32"), "{e}");
     }
 
     #[test]
