@@ -16,6 +16,10 @@
 //!   sees a frame, so its `camera` (width, height, hfov_deg) must equal the `sim` node's; it
 //!   reads the mapper's `map` (its `map_lag` is checked like the tracker's), and a `fisher`
 //!   scorer without a `map` input would wait for snapshots forever, so that is refused too.
+//! - **Scene.** The evaluator measures the run against its own copy of the scene (the navigable
+//!   floor, the ground-truth renders), so its scene keys (`scene`, `max_rooms`, `max_area`,
+//!   `up_axis`, `transform`, `floor`) must equal the `sim` node's: `--set sim.scene=house:3`
+//!   alone would have the evaluator judge house 3's episode against house 7.
 //! - **LLM planner.** A planner with policy `llm` draws its BEV from the mapper's lagged map
 //!   snapshot: its `map_lag` is checked like the tracker's, and it must read the map with
 //!   `drop: block`.
@@ -83,6 +87,46 @@ fn sim_camera(node: &NodeSpec) -> Option<(u32, u32, f64)> {
         .map(|c| (c.width, c.height, c.hfov_deg))
 }
 
+/// The scene of a `sim` or `evaluator` node, with the operator's name (`None` for any other node,
+/// or a config its own check refuses).
+fn scene(node: &NodeSpec) -> Option<(&'static str, activemap_sim::SceneSpec)> {
+    let NodeImpl::Operator(op) = &node.implementation else {
+        return None;
+    };
+    match op.as_str() {
+        "sim" => config_from_value::<crate::sim::Config>(&node.config)
+            .ok()
+            .map(|c| ("sim", c.scene_spec())),
+        "evaluator" => config_from_value::<crate::evaluator::Config>(&node.config)
+            .ok()
+            .map(|c| ("evaluator", c.scene_spec())),
+        _ => None,
+    }
+}
+
+/// A scene's keys as a flow writes them, the ones left at their defaults out:
+/// `scene house:3`, `scene room.obj, up_axis -y, floor auto`.
+fn describe_scene(spec: &activemap_sim::SceneSpec) -> String {
+    let mut out = format!("scene `{}`", spec.scene);
+    if let Some(n) = spec.max_rooms {
+        out += &format!(", max_rooms {n}");
+    }
+    if let Some(a) = spec.max_area {
+        out += &format!(", max_area {a}");
+    }
+    let defaults = activemap_sim::Placement::default();
+    if let Some(up) = spec.placement.up_axis {
+        out += &format!(", up_axis {up}");
+    }
+    if let Some(t) = spec.placement.transform {
+        out += &format!(", transform {t}");
+    }
+    if spec.placement.floor != defaults.floor {
+        out += &format!(", floor {}", spec.placement.floor);
+    }
+    out
+}
+
 /// The operators whose config takes a `robot` (the ones [`check_flow`] compares): a tool that
 /// changes the robot of a flow (the results benchmark's camera height) sets it on all of them.
 pub const ROBOT_OPERATORS: [&str; 7] = [
@@ -136,6 +180,29 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
                     message: format!(
                         "robot mismatch: node `{}` has robot {r:?} but node `{}` has {reference:?}; every node that takes a `robot` config must describe the same robot (a node without one has the default)",
                         node.id, first.id
+                    ),
+                });
+            }
+        }
+    }
+    let scenes: Vec<(&NodeSpec, (&str, activemap_sim::SceneSpec))> = flow
+        .nodes
+        .iter()
+        .filter_map(|n| scene(n).map(|s| (n, s)))
+        .collect();
+    if let Some((first, (first_op, reference))) = scenes.iter().find(|(_, (op, _))| *op == "sim") {
+        for (node, (op, spec)) in &scenes {
+            if *op == "evaluator" && spec != reference {
+                diags.push(Diagnostic {
+                    file: flow.file.clone(),
+                    loc: node.loc,
+                    message: format!(
+                        "scene mismatch: node `{}` (evaluator) has {} but node `{}` ({first_op}) runs {}; the evaluator must be given the simulator's scene keys (e.g. `--set sim.scene=X --set {}.scene=X`)",
+                        node.id,
+                        describe_scene(spec),
+                        first.id,
+                        describe_scene(reference),
+                        node.id
                     ),
                 });
             }
@@ -314,6 +381,26 @@ mod tests {
             .replace("  - id: frontier\n    operator: frontier\n", "  - id: frontier\n    operator: frontier\n    config: { robot: { radius_m: 0.2 } }\n")
             .replace("  - id: follower\n    operator: follower\n", "  - id: follower\n    operator: follower\n    config: { robot: { radius_m: 0.2 } }\n");
         parse("robots.yaml", &all, Path::new(".")).unwrap();
+    }
+
+    /// `--set sim.scene=…` without the evaluator's is refused, naming both nodes and the fix.
+    #[test]
+    fn an_evaluator_scene_other_than_the_simulators_is_refused() {
+        let text = reference().replace(
+            "config: { scene: \"house:7\" }",
+            "config: { scene: \"house:3\" }",
+        );
+        assert_ne!(text, reference());
+        let e = parse("scene.yaml", &text, Path::new(".")).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("scene mismatch")
+                && msg.contains("`evaluator`")
+                && msg.contains("`sim`")
+                && msg.contains("house:3")
+                && msg.contains("evaluator.scene=X"),
+            "{msg}"
+        );
     }
 
     fn fisher_flow() -> String {

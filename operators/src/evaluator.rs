@@ -97,6 +97,22 @@ pub struct Config {
     pub checkpoints: Vec<u64>,
 }
 
+impl Config {
+    /// The scene part of the config (the same keys as the `sim` node's).
+    pub fn scene_spec(&self) -> SceneSpec {
+        SceneSpec {
+            scene: self.scene.clone(),
+            max_rooms: self.max_rooms,
+            max_area: self.max_area,
+            placement: Placement {
+                up_axis: self.up_axis,
+                transform: self.transform,
+                floor: self.floor,
+            },
+        }
+    }
+}
+
 fn default_scene() -> String {
     "house:7".into()
 }
@@ -532,16 +548,7 @@ impl Operator for Evaluator {
         );
         Ok(Self {
             out: RunFolder::new(out),
-            scene: SceneSpec {
-                scene: config.scene,
-                max_rooms: config.max_rooms,
-                max_area: config.max_area,
-                placement: Placement {
-                    up_axis: config.up_axis,
-                    transform: config.transform,
-                    floor: config.floor,
-                },
-            },
+            scene: config.scene_spec(),
             scale: config.bev_pixels_per_cell,
             truth: None,
             estimated: Trajectory::default(),
