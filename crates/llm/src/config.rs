@@ -254,6 +254,13 @@ pub struct HttpProviderConfig {
     /// JSON. A 400 or 422 whose body names the field drops it (except with `on`).
     #[serde(default)]
     pub structured_output: StructuredOutput,
+    /// Longest `reason` the structured output's schema allows (`maxLength`), in characters; none
+    /// by default. A small local model under a grammar can write its reason until the token
+    /// limit and never reach `target`; a bound makes the grammar close the string (the schema
+    /// orders `reason` before `target`). Not every hosted API takes `maxLength` in a strict
+    /// schema: one that refuses it is asked again without the schema.
+    #[serde(default)]
+    pub reason_max_chars: Option<u32>,
     /// OpenAI `image_url.detail` (`low`, `high`, `auto`); `openai` only.
     #[serde(default)]
     pub detail: Option<String>,
@@ -313,6 +320,7 @@ impl HttpProviderConfig {
             temperature: None,
             seed: None,
             structured_output: StructuredOutput::default(),
+            reason_max_chars: None,
             detail: None,
             connect_timeout_s: default_connect_timeout(),
             timeout_s: default_timeout(),
@@ -336,6 +344,12 @@ impl HttpProviderConfig {
         }
         if self.model.trim().is_empty() {
             return Err(bad("model", "is empty".into()));
+        }
+        if self.reason_max_chars == Some(0) {
+            return Err(bad(
+                "reason_max_chars",
+                "must be at least 1 (or left out)".into(),
+            ));
         }
         for (field, v) in [
             ("connect_timeout_s", self.connect_timeout_s),

@@ -51,6 +51,7 @@ fn the_openai_request_is_right_and_the_key_stays_in_its_header() {
     config.seed = Some(7);
     config.temperature = Some(0.0);
     config.structured_output = StructuredOutput::On;
+    config.reason_max_chars = Some(160);
     // SAFETY: set before any thread of this test reads the environment.
     unsafe { std::env::set_var("ACTIVEMAP_TEST_OPENAI_KEY", "sk-test-4242") };
     let mut p = OpenAiProvider::new(&config, 1).unwrap();
@@ -82,6 +83,11 @@ fn the_openai_request_is_right_and_the_key_stays_in_its_header() {
     assert_eq!(body["seed"], 7);
     assert_eq!(body["temperature"], 0.0);
     assert_eq!(body["response_format"]["type"], "json_schema");
+    let schema = &body["response_format"]["json_schema"]["schema"];
+    assert_eq!(schema["properties"]["reason"]["maxLength"], 160);
+    // Sorted keys: a grammar made from the schema writes the bounded reason, then the target.
+    let text = serde_json::to_string(schema).unwrap();
+    assert!(text.find("\"reason\"").unwrap() < text.find("\"target\"").unwrap());
     assert_eq!(body["messages"][0]["role"], "system");
     assert_eq!(body["messages"][0]["content"], "system text");
     assert_eq!(body["messages"][1]["content"][0]["text"], "user text");

@@ -83,7 +83,7 @@ fn body(
         "options": options,
     });
     if schema {
-        body["format"] = super::openai::answer_schema();
+        body["format"] = super::openai::answer_schema(c.reason_max_chars);
     }
     body
 }

@@ -15,13 +15,19 @@ use super::{ChatRequest, Completion, Failure, FailureKind, Provider, Reply, Usag
 use crate::config::{HttpProviderConfig, StructuredOutput};
 use crate::error::LlmError;
 
-/// The JSON schema of the answer, for providers' structured output.
-pub fn answer_schema() -> Value {
+/// The JSON schema of the answer, for providers' structured output; `reason_max_chars` bounds
+/// the reason (`maxLength`). The keys are serialised in sorted order, so a grammar built from it
+/// writes `reason` before `target`.
+pub fn answer_schema(reason_max_chars: Option<u32>) -> Value {
+    let mut reason = json!({ "type": "string" });
+    if let Some(n) = reason_max_chars {
+        reason["maxLength"] = json!(n);
+    }
     json!({
         "type": "object",
         "properties": {
             "target": { "type": "integer" },
-            "reason": { "type": "string" }
+            "reason": reason
         },
         "required": ["target", "reason"],
         "additionalProperties": false
@@ -107,7 +113,7 @@ fn body(
     if schema {
         body["response_format"] = json!({
             "type": "json_schema",
-            "json_schema": { "name": "exploration_target", "strict": true, "schema": answer_schema() }
+            "json_schema": { "name": "exploration_target", "strict": true, "schema": answer_schema(c.reason_max_chars) }
         });
     }
     body
