@@ -43,7 +43,7 @@ use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::dynamics::forward_was_blocked;
 use activemap_planning::grid::CellState;
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
     Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, LlmExchange, MessageKind as K,
@@ -574,7 +574,7 @@ impl Operator for Evaluator {
     fn on_event(&mut self, event: Event<'_>, _ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "pose" => {
+                inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = pose_from_wire(&e.t_world_camera)?;
                     let corrections: Vec<_> = crate::convert::corrections_from_wire(&e)?
@@ -590,7 +590,7 @@ impl Operator for Evaluator {
                         self.write_checkpoint(steps)?;
                     }
                 }
-                "true_pose" => {
+                inputs::TRUE_POSE => {
                     let t: TruePose = input.decode()?;
                     let pose = pose_from_wire(&t.t_world_camera)?;
                     if self.truth.is_none() {
@@ -610,14 +610,14 @@ impl Operator for Evaluator {
                         .insert(t.frame_id, Point2::new(planar.x, planar.y));
                     self.true_traj.push(t.stamp, pose);
                 }
-                "episode" => {
+                inputs::EPISODE => {
                     let s: EpisodeStatus = input.decode()?;
                     self.episode = format!("{:?} at step {}: {}", s.state, s.step, s.message);
                 }
-                "map" => self.map = Some(read_map(input.bytes)?.1),
-                "grid" => self.pending_grids.push(read_grid(input.bytes)?),
-                "regions" => self.regions = Some(input.decode()?),
-                "rgbd" => {
+                inputs::MAP => self.map = Some(read_map(input.bytes)?.1),
+                inputs::GRID => self.pending_grids.push(read_grid(input.bytes)?),
+                inputs::REGIONS => self.regions = Some(input.decode()?),
+                inputs::RGBD => {
                     // Only the earliest frame matters (the start view); later ones are skipped
                     // after reading their header.
                     let view = RgbdFrameView::parse(input.bytes)?;
@@ -627,8 +627,8 @@ impl Operator for Evaluator {
                             Some((id, validity::valid_depth_fraction(&view.depth())));
                     }
                 }
-                "fisher" => self.fisher.push(fisher_row(&input.decode()?)?),
-                "llm" => {
+                inputs::FISHER => self.fisher.push(fisher_row(&input.decode()?)?),
+                inputs::LLM => {
                     // Written as it arrives: a crash later loses no exchange.
                     let e: LlmExchange = input.decode()?;
                     self.out.create()?;
@@ -642,7 +642,7 @@ impl Operator for Evaluator {
                     self.out.append_llm(&record)?;
                     self.llm.push(record);
                 }
-                "action" => {
+                inputs::ACTION => {
                     let a: Action = input.decode()?;
                     if a.action == ActionKind::Forward {
                         self.forward_steps.push(a.step);
@@ -665,59 +665,29 @@ impl Operator for Evaluator {
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        POSE = "pose": super::K::PoseEstimate,
+        TRUE_POSE = "true_pose": super::K::TruePose,
+        MAP = "map": super::K::GaussianMap,
+        EPISODE = "episode": super::K::EpisodeStatus,
+        GRID = "grid": super::K::OccupancyGrid,
+        REGIONS = "regions": super::K::Frontiers,
+        ACTION = "action": super::K::Action,
+        FISHER = "fisher": super::K::FisherReport,
+        LLM = "llm": super::K::LlmExchange,
+        RGBD = "rgbd": super::K::RgbdFrame
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-        PortSpec {
-            name: "true_pose",
-            kind: K::TruePose,
-        },
-        PortSpec {
-            name: "map",
-            kind: K::GaussianMap,
-        },
-        PortSpec {
-            name: "episode",
-            kind: K::EpisodeStatus,
-        },
-        PortSpec {
-            name: "grid",
-            kind: K::OccupancyGrid,
-        },
-        PortSpec {
-            name: "regions",
-            kind: K::Frontiers,
-        },
-        PortSpec {
-            name: "action",
-            kind: K::Action,
-        },
-        // Optional, as every input: the Fisher flows connect it to scorer/report.
-        PortSpec {
-            name: "fisher",
-            kind: K::FisherReport,
-        },
-        // Optional: the LLM flows connect it to planner/llm (llm.jsonl, llm/*.png).
-        PortSpec {
-            name: "llm",
-            kind: K::LlmExchange,
-        },
-        // Optional: the simulator's frames; only the first is read, for the start-view check
-        // (`start_sees_nothing`).
-        PortSpec {
-            name: "rgbd",
-            kind: K::RgbdFrame,
-        },
-    ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "evaluator",
             summary: "Evaluation only: trajectories, map PLY, bird's-eye PNG, 2D coverage, ATE, Fisher replans, LLM exchanges (SPEC §8)",
-            inputs: INPUTS,
+            inputs: inputs::ALL,
             outputs: &[],
             evaluation: true,
             check_config: check_config_as::<Config>,

@@ -15,7 +15,7 @@ use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
 use activemap_planning::replan::ReplanReason as PlanReason;
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
     Action, ActionKind, MessageKind as K, Path, PoseEstimate, ReplanReason, ReplanRequest,
@@ -317,19 +317,19 @@ impl Operator for Follower {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "grid" => {
+                inputs::GRID => {
                     let (k, g) = read_grid(input.bytes)?;
                     self.add_grid(k, g);
                 }
-                "pose" => {
+                inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
                     self.add_pose(e.frame_id, pose, e.status == TrackingStatus::Lost);
                 }
-                "path" => self.add_path(input.decode()?),
+                inputs::PATH => self.add_path(input.decode()?),
                 other => anyhow::bail!("follower: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: "path" } => {
+            Event::InputClosed { port: inputs::PATH } => {
                 // The planner ended the episode: no reachable frontier is left.
                 ctx.send(
                     "action",
@@ -340,51 +340,44 @@ impl Operator for Follower {
                 )?;
                 return Ok(Flow::Stop);
             }
-            Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::POSE } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         for output in self.poll()? {
             match output {
-                Output::Replan(request) => ctx.send("replan", &request)?,
-                Output::Action(action) => ctx.send("action", &action)?,
+                Output::Replan(request) => ctx.send(outputs::REPLAN, &request)?,
+                Output::Action(action) => ctx.send(outputs::ACTION, &action)?,
             }
         }
         Ok(Flow::Continue)
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        PATH = "path": super::K::Path,
+        POSE = "pose": super::K::PoseEstimate,
+        GRID = "grid": super::K::OccupancyGrid
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        ACTION = "action": super::K::Action,
+        REPLAN = "replan": super::K::ReplanRequest
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "path",
-            kind: K::Path,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-        PortSpec {
-            name: "grid",
-            kind: K::OccupancyGrid,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "action",
-            kind: K::Action,
-        },
-        PortSpec {
-            name: "replan",
-            kind: K::ReplanRequest,
-        },
-    ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "follower",
             summary: "Greedy path follower: one action per step, replan requests, stuck recovery (SPEC §6)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

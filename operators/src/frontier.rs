@@ -10,7 +10,7 @@ use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::clearance::ClearanceConfig;
 use activemap_planning::frontier::{FrontierConfig, reachable_regions};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{FrontierRegion, Frontiers, MessageKind as K, PoseEstimate};
 use nalgebra::Point2;
@@ -103,19 +103,19 @@ impl Operator for Frontier {
 
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
-            Event::Input(input) if input.port == "grid" => {
+            Event::Input(input) if input.port == inputs::GRID => {
                 let stamp = activemap_schemas::OccupancyGridView::parse(input.bytes)?
                     .header
                     .stamp;
                 let (k, grid) = read_grid(input.bytes)?;
                 self.join.slot(k).grid = Some((stamp, grid));
             }
-            Event::Input(input) if input.port == "pose" => {
+            Event::Input(input) if input.port == inputs::POSE => {
                 let e: PoseEstimate = input.decode()?;
                 let p = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
                 self.join.slot(e.frame_id).robot = Some(Point2::new(p.x, p.y));
             }
-            Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::POSE } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         while let Some((k, slot)) = self
@@ -137,28 +137,29 @@ impl Operator for Frontier {
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        GRID = "grid": super::K::OccupancyGrid,
+        POSE = "pose": super::K::PoseEstimate
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        REGIONS = "regions": super::K::Frontiers
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "grid",
-            kind: K::OccupancyGrid,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[PortSpec {
-        name: "regions",
-        kind: K::Frontiers,
-    }];
     Registered {
         descriptor: OperatorDescriptor {
             name: "frontier",
             summary: "Reachable frontier regions of the grid: size, centroid, closest reachable cell (SPEC §6)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

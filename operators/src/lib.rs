@@ -9,8 +9,10 @@
 //! [`checks`]; [`checks::load`] validates a file with both.
 //!
 //! Adding an operator: write a module with a type implementing
-//! [`activemap_runtime::Operator`] and a `pub fn registered() -> Registered`, then add one line to
-//! [`registry`] (and drop its entry from [`planned`]).
+//! [`activemap_runtime::Operator`], its ports declared once with [`activemap_runtime::ports!`]
+//! (modules `inputs` and `outputs`, used by both the descriptor and the dispatch) and a
+//! `pub fn registered() -> Registered`, then add one line to [`registry`] (and drop its entry
+//! from [`planned`]).
 
 use activemap_runtime::{OperatorDescriptor, OperatorImpl};
 
@@ -87,6 +89,8 @@ pub fn find(name: &str) -> Option<Registered> {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn operator_names_are_unique() {
         let mut names: Vec<_> = super::catalog().iter().map(|d| d.name).collect();
@@ -94,5 +98,25 @@ mod tests {
         names.sort();
         names.dedup();
         assert_eq!(names.len(), n);
+    }
+
+    /// Every registered operator declares each port once (its `inputs`/`outputs` modules), so
+    /// dispatch by name is unambiguous; a duplicate would fail here naming the operator.
+    #[test]
+    fn every_operator_declares_each_port_once() {
+        for r in registry() {
+            r.descriptor.check_ports().unwrap();
+        }
+        const TWICE: &[activemap_runtime::PortSpec] =
+            &[mapper::inputs::ALL[0], mapper::inputs::ALL[0]];
+        let twice = OperatorDescriptor {
+            inputs: TWICE,
+            ..mapper::registered().descriptor
+        };
+        let e = twice.check_ports().unwrap_err();
+        assert!(
+            e.contains("`mapper`") && e.contains("`rgbd`") && e.contains("twice"),
+            "{e}"
+        );
     }
 }

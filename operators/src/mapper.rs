@@ -9,7 +9,7 @@
 
 use activemap_runtime::dataflow::{Dataflow, NodeImpl};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus};
 use activemap_slam::{
@@ -216,20 +216,20 @@ impl Operator for Mapper {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         let mut stop = false;
         match event {
-            Event::Input(input) if input.port == "rgbd" => {
+            Event::Input(input) if input.port == inputs::RGBD => {
                 let view = RgbdFrameView::parse(input.bytes)?;
                 self.add_frame(view.header.frame_id, slam_frame(&view)?);
             }
-            Event::Input(input) if input.port == "pose" => {
+            Event::Input(input) if input.port == inputs::POSE => {
                 self.add_pose(input.decode()?)?;
             }
             Event::Timer { .. } => {}
-            Event::InputClosed { port: "pose" } => stop = true,
+            Event::InputClosed { port: inputs::POSE } => stop = true,
             _ => return Ok(Flow::Continue),
         }
         for s in self.process_ready(stop)? {
             let header = self.wire_header(&s);
-            ctx.loan("map", header.payload_len()?, |buf| {
+            ctx.loan(outputs::MAP, header.payload_len()?, |buf| {
                 write_map(buf, header, &s.map, &s.ids)
             })?;
         }
@@ -237,30 +237,31 @@ impl Operator for Mapper {
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        RGBD = "rgbd": super::K::RgbdFrame,
+        POSE = "pose": super::K::PoseEstimate
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        MAP = "map": super::K::GaussianMap
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "rgbd",
-            kind: K::RgbdFrame,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[PortSpec {
-        name: "map",
-        kind: K::GaussianMap,
-    }];
     Registered {
         descriptor: OperatorDescriptor {
             name: "mapper",
             summary: "3DGS mapping on keyframes in a background worker; one map snapshot per frame, \
                       tagged with the last frame and the newest keyframe it includes, with stable \
                       Gaussian ids, in shared memory (SPEC §4)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

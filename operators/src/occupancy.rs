@@ -10,7 +10,7 @@ use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::{Intrinsics, Isometry3, RobotModel};
 use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
     GaussianMapView, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
@@ -219,7 +219,7 @@ impl Operator for Occupancy {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "rgbd" => {
+                inputs::RGBD => {
                     let view = RgbdFrameView::parse(input.bytes)?;
                     self.add_depth(
                         view.header.frame_id,
@@ -228,52 +228,50 @@ impl Operator for Occupancy {
                         view.header.stamp,
                     );
                 }
-                "pose" => {
+                inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     self.add_pose(e.frame_id, pose_from_wire(&e.t_world_camera)?, e.status);
                 }
-                "map" => {
+                inputs::MAP => {
                     let (k, means, opacities) = map_points(input.bytes)?;
                     self.add_map(k, means, opacities);
                 }
                 other => anyhow::bail!("occupancy: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::POSE } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         for grid in self.process_ready()? {
-            ctx.send("grid", &grid)?;
+            ctx.send(outputs::GRID, &grid)?;
         }
         Ok(Flow::Continue)
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        RGBD = "rgbd": super::K::RgbdFrame,
+        POSE = "pose": super::K::PoseEstimate,
+        MAP = "map": super::K::GaussianMap
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        GRID = "grid": super::K::OccupancyGrid
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "rgbd",
-            kind: K::RgbdFrame,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-        PortSpec {
-            name: "map",
-            kind: K::GaussianMap,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[PortSpec {
-        name: "grid",
-        kind: K::OccupancyGrid,
-    }];
     Registered {
         descriptor: OperatorDescriptor {
             name: "occupancy",
             summary: "2D occupancy grid from the map and depth rays at the estimated pose (SPEC §6)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

@@ -39,9 +39,7 @@ use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::fbe::{FbeConfig, FbePolicy, FbeState};
 use activemap_planning::frontier::{Approach, FrontierRegion as PlanRegion};
 use activemap_planning::grid::Cell;
-use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
-};
+use activemap_runtime::{Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl};
 use activemap_schemas::{
     Frontiers, GaussianMapView, Goal, LlmExchange, LlmFollowUp, MessageKind as K,
     OccupancyGridView, PoseEstimate, ReplanReason, ReplanRequest, SmallMessage,
@@ -704,17 +702,17 @@ impl Operator for Planner {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "grid" => {
+                inputs::GRID => {
                     let k = OccupancyGridView::parse(input.bytes)?.header.frame_id;
                     self.join.slot(k).grid = Some(input.bytes.to_vec());
                 }
-                "regions" => {
+                inputs::REGIONS => {
                     let f: Frontiers = input.decode()?;
                     let frame = f.frame_id;
                     self.join.slot(frame).regions = Some(f);
                 }
-                "replan" => self.requests.push(input.decode()?),
-                "pose" => {
+                inputs::REPLAN => self.requests.push(input.decode()?),
+                inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     let t = pose_from_wire(&e.t_world_camera)?;
                     let pose = planar_from_camera_pose(&t);
@@ -725,14 +723,14 @@ impl Operator for Planner {
                     slot.pose = Some(pose);
                     slot.camera_z = Some(t.translation.z);
                 }
-                "map" => {
+                inputs::MAP => {
                     if let Some(llm) = &mut self.llm {
                         llm.add_map(input.bytes)?;
                     }
                 }
                 other => anyhow::bail!("planner: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: "pose" } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::POSE } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         while let Some(request) = self.requests.first().copied() {
@@ -763,13 +761,13 @@ impl Operator for Planner {
                 Some(llm) => {
                     let (goal, exchange) = llm.goal(&request, &grid, frontiers, pose, *camera_z)?;
                     if let Some(exchange) = exchange {
-                        ctx.send("llm", &exchange)?;
+                        ctx.send(outputs::LLM, &exchange)?;
                     }
                     goal
                 }
             };
             match goal {
-                Some(goal) => ctx.send("goal", &goal)?,
+                Some(goal) => ctx.send(outputs::GOAL, &goal)?,
                 None => return Ok(Flow::Stop),
             }
             // Older frames are no longer needed (requests come in frame order).
@@ -779,46 +777,33 @@ impl Operator for Planner {
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        MAP = "map": super::K::GaussianMap,
+        REGIONS = "regions": super::K::Frontiers,
+        POSE = "pose": super::K::PoseEstimate,
+        REPLAN = "replan": super::K::ReplanRequest,
+        GRID = "grid": super::K::OccupancyGrid
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        GOAL = "goal": super::K::Goal,
+        LLM = "llm": super::K::LlmExchange
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "map",
-            kind: K::GaussianMap,
-        },
-        PortSpec {
-            name: "regions",
-            kind: K::Frontiers,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-        PortSpec {
-            name: "replan",
-            kind: K::ReplanRequest,
-        },
-        PortSpec {
-            name: "grid",
-            kind: K::OccupancyGrid,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "goal",
-            kind: K::Goal,
-        },
-        PortSpec {
-            name: "llm",
-            kind: K::LlmExchange,
-        },
-    ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "planner",
             summary: "Goal choice on replan: FBE utility/nearest/largest frontier, or the multimodal LLM on the annotated BEV (refine, -1, when none is left) (SPEC §6, §7)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config,
         },

@@ -35,9 +35,7 @@ use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::astar::AstarConfig;
 use activemap_planning::grid::Cell;
 use activemap_planning::path::{PlannedPath, shortest_path};
-use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec,
-};
+use activemap_runtime::{Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl};
 use activemap_schemas::{
     FisherCandidate, FisherPath, FisherReport, FisherTimings, Frontiers, GaussianMapView, Goal,
     MessageKind as K, OccupancyGridView, Path, PlanarPose2, PoseEstimate,
@@ -570,11 +568,11 @@ impl Operator for Scorer {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "grid" => {
+                inputs::GRID => {
                     let k = OccupancyGridView::parse(input.bytes)?.header.frame_id;
                     self.join.slot(k).grid = Some(input.bytes.to_vec());
                 }
-                "pose" => {
+                inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = pose_from_wire(&e.t_world_camera)?;
                     if let Some(fisher) = &mut self.fisher {
@@ -582,13 +580,13 @@ impl Operator for Scorer {
                     }
                     self.join.slot(e.frame_id).pose = Some(pose);
                 }
-                "regions" => {
+                inputs::REGIONS => {
                     let f: Frontiers = input.decode()?;
                     let frame = f.frame_id;
                     self.join.slot(frame).regions = Some(f);
                 }
-                "goal" => self.goals.push(input.decode()?),
-                "map" => {
+                inputs::GOAL => self.goals.push(input.decode()?),
+                inputs::MAP => {
                     if let Some(fisher) = &mut self.fisher {
                         fisher.add_map(input.bytes)?;
                     }
@@ -597,60 +595,47 @@ impl Operator for Scorer {
             },
             // The planner ended the episode, or the loop is shutting down.
             Event::InputClosed {
-                port: "goal" | "pose",
+                port: inputs::GOAL | inputs::POSE,
             } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         while let Some((path, report)) = self.answer_oldest()? {
             if let Some(report) = report {
-                ctx.send("report", &report)?;
+                ctx.send(outputs::REPORT, &report)?;
             }
-            ctx.send("path", &path)?;
+            ctx.send(outputs::PATH, &path)?;
         }
         Ok(Flow::Continue)
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        GOAL = "goal": super::K::Goal,
+        MAP = "map": super::K::GaussianMap,
+        GRID = "grid": super::K::OccupancyGrid,
+        POSE = "pose": super::K::PoseEstimate,
+        REGIONS = "regions": super::K::Frontiers
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        PATH = "path": super::K::Path,
+        REPORT = "report": super::K::FisherReport
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "goal",
-            kind: K::Goal,
-        },
-        PortSpec {
-            name: "map",
-            kind: K::GaussianMap,
-        },
-        PortSpec {
-            name: "grid",
-            kind: K::OccupancyGrid,
-        },
-        PortSpec {
-            name: "pose",
-            kind: K::PoseEstimate,
-        },
-        PortSpec {
-            name: "regions",
-            kind: K::Frontiers,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "path",
-            kind: K::Path,
-        },
-        PortSpec {
-            name: "report",
-            kind: K::FisherReport,
-        },
-    ];
     Registered {
         descriptor: OperatorDescriptor {
             name: "scorer",
             summary: "Path to the planner's goal: shortest A* + shortcut, or the Fisher-information path choice with a report per replan (SPEC §5, §6)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config,
         },

@@ -11,7 +11,7 @@
 use activemap_geometry::Isometry3;
 use activemap_geometry::RobotModel;
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
     Action, ActionKind, EpisodeState, EpisodeStatus, MessageKind as K, RgbdFrameHeader,
@@ -202,7 +202,7 @@ impl Sim {
             RgbdFrameHeader::new(frame_id, stamp, [k.fx, k.fy, k.cx, k.cy], k.width, k.height);
         let sim = &mut self.sim;
         // Rendered straight into the loaned shared-memory sample: no intermediate frame.
-        ctx.loan("rgbd", header.payload_len()?, |buf| {
+        ctx.loan(outputs::RGBD, header.payload_len()?, |buf| {
             let out = RgbdFrameMut::init(buf, header)?;
             sim.render_into(out.rgb, out.depth)?;
             Ok(())
@@ -310,7 +310,7 @@ impl Operator for Sim {
                 let action = self.pending.take();
                 return self.advance(action, ctx);
             }
-            Event::Input(input) if input.port == "action" => {
+            Event::Input(input) if input.port == inputs::ACTION => {
                 let action: Action = input.decode()?;
                 if self.lockstep {
                     anyhow::ensure!(
@@ -344,24 +344,21 @@ impl Operator for Sim {
     }
 }
 
-const INPUTS: &[PortSpec] = &[PortSpec {
-    name: "action",
-    kind: K::Action,
-}];
-const OUTPUTS: &[PortSpec] = &[
-    PortSpec {
-        name: "rgbd",
-        kind: K::RgbdFrame,
-    },
-    PortSpec {
-        name: "true_pose",
-        kind: K::TruePose,
-    },
-    PortSpec {
-        name: "episode",
-        kind: K::EpisodeStatus,
-    },
-];
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        ACTION = "action": super::K::Action
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        RGBD = "rgbd": super::K::RgbdFrame,
+        TRUE_POSE = "true_pose": super::K::TruePose,
+        EPISODE = "episode": super::K::EpisodeStatus
+    }
+}
 
 /// Registry entry.
 pub fn registered() -> Registered {
@@ -369,8 +366,8 @@ pub fn registered() -> Registered {
         descriptor: OperatorDescriptor {
             name: "sim",
             summary: "RGB-D simulator: renders at the true pose, applies actions, lockstep (SPEC §1.1)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use activemap_geometry::{Isometry3, RobotModel};
 use activemap_runtime::{
-    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, PortSpec, check_config_as,
+    Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
@@ -309,56 +309,54 @@ impl Operator for Tracker {
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
         match event {
             Event::Input(input) => match input.port {
-                "rgbd" => {
+                inputs::RGBD => {
                     let view = RgbdFrameView::parse(input.bytes)?;
                     self.add_frame(view.header.frame_id, slam_frame(&view)?);
                 }
-                "map" => {
+                inputs::MAP => {
                     let (header, map) = read_map(input.bytes)?;
                     self.set_map(header.frame_id, map);
                 }
-                "action" => {
+                inputs::ACTION => {
                     let a: Action = input.decode()?;
                     self.add_action(a.step, a.action);
                 }
                 other => anyhow::bail!("tracker: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: "rgbd" } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::RGBD } => return Ok(Flow::Stop),
             _ => return Ok(Flow::Continue),
         }
         for e in self.process_ready()? {
-            ctx.send("pose", &e)?;
+            ctx.send(outputs::POSE, &e)?;
         }
         Ok(Flow::Continue)
     }
 }
 
+/// The operator's input ports, named once for registration and dispatch.
+pub mod inputs {
+    activemap_runtime::ports! {
+        RGBD = "rgbd": super::K::RgbdFrame,
+        MAP = "map": super::K::GaussianMap,
+        ACTION = "action": super::K::Action
+    }
+}
+
+/// The operator's output ports, named once for registration and dispatch.
+pub mod outputs {
+    activemap_runtime::ports! {
+        POSE = "pose": super::K::PoseEstimate
+    }
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
-    const INPUTS: &[PortSpec] = &[
-        PortSpec {
-            name: "rgbd",
-            kind: K::RgbdFrame,
-        },
-        PortSpec {
-            name: "map",
-            kind: K::GaussianMap,
-        },
-        PortSpec {
-            name: "action",
-            kind: K::Action,
-        },
-    ];
-    const OUTPUTS: &[PortSpec] = &[PortSpec {
-        name: "pose",
-        kind: K::PoseEstimate,
-    }];
     Registered {
         descriptor: OperatorDescriptor {
             name: "tracker",
             summary: "3DGS tracking of each frame against the latest map, no ground truth (SPEC §4)",
-            inputs: INPUTS,
-            outputs: OUTPUTS,
+            inputs: inputs::ALL,
+            outputs: outputs::ALL,
             evaluation: false,
             check_config: check_config_as::<Config>,
         },

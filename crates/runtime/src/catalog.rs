@@ -12,6 +12,30 @@ pub struct PortSpec {
     pub kind: MessageKind,
 }
 
+/// Declares an operator's ports once, inside a module of their own (`inputs`, `outputs`): a
+/// `pub const NAME: &str` per port, for dispatch (`match input.port { inputs::RGBD => … }`,
+/// `ctx.send(outputs::GRID, …)`), and `ALL`, the [`PortSpec`] list its [`OperatorDescriptor`]
+/// registers. A port misspelt where it is used is then a compile error, not a message that never
+/// arrives; [`OperatorDescriptor::check_ports`] refuses a list that names a port twice.
+///
+/// ```
+/// mod inputs {
+///     activemap_runtime::ports! { RGBD = "rgbd": activemap_schemas::MessageKind::RgbdFrame }
+/// }
+/// assert_eq!(inputs::ALL[0].name, inputs::RGBD);
+/// ```
+#[macro_export]
+macro_rules! ports {
+    ($($id:ident = $name:literal : $kind:expr),* $(,)?) => {
+        $(
+            #[doc = concat!("Port `", $name, "`.")]
+            pub const $id: &str = $name;
+        )*
+        /// Every port, in declaration order, for the operator's descriptor.
+        pub const ALL: &[$crate::PortSpec] = &[$($crate::PortSpec { name: $id, kind: $kind }),*];
+    };
+}
+
 /// Checks an operator's `config:` value; returns a message naming the bad field.
 pub type ConfigCheck = fn(&serde_json::Value) -> Result<(), String>;
 
@@ -41,6 +65,28 @@ impl OperatorDescriptor {
     /// Output port named `name`.
     pub fn output(&self, name: &str) -> Option<&PortSpec> {
         self.outputs.iter().find(|p| p.name == name)
+    }
+
+    /// Refuses a descriptor that names an input or an output port twice (or an empty name),
+    /// naming the operator: dispatch by name could not tell the two apart.
+    pub fn check_ports(&self) -> Result<(), String> {
+        for (what, ports) in [("input", self.inputs), ("output", self.outputs)] {
+            for (i, p) in ports.iter().enumerate() {
+                if p.name.is_empty() {
+                    return Err(format!(
+                        "operator `{}`: an {what} port has no name",
+                        self.name
+                    ));
+                }
+                if ports[..i].iter().any(|q| q.name == p.name) {
+                    return Err(format!(
+                        "operator `{}`: {what} port `{}` is declared twice",
+                        self.name, p.name
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 }
 

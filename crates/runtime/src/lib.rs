@@ -24,6 +24,15 @@
 //!
 //! struct MyCamera { size: u32, frame: u64 }
 //!
+//! // The ports, named once: registration uses `ALL`, dispatch the constants (a typo is a
+//! // compile error).
+//! mod inputs {
+//!     activemap_runtime::ports! { ACTION = "action": activemap_schemas::MessageKind::Action }
+//! }
+//! mod outputs {
+//!     activemap_runtime::ports! { RGBD = "rgbd": activemap_schemas::MessageKind::RgbdFrame }
+//! }
+//!
 //! impl Operator for MyCamera {
 //!     type Config = MyConfig;
 //!
@@ -34,7 +43,7 @@
 //!     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
 //!         match event {
 //!             // An input `action:` of type Action: decode (checks the type and schema version).
-//!             Event::Input(input) if input.port == "action" => {
+//!             Event::Input(input) if input.port == inputs::ACTION => {
 //!                 let action: Action = input.decode()?;
 //!                 if action.action == ActionKind::Stop {
 //!                     return Ok(Flow::Stop);
@@ -43,7 +52,7 @@
 //!                 self.frame += 1;
 //!                 let header = RgbdFrameHeader::new(self.frame, 0.0, [400.0, 400.0, 399.5, 399.5],
 //!                                                   self.size, self.size);
-//!                 ctx.loan("rgbd", header.payload_len()?, |buf| {
+//!                 ctx.loan(outputs::RGBD, header.payload_len()?, |buf| {
 //!                     let frame = RgbdFrameMut::init(buf, header)?;
 //!                     frame.rgb.fill(128);
 //!                     frame.depth.fill(1.5);
@@ -62,7 +71,8 @@
 //! }
 //! ```
 //!
-//! Register it in `activemap-operators` (an [`OperatorDescriptor`] with its ports and config check,
+//! Register it in `activemap-operators` (an [`OperatorDescriptor`] with its ports, `inputs::ALL`
+//! and `outputs::ALL`, and its config check,
 //! plus [`OperatorImpl::of::<MyCamera>()`]), then use it in a dataflow file:
 //!
 //! ```yaml
