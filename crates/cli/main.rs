@@ -309,7 +309,7 @@ struct TransportArgs {
 #[derive(clap::Args)]
 pub(crate) struct Overrides {
     /// Set a key of a node's `config:` (repeatable): NODE.KEY[.SUBKEY...]=VALUE, VALUE read as
-    /// YAML (`--set sim.scene=house:3 --set sim.width=320`); missing keys are created. Only
+    /// YAML (`--set sim.noise=realistic --set sim.width=320`); missing keys are created. Only
     /// `config:` can be set, not inputs or other node keys. Checked like the file; the run
     /// folder's dataflow.yaml holds the effective values.
     #[arg(long = "set", value_name = "NODE.KEY=VALUE", value_parser = Override::parse)]

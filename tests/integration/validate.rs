@@ -92,14 +92,18 @@ fn set_overrides_are_validated_and_named() {
     );
     let out = check(&["validate", "dataflow.yaml", "--set", "simm.width=96"]);
     assert!(out.stderr.contains("no node `simm`"), "{}", out.stderr);
-    let out = check(&[
-        "validate",
-        "dataflow.yaml",
-        "--set",
-        "sim.width=96",
-        "--set",
-        "sim.scene=house:3",
-    ]);
+    // The simulator's scene alone: the evaluator would judge house 3's episode against house 7.
+    let mut args = vec!["validate", "dataflow.yaml", "--set", "sim.width=96"];
+    args.extend(["--set", "sim.scene=house:3"]);
+    let out = check(&args);
+    assert!(!out.status.success(), "{}", out.stdout);
+    assert!(
+        out.stderr.contains("scene mismatch") && out.stderr.contains("evaluator.scene=X"),
+        "{}",
+        out.stderr
+    );
+    args.extend(["--set", "evaluator.scene=house:3"]);
+    let out = check(&args);
     assert!(out.status.success(), "{}", out.stderr);
     assert!(out.stdout.contains(": ok ("), "{}", out.stdout);
 }
