@@ -258,6 +258,7 @@ mod tests {
     #[test]
     fn ids_added_later_are_rescaled_to_n_views() {
         let config = FisherConfig {
+            model_fisher: ModelFisherSource::McFreeSpace,
             mc_poses: 4,
             ..FisherConfig::default()
         };
