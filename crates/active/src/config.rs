@@ -21,7 +21,8 @@ use serde::{Deserialize, Serialize};
 /// the top-20 candidates' EIG between two independent draws, 150k-Gaussian house): the
 /// paper's Monte-Carlo sum ranks them almost independently from draw to draw (τ = 0.25–0.32
 /// with 32 poses, −0.11 with 128, 0.32 for `both`), the keyframe sum draws nothing (τ = 1) and
-/// adds each keyframe's view once (38 ms against 1.1 s for 8 fresh poses per map change).
+/// renders each keyframe's view once (one view per new keyframe, against 8 fresh poses, 1.1 s
+/// in that run, per map change).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ModelFisherSource {

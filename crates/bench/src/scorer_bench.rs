@@ -324,7 +324,26 @@ pub fn run_with(
     };
 
     // Cold: a fresh scorer each time, same frame (same draws).
-    let mut cold = Case::new("cold", format!("built: {} MC poses", fisher.mc_poses));
+    use activemap_active::ModelFisherSource as Source;
+    let keyframes = house.keyframe_poses.len();
+    let (built, changed) = match fisher.model_fisher {
+        Source::McFreeSpace => (
+            format!("built: {} MC poses", fisher.mc_poses),
+            format!("map changed: {} fresh MC poses", fisher.mc_refresh),
+        ),
+        Source::Keyframes => (
+            format!("built: {keyframes} keyframes"),
+            "map changed: no new keyframe".to_string(),
+        ),
+        Source::Both => (
+            format!(
+                "built: {keyframes} keyframes + {} MC poses",
+                fisher.mc_poses
+            ),
+            format!("map changed: {} fresh MC poses", fisher.mc_refresh),
+        ),
+    };
+    let mut cold = Case::new("cold", built);
     let map0 = map_at(base);
     let mut scorer = fresh()?;
     let mut last = None;
@@ -341,10 +360,7 @@ pub fn run_with(
         (k.width, k.height)
     };
     // Incremental: the last cold scorer goes on, the map snapshot changing before each replan.
-    let mut incremental = Case::new(
-        "incremental",
-        format!("map changed: {} fresh MC poses", fisher.mc_refresh),
-    );
+    let mut incremental = Case::new("incremental", changed);
     let mut frame = base;
     for _ in 0..repeats {
         frame += 1;
