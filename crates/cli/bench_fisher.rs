@@ -58,6 +58,14 @@ pub struct ScorerArgs {
     /// Replans timed per case (medians reported).
     #[arg(long, default_value_t = 5)]
     repeats: usize,
+    /// Also runs one `cold` replan and the `incremental` case on the same house with these
+    /// further `fisher` overrides (space-separated KEY=VALUE, on top of the `--fisher` ones;
+    /// repeatable; the model Fisher's τ too when a key starts with `model` or `mc_`), and prints
+    /// `scorer compare "<overrides>" median_ms <x> ratio <x / base> tie_fraction <f>
+    /// tau_vs_base <τ> same_choice <k>/<n>`: the timing ratio in the same conditions and the
+    /// rank agreement of the path objectives with the base settings.
+    #[arg(long, value_name = "OVERRIDES")]
+    compare: Vec<String>,
 }
 
 /// Options of `activemap bench planner`.
@@ -207,7 +215,51 @@ pub fn scorer(args: &ScorerArgs) -> anyhow::Result<()> {
     println!("# fisher settings: {source}");
     let bench = activemap_bench::scorer_bench::run(&house, &fisher, args.repeats)?;
     print!("{}", bench.table());
+    let mut compared = Vec::new();
+    for c in &args.compare {
+        let mut overrides = args.house.overrides.clone();
+        overrides.extend(c.split_whitespace().map(str::to_string));
+        let (_, other, source) = flow_settings(&args.house.flow, &overrides)?;
+        println!("# compare: fisher settings from {source}");
+        // Only the incremental case; the model Fisher's τ when the overrides touch it.
+        let touches_model = c
+            .split_whitespace()
+            .any(|kv| kv.starts_with("model") || kv.starts_with("mc_"));
+        let run = activemap_bench::scorer_bench::run_with(
+            &house,
+            &other,
+            args.repeats,
+            false,
+            if touches_model {
+                activemap_bench::scorer_bench::MODEL_TAU_PAIRS
+            } else {
+                0
+            },
+        )?;
+        print!("{}", run.table());
+        println!("{}", run.summary().replace("scorer ", "# compared: "));
+        let agree = activemap_bench::scorer_bench::agreement(&bench, &run);
+        let base_ms = bench.incremental().median_total_ms();
+        let ms = run.incremental().median_total_ms();
+        let tau = activemap_bench::stats::median(&agree.taus).unwrap_or(f64::NAN);
+        let ties = run.summary();
+        let tie = ties
+            .lines()
+            .nth(1)
+            .and_then(|l| l.split(' ').nth(2))
+            .unwrap_or("nan")
+            .to_string();
+        compared.push(format!(
+            "scorer compare \"{c}\" median_ms {ms:.1} ratio {:.3} tie_fraction {tie} tau_vs_base {tau:.3} same_choice {}/{}",
+            ms / base_ms,
+            agree.same_choice,
+            agree.replans
+        ));
+    }
     println!("{}", bench.summary());
+    for line in compared {
+        println!("{line}");
+    }
     Ok(())
 }
 

@@ -795,6 +795,7 @@ mod tests {
                 scored_steps: vec![5, 10, 14],
                 eig: vec![3.0, 2.0, 1.0],
                 c_local: vec![-20.0, f64::INFINITY, -19.0],
+                low_opacity: vec![0.0; 3],
                 objective: f64::INFINITY,
             }],
             gaussians: 1200,

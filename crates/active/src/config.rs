@@ -1,5 +1,7 @@
 //! Settings of the Fisher scorer (SPEC §5–§6). Every field has the paper's value as its
-//! default; the authors' release variant, where it differs, is a named option. The `scorer`
+//! default, except the model Fisher's source (the release's keyframe sum, chosen by
+//! measurement: see [`ModelFisherSource`]); the authors' release variant, where it differs,
+//! is a named option. The `scorer`
 //! operator reads this struct from its `fisher:` config block (unknown fields are refused).
 //!
 //! # Normalisation of H and what λ means
@@ -14,16 +16,25 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Where the model Fisher `I(w)` comes from (SPEC §5).
+/// Where the model Fisher `I(w)` comes from (SPEC §5). The default is the release's
+/// `keyframes`, by measurement (`activemap bench scorer`'s `scorer model_tau`, Kendall τ of
+/// the top-20 candidates' EIG between two independent draws, 150k-Gaussian house): the
+/// paper's Monte-Carlo sum ranks them almost independently from draw to draw (τ = 0.25–0.32
+/// with 32 poses, −0.11 with 128, 0.32 for `both`), the keyframe sum draws nothing (τ = 1) and
+/// renders each keyframe's view once (one view per new keyframe, against 8 fresh poses, 1.1 s
+/// in that run, per map change).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ModelFisherSource {
     /// The paper: a Monte-Carlo sum of `H` over `mc_poses` poses drawn uniformly in the
     /// current estimated free space (eroded by the robot radius), random yaw.
-    #[default]
     McFreeSpace,
     /// The release: the sum of `H` over the keyframes (FisherRF's empirical Fisher).
+    #[default]
     Keyframes,
+    /// Both sums added: the keyframes' `H` (what was observed) plus the Monte-Carlo estimate
+    /// (`mc_poses` free-space poses, what could be observed).
+    Both,
 }
 
 /// How a path's poses are turned into one number (SPEC §5).
@@ -100,11 +111,30 @@ pub struct FisherConfig {
     pub eta: f64,
     /// Every `stride`-th future pose of a path is scored (plus the last); 1 = every pose.
     pub stride: usize,
-    /// Paths are cut after this many actions for scoring (`None`: whole paths; release: 30).
-    /// Default 30, by measurement (`activemap bench scorer`, 150k-Gaussian house, paths of
-    /// about 145 actions): whole paths score about 570 poses per replan (29 s), cut at 30
-    /// they score 120 (13 s); the follower still drives the whole path.
+    /// Paths are cut after this many actions for scoring (`None`: whole paths, the paper's
+    /// sum over the path, its end pose included; release: 30). The follower drives the whole
+    /// path either way. Default 30 by measurement (`activemap bench scorer --fisher
+    /// max_actions=null --compare max_actions=30`, 150k-Gaussian house): whole paths render
+    /// 204 distinct path poses every 5th action (112 every 10th, 64 every 20th) against 6
+    /// for the cut, 2–3× the views of a replan, and still tie within 1 % in a third to all of
+    /// the replans (the cut: all).
     pub max_actions: Option<usize>,
+    /// Lattice the scored path poses are snapped to before rendering, `[metres, degrees]`
+    /// (`None`: exact poses). Paths to nearby candidates that run side by side then share
+    /// their views (each distinct snapped pose is rendered once); a snapped pose lies within
+    /// half a cell and half an angle step of the true one.
+    pub path_snap: Option<[f64; 2]>,
+    /// Weight of the end pose's own term, counted on top of its place in the sum (SPEC §5
+    /// "Path objective"; the release adds 60× the end pose's score): the `paper` family adds
+    /// `end_weight·(C_local(x_T) − η·ln EIG_T)`. 0 (the paper) leaves the sum alone. The
+    /// `release` objective keeps its own `60·EIG_T`.
+    pub end_weight: f64,
+    /// Weight of the release's coverage term (release: 1e-4): every scored pose subtracts
+    /// `low_opacity_weight × n_low` from the objective (`release`: adds it to the score), `n_low`
+    /// the pixels whose rendered opacity is below 0.5, counted at the scoring resolution and
+    /// scaled to the frame camera's pixel count (so the weight means what the release's does
+    /// at any `scoring_width`). 0 (the paper): no such term.
+    pub low_opacity_weight: f64,
     /// A 6×6 pose information whose smallest eigenvalue is at most this fraction of its
     /// largest counts as degenerate (C_local = +∞).
     pub degenerate_ratio: f64,
@@ -129,12 +159,16 @@ pub struct FisherConfig {
     /// Seed of every random draw (Monte-Carlo poses, candidates, unknown space), mixed with
     /// the frame id, so a run is reproducible.
     pub seed: u64,
+    /// Mixed into the Monte-Carlo pose draws of `mc_free_space` only: two scorers that differ
+    /// in it draw independent model Fisher estimates on the same candidates and unknown space
+    /// (`bench scorer`'s `model_tau`).
+    pub model_seed: u64,
 }
 
 impl Default for FisherConfig {
     fn default() -> Self {
         Self {
-            model_fisher: ModelFisherSource::McFreeSpace,
+            model_fisher: ModelFisherSource::Keyframes,
             mc_poses: 32,
             mc_refresh: 8,
             lambda: 1e-6,
@@ -151,6 +185,9 @@ impl Default for FisherConfig {
             eta: 5.0,
             stride: 5,
             max_actions: Some(30),
+            path_snap: None,
+            end_weight: 0.0,
+            low_opacity_weight: 0.0,
             degenerate_ratio: 1e-9,
             unknown_per_cell: 200,
             unknown_band_below_camera_m: 1.0,
@@ -161,6 +198,7 @@ impl Default for FisherConfig {
             refine_cluster: RefineCluster::Largest,
             refine_height_band_m: None,
             seed: 0,
+            model_seed: 0,
         }
     }
 }
@@ -168,7 +206,8 @@ impl Default for FisherConfig {
 impl FisherConfig {
     /// The release's variant (SPEC §5 "Release facts"): keyframe Fisher, candidates at
     /// [0.5, 1.0] m with the previous ones re-added, the release objective every 5th pose of
-    /// paths cut at 30 actions, refine on the best cluster within ±0.8 m of the camera.
+    /// paths cut at 30 actions with its low-opacity coverage term (1e-4 per pixel), refine on
+    /// the best cluster within ±0.8 m of the camera.
     pub fn release() -> Self {
         Self {
             model_fisher: ModelFisherSource::Keyframes,
@@ -177,6 +216,7 @@ impl FisherConfig {
             objective: PathObjective::Release,
             stride: 5,
             max_actions: Some(30),
+            low_opacity_weight: 1e-4,
             refine_cluster: RefineCluster::Best,
             refine_height_band_m: Some(0.8),
             ..Self::default()
@@ -242,6 +282,23 @@ impl FisherConfig {
         if self.max_actions == Some(0) {
             return Err("fisher.max_actions must be at least 1 (or left out)".into());
         }
+        if let Some([m, deg]) = self.path_snap
+            && !(m.is_finite() && m > 0.0 && deg.is_finite() && deg > 0.0)
+        {
+            return Err(format!(
+                "fisher.path_snap must be [metres, degrees], both positive, got [{m}, {deg}]"
+            ));
+        }
+        for (name, v) in [
+            ("end_weight", self.end_weight),
+            ("low_opacity_weight", self.low_opacity_weight),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!(
+                    "fisher.{name} must be finite and non-negative, got {v}"
+                ));
+            }
+        }
         if !(self.degenerate_ratio.is_finite()
             && self.degenerate_ratio >= 0.0
             && self.degenerate_ratio < 1.0)
@@ -284,7 +341,7 @@ mod tests {
     fn defaults_and_variants_validate_and_bad_fields_are_named() {
         let paper = FisherConfig::default();
         paper.validate().unwrap();
-        assert_eq!(paper.model_fisher, ModelFisherSource::McFreeSpace);
+        assert_eq!(paper.model_fisher, ModelFisherSource::Keyframes);
         assert_eq!((paper.candidates, paper.top_candidates), (256, 20));
         assert_eq!((paper.lambda, paper.eta), (1e-6, 5.0));
         let release = FisherConfig::release();

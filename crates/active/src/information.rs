@@ -55,7 +55,14 @@ pub struct ViewInformation {
     /// `(1/P)·(J_rgbᵀJ_rgb + depth_weight·J_Dᵀ J_D)` for the left pose update τ = [ρ, θ]
     /// (`None` when computed with [`ViewParts::Diagonal`]).
     pub pose: Option<Matrix6<f64>>,
+    /// Pixels of the scoring render whose accumulated opacity is below
+    /// [`LOW_OPACITY`] (the release's coverage term counts them); every pixel when nothing is
+    /// seen.
+    pub low_opacity_pixels: u32,
 }
+
+/// Rendered opacity under which a pixel counts as uncovered (the release's 0.5).
+pub const LOW_OPACITY: f64 = 0.5;
 
 /// Which parts of a view's information to compute.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -302,6 +309,7 @@ pub fn view_information<T: Real>(
         return Ok(ViewInformation {
             diagonal: Vec::new(),
             pose: with_pose.then(Matrix6::zeros),
+            low_opacity_pixels: settings.intrinsics.pixel_count() as u32,
         });
     }
     let part = subset(map, &indices);
@@ -320,9 +328,15 @@ pub fn view_information<T: Real>(
             diagonal.push((indices[j as usize], d.map(|v| v * scale)));
         }
     }
+    let low_opacity_pixels = image
+        .opacity
+        .iter()
+        .filter(|o| o.to_f64() < LOW_OPACITY)
+        .count() as u32;
     Ok(ViewInformation {
         diagonal,
         pose: info.pose(settings.depth_weight).map(|p| p * scale),
+        low_opacity_pixels,
     })
 }
 

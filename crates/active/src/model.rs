@@ -12,6 +12,9 @@
 //!   on the map of the replan that first sees it (earlier keyframes are not re-rendered when
 //!   Gaussians are added later; the release re-renders all, which costs a view per keyframe
 //!   per replan). Unknown-space Gaussians have no keyframe views: their prior is λ alone.
+//! - `both`: the two sums added, kept as two estimates (the scorer holds the keyframe one
+//!   beside this Monte-Carlo one): a Gaussian the robot has seen keeps the information of
+//!   its keyframes whatever the draw, one only free-space poses see gets theirs.
 //!
 //! Between replans on an unchanged map (same snapshot, same unknown-space generation) the
 //! estimate is reused as it is.
@@ -80,10 +83,21 @@ pub struct ModelFisher {
 }
 
 impl ModelFisher {
-    /// An empty model Fisher with the source and pose count of `config`.
+    /// An empty model Fisher with the source and pose count of `config` (`both`: its
+    /// Monte-Carlo half; the scorer keeps a second, keyframe, estimate beside it).
     pub fn new(config: &FisherConfig) -> Self {
+        Self::with_source(config, config.model_fisher)
+    }
+
+    /// An empty model Fisher of `source` (`both` counts as `mc_free_space`) with the pose
+    /// count of `config`.
+    pub fn with_source(config: &FisherConfig, source: ModelFisherSource) -> Self {
+        let source = match source {
+            ModelFisherSource::Both => ModelFisherSource::McFreeSpace,
+            s => s,
+        };
         Self {
-            source: config.model_fisher,
+            source,
             poses: config.mc_poses,
             samples: VecDeque::new(),
             sums: HashMap::new(),
@@ -116,7 +130,7 @@ impl ModelFisher {
     /// Views kept (`mc_free_space`) or keyframe views summed (`keyframes`).
     pub fn views(&self) -> usize {
         match self.source {
-            ModelFisherSource::McFreeSpace => self.samples.len(),
+            ModelFisherSource::McFreeSpace | ModelFisherSource::Both => self.samples.len(),
             ModelFisherSource::Keyframes => self.keyframe_views,
         }
     }
@@ -143,7 +157,7 @@ impl ModelFisher {
         add_into(&mut self.sums, &sample, 1.0);
         match self.source {
             ModelFisherSource::Keyframes => self.keyframe_views += 1,
-            ModelFisherSource::McFreeSpace => {
+            ModelFisherSource::McFreeSpace | ModelFisherSource::Both => {
                 *self.generation_counts.entry(sample.generation).or_default() += 1;
                 self.sample_max_ids.push(sample.max_real_id);
                 self.samples.push_back(sample);
@@ -198,7 +212,7 @@ impl ModelFisher {
         };
         match self.source {
             ModelFisherSource::Keyframes => sum.map(|v| v.max(0.0)),
-            ModelFisherSource::McFreeSpace => {
+            ModelFisherSource::McFreeSpace | ModelFisherSource::Both => {
                 let c = self.views_of(id);
                 if c == 0 {
                     return [0.0; PARAMS];
@@ -244,6 +258,7 @@ mod tests {
     #[test]
     fn ids_added_later_are_rescaled_to_n_views() {
         let config = FisherConfig {
+            model_fisher: ModelFisherSource::McFreeSpace,
             mc_poses: 4,
             ..FisherConfig::default()
         };

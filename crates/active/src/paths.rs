@@ -173,43 +173,173 @@ pub fn path_terms<V: std::borrow::Borrow<ViewInformation>>(
 /// there, but does not refuse the whole path (the paper objective refuses it through C_local).
 pub const EIG_FLOOR: f64 = 1e-12;
 
-/// The objective of a path from its terms (lower is better, +∞ refuses it, never NaN):
-/// `paper` (and the `random` and `first` ablations, which choose differently) `Σ_i [C_local_i −
-/// η·ln EIG_i]`; `eig_only` `−η·Σ_i ln max(EIG_i, EIG_FLOOR)`;
-/// `release` `−[mean_i(−0.2·C_local_i + ln EIG_i) + 60·EIG_T]`. A path with no scored pose
-/// costs +∞.
-pub fn objective(eigs: &[f64], costs: &[f64], config: &FisherConfig) -> f64 {
+/// The objective of a path from its terms (lower is better, +∞ refuses it, never NaN), SPEC §5
+/// "Path objective": `paper` (and the `random` and `first` ablations, which choose
+/// differently) `Σ_i [C_local_i − η·ln EIG_i − w_low·low_i] + w_end·(C_local_T − η·ln EIG_T)`;
+/// `eig_only` the same without C_local and with `ln max(EIG_i, EIG_FLOOR)`; `release`
+/// `−[mean_i(−0.2·C_local_i + ln EIG_i + w_low·low_i) + 60·EIG_T]`. `low` is each scored
+/// pose's low-opacity pixel count (scaled to the frame, see [`FisherConfig::low_opacity_weight`];
+/// empty: none), `w_low` and `w_end` the config's `low_opacity_weight` and `end_weight`. A path
+/// with no scored pose costs +∞.
+pub fn objective(eigs: &[f64], costs: &[f64], low: &[f64], config: &FisherConfig) -> f64 {
     if eigs.is_empty() {
         return f64::INFINITY;
     }
+    let w_low = config.low_opacity_weight;
+    let coverage = |i: usize| {
+        if w_low == 0.0 {
+            0.0
+        } else {
+            w_low * low.get(i).copied().unwrap_or(0.0)
+        }
+    };
+    let last = eigs.len() - 1;
     let value = match config.objective {
-        PathObjective::Paper | PathObjective::Random | PathObjective::First => eigs
-            .iter()
-            .zip(costs)
-            .map(|(e, c)| {
-                if *e > 0.0 && c.is_finite() {
+        PathObjective::Paper | PathObjective::Random | PathObjective::First => {
+            let term = |e: f64, c: f64| {
+                if e > 0.0 && c.is_finite() {
                     c - config.eta * e.ln()
                 } else {
                     f64::INFINITY
                 }
-            })
-            .sum::<f64>(),
+            };
+            let mut sum = 0.0;
+            for (i, (e, c)) in eigs.iter().zip(costs).enumerate() {
+                sum += term(*e, *c) - coverage(i);
+            }
+            if config.end_weight != 0.0 {
+                sum += config.end_weight * term(eigs[last], costs[last]);
+            }
+            sum
+        }
         PathObjective::EigOnly => {
-            -config.eta * eigs.iter().map(|e| e.max(EIG_FLOOR).ln()).sum::<f64>()
+            let term = |e: f64| -config.eta * e.max(EIG_FLOOR).ln();
+            let mut sum = 0.0;
+            for (i, e) in eigs.iter().enumerate() {
+                sum += term(*e) - coverage(i);
+            }
+            if config.end_weight != 0.0 {
+                sum += config.end_weight * term(eigs[last]);
+            }
+            sum
         }
         PathObjective::Release => {
             let mut sum = 0.0;
-            for (e, c) in eigs.iter().zip(costs) {
+            for (i, (e, c)) in eigs.iter().zip(costs).enumerate() {
                 if !(*e > 0.0 && c.is_finite()) {
                     return f64::INFINITY;
                 }
-                sum += -0.2 * c + e.ln();
+                sum += -0.2 * c + e.ln() + coverage(i);
             }
-            let end = *eigs.last().expect("non-empty");
-            -(sum / eigs.len() as f64 + 60.0 * end)
+            -(sum / eigs.len() as f64 + 60.0 * eigs[last])
         }
     };
     if value.is_nan() { f64::INFINITY } else { value }
+}
+
+/// Path EIG and C_local of many paths at once, the same numbers as [`path_terms`] on each
+/// (bit for bit), with the work of shared prefixes done once (SPEC §5 "Path EIG"). `views` are
+/// the distinct scored views; each path is a sequence of indices into them. Paths to nearby
+/// candidates start with the same moves from the same pose, so their sequences share
+/// prefixes: the sequences form a trie, walked depth first with one dense accumulator
+/// `Σ_{t<i} H(x_t)` per Gaussian; a node's EIG is computed once for every path through it,
+/// and leaving a node restores the entries it changed (saved, not subtracted, so no rounding
+/// creeps in). Work: one pass over a view's diagonal per trie node, not per path and pose.
+/// `C_local` is a view's own, computed once per distinct view.
+pub fn shared_path_terms(
+    views: &[ViewInformation],
+    sequences: &[Vec<usize>],
+    prior: &[Diagonal],
+    degenerate_ratio: f64,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let costs: Vec<f64> = views
+        .iter()
+        .map(|v| match (&v.pose, v.is_empty()) {
+            (Some(pose), false) => localisation_cost(pose, degenerate_ratio),
+            _ => f64::INFINITY,
+        })
+        .collect();
+    // The trie: node 0 is the root (no view); a node's children by view index.
+    let mut slot = vec![usize::MAX];
+    let mut children: Vec<Vec<(usize, usize)>> = vec![Vec::new()];
+    let mut nodes_of: Vec<Vec<usize>> = Vec::with_capacity(sequences.len());
+    for seq in sequences {
+        let mut at = 0;
+        let mut nodes = Vec::with_capacity(seq.len());
+        for &k in seq {
+            at = match children[at].iter().find(|(v, _)| *v == k) {
+                Some(&(_, child)) => child,
+                None => {
+                    let child = slot.len();
+                    slot.push(k);
+                    children.push(Vec::new());
+                    children[at].push((k, child));
+                    child
+                }
+            };
+            nodes.push(at);
+        }
+        nodes_of.push(nodes);
+    }
+    let mut node_eig = vec![0.0; slot.len()];
+    let mut added: Vec<Diagonal> = vec![[0.0; crate::information::PARAMS]; prior.len()];
+    let mut undo: Vec<(u32, Diagonal)> = Vec::new();
+    // Depth-first: Enter(node) computes its EIG and, when it has children, observes its view;
+    // Leave(mark) restores what the node changed.
+    enum Step {
+        Enter(usize),
+        Leave(usize),
+    }
+    let mut stack: Vec<Step> = children[0]
+        .iter()
+        .rev()
+        .map(|&(_, c)| Step::Enter(c))
+        .collect();
+    while let Some(step) = stack.pop() {
+        match step {
+            Step::Enter(node) => {
+                let view = &views[slot[node]];
+                node_eig[node] = view
+                    .diagonal
+                    .iter()
+                    .map(|(i, h)| {
+                        let (base, a) = (&prior[*i as usize], &added[*i as usize]);
+                        let mut sum = 0.0;
+                        for p in 0..h.len() {
+                            sum += h[p] / (base[p] + a[p]);
+                        }
+                        sum
+                    })
+                    .sum();
+                if !children[node].is_empty() {
+                    stack.push(Step::Leave(undo.len()));
+                    for (i, h) in &view.diagonal {
+                        let a = &mut added[*i as usize];
+                        undo.push((*i, *a));
+                        for (a, h) in a.iter_mut().zip(h) {
+                            *a += h;
+                        }
+                    }
+                    stack.extend(children[node].iter().rev().map(|&(_, c)| Step::Enter(c)));
+                }
+            }
+            Step::Leave(mark) => {
+                for (i, old) in undo.drain(mark..).rev() {
+                    added[i as usize] = old;
+                }
+            }
+        }
+    }
+    sequences
+        .iter()
+        .zip(&nodes_of)
+        .map(|(seq, nodes)| {
+            (
+                nodes.iter().map(|&n| node_eig[n]).collect(),
+                seq.iter().map(|&k| costs[k]).collect(),
+            )
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -236,6 +366,7 @@ mod tests {
         let view = ViewInformation {
             diagonal: vec![(0, [2.0; 14]), (2, [0.5; 14])],
             pose: Some(Matrix6::identity()),
+            low_opacity_pixels: 0,
         };
         let prior = vec![[1.0; 14], [3.0; 14], [0.25; 14]];
         let (eigs, costs) = path_terms(&[view.clone(), view.clone()], &prior, 1e-9);
@@ -258,23 +389,74 @@ mod tests {
         let mut config = FisherConfig::default();
         let eigs = [2.0, 0.5];
         let costs = [-3.0, 1.0];
-        let paper = objective(&eigs, &costs, &config);
+        let paper = objective(&eigs, &costs, &[], &config);
         assert!((paper - (-3.0 - 5.0 * 2f64.ln() + 1.0 - 5.0 * 0.5f64.ln())).abs() < 1e-12);
-        assert_eq!(objective(&[2.0, 0.0], &costs, &config), f64::INFINITY);
+        assert_eq!(objective(&[2.0, 0.0], &costs, &[], &config), f64::INFINITY);
         assert_eq!(
-            objective(&eigs, &[-3.0, f64::INFINITY], &config),
+            objective(&eigs, &[-3.0, f64::INFINITY], &[], &config),
             f64::INFINITY
         );
-        assert_eq!(objective(&[], &[], &config), f64::INFINITY);
+        assert_eq!(objective(&[], &[], &[], &config), f64::INFINITY);
         config.objective = PathObjective::EigOnly;
-        let only = objective(&eigs, &[f64::INFINITY; 2], &config);
+        let only = objective(&eigs, &[f64::INFINITY; 2], &[], &config);
         assert!((only - (-5.0 * (2f64.ln() + 0.5f64.ln()))).abs() < 1e-12);
-        let blind = objective(&[0.0], &[f64::INFINITY], &config);
+        let blind = objective(&[0.0], &[f64::INFINITY], &[], &config);
         assert!((blind - (-5.0 * EIG_FLOOR.ln())).abs() < 1e-9);
         config.objective = PathObjective::Release;
-        let release = objective(&eigs, &costs, &config);
+        let release = objective(&eigs, &costs, &[], &config);
         let mean = ((0.6 + 2f64.ln()) + (-0.2 + 0.5f64.ln())) / 2.0;
         assert!((release + mean + 60.0 * 0.5).abs() < 1e-12);
+        // The release's coverage term: each scored pose's low-opacity pixels, weighted.
+        config.low_opacity_weight = 1e-4;
+        let covered = objective(&eigs, &costs, &[1000.0, 3000.0], &config);
+        let mean = mean + 1e-4 * (1000.0 + 3000.0) / 2.0;
+        assert!((covered + mean + 60.0 * 0.5).abs() < 1e-12);
+        // The paper with an end-pose weight and the coverage term.
+        config.objective = PathObjective::Paper;
+        config.end_weight = 60.0;
+        let end = 1.0 - 5.0 * 0.5f64.ln();
+        let weighted = objective(&eigs, &costs, &[1000.0, 3000.0], &config);
+        assert!((weighted - (paper + 60.0 * end - 1e-4 * 4000.0)).abs() < 1e-9);
+    }
+
+    /// The prefix-shared terms are exactly the per-path ones, on sequences that share
+    /// prefixes, repeat a view and diverge (overlapping Gaussians, so the order matters).
+    #[test]
+    fn shared_path_terms_equal_the_per_path_ones() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = 40;
+        let prior: Vec<Diagonal> = (0..n)
+            .map(|_| std::array::from_fn(|_| rng.random_range(0.01..1.0)))
+            .collect();
+        let views: Vec<ViewInformation> = (0..6)
+            .map(|v| {
+                let mut diagonal = Vec::new();
+                for i in 0..n as u32 {
+                    if rng.random_bool(0.5) {
+                        diagonal.push((i, std::array::from_fn(|_| rng.random_range(0.0..2.0))));
+                    }
+                }
+                ViewInformation {
+                    diagonal,
+                    pose: Some(Matrix6::identity() * (1.0 + v as f64)),
+                    low_opacity_pixels: 0,
+                }
+            })
+            .collect();
+        let sequences = vec![
+            vec![0, 1, 2, 3],
+            vec![0, 1, 2, 4, 5],
+            vec![0, 1, 5],
+            vec![0, 1, 2, 3],
+            vec![2, 2, 0],
+            vec![0],
+        ];
+        let shared = shared_path_terms(&views, &sequences, &prior, 1e-9);
+        for (seq, got) in sequences.iter().zip(&shared) {
+            let own: Vec<&ViewInformation> = seq.iter().map(|&k| &views[k]).collect();
+            assert_eq!(*got, path_terms(&own, &prior, 1e-9), "{seq:?}");
+        }
     }
 
     /// The future poses are the executor's: on an open grid the robot turns toward the first

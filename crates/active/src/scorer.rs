@@ -28,7 +28,7 @@ use crate::information::{
     ScoringScene, ViewInformation, ViewParts, ViewSettings, eig, view_information,
 };
 use crate::model::{ModelFisher, ModelSample};
-use crate::paths::{FuturePath, future_path, objective, path_terms, scored_steps};
+use crate::paths::{FuturePath, future_path, objective, scored_steps, shared_path_terms};
 use crate::refine::refine_target;
 use crate::unknown::{UnknownSpace, frontier_region_cells, seed_unknown_space};
 
@@ -124,6 +124,10 @@ pub struct PathScore {
     /// `C_local` of each scored pose (+∞ where no Gaussian is seen or the information is
     /// degenerate).
     pub c_local: Vec<f64>,
+    /// Low-opacity pixels of each scored pose's view, scaled to the frame camera (the
+    /// release's coverage term, see [`FisherConfig::low_opacity_weight`]).
+    #[serde(default)]
+    pub low_opacity: Vec<f64>,
     /// The objective (lower is better; +∞ refuses the path).
     pub objective: f64,
 }
@@ -186,6 +190,8 @@ pub struct FisherScorer {
     camera: Intrinsics,
     view: ViewSettings,
     model: ModelFisher,
+    /// `both`: the keyframe half of the model Fisher (`model` is the Monte-Carlo half).
+    keyframe_model: Option<ModelFisher>,
     previous: Vec<PlanarPose>,
     unknown_cells: Vec<Cell>,
     unknown: UnknownSpace,
@@ -218,6 +224,8 @@ impl FisherScorer {
                 config.depth_weight,
             ),
             model: ModelFisher::new(&config),
+            keyframe_model: (config.model_fisher == ModelFisherSource::Both)
+                .then(|| ModelFisher::with_source(&config, ModelFisherSource::Keyframes)),
             config,
             robot,
             camera,
@@ -250,7 +258,10 @@ impl FisherScorer {
     /// Tells the scorer that frame `frame_id` became a keyframe at the estimated pose `pose`
     /// (`T_world_camera`); the `keyframes` model Fisher adds its view on the next replan.
     pub fn add_keyframe(&mut self, frame_id: u64, pose: Isometry3<f64>) {
-        self.model.add_keyframe(frame_id, pose);
+        match &mut self.keyframe_model {
+            Some(k) => k.add_keyframe(frame_id, pose),
+            None => self.model.add_keyframe(frame_id, pose),
+        }
     }
 
     /// The scoring map of a replan: the map's Gaussians followed by the current unknown-space
@@ -329,41 +340,72 @@ impl FisherScorer {
         // 2. The model Fisher, brought up to date unless the map is unchanged.
         let t = Instant::now();
         let generation = self.unknown.generation;
-        let model_reused = self.model.is_current(input.map.frame_id, generation);
+        let model_reused = self.model.is_current(input.map.frame_id, generation)
+            && self
+                .keyframe_model
+                .as_ref()
+                .is_none_or(|k| k.is_current(input.map.frame_id, generation));
+        // The Monte-Carlo poses' own stream (one draw of the replan's, always taken so the
+        // later draws do not depend on the model source), mixed with `model_seed`.
+        let mut model_rng = ChaCha8Rng::seed_from_u64(
+            rng.random::<u64>() ^ config.model_seed.wrapping_mul(0xD1B5_4A32_D192_ED03),
+        );
         if !model_reused {
-            let poses: Vec<(PlanarPose, Option<Isometry3<f64>>)> = match self.model.source() {
-                ModelFisherSource::McFreeSpace => {
-                    let n = if self.model.views() == 0 {
-                        config.mc_poses
-                    } else {
-                        config.mc_refresh
-                    };
-                    sample_free_space_poses(&clear, n, rng)
+            // (planar pose, full pose of a keyframe, whether it goes to the keyframe half)
+            let mut poses: Vec<(PlanarPose, Option<Isometry3<f64>>, bool)> =
+                match self.model.source() {
+                    ModelFisherSource::Keyframes => self
+                        .model
+                        .take_pending_keyframes()
                         .into_iter()
-                        .map(|p| (p, None))
-                        .collect()
-                }
-                ModelFisherSource::Keyframes => self
-                    .model
-                    .take_pending_keyframes()
-                    .into_iter()
-                    .map(|(_, p)| (planar_from_camera_pose(&p), Some(p)))
-                    .collect(),
-            };
-            let samples: Vec<ModelSample> = poses
+                        .map(|(_, p)| (planar_from_camera_pose(&p), Some(p), false))
+                        .collect(),
+                    _ => {
+                        let n = if self.model.views() == 0 {
+                            config.mc_poses
+                        } else {
+                            config.mc_refresh
+                        };
+                        sample_free_space_poses(&clear, n, &mut model_rng)
+                            .into_iter()
+                            .map(|p| (p, None, false))
+                            .collect()
+                    }
+                };
+            if let Some(k) = &mut self.keyframe_model {
+                poses.extend(
+                    k.take_pending_keyframes()
+                        .into_iter()
+                        .map(|(_, p)| (planar_from_camera_pose(&p), Some(p), true)),
+                );
+            }
+            let samples: Vec<(ModelSample, bool)> = poses
                 .par_iter()
-                .map(|(planar, full)| {
+                .map(|(planar, full, keyframe)| {
                     let camera = full.unwrap_or_else(|| self.robot.camera_pose(planar, floor_z));
                     view_information(&scoring, &camera, &self.view, ViewParts::Diagonal)
-                        .map(|v| ModelSample::from_view(&v, &ids, generation))
+                        .map(|v| (ModelSample::from_view(&v, &ids, generation), *keyframe))
                 })
                 .collect::<Result<_, _>>()?;
-            for s in samples {
-                self.model.push(s);
+            for (s, keyframe) in samples {
+                match (&mut self.keyframe_model, keyframe) {
+                    (Some(k), true) => k.push(s),
+                    _ => self.model.push(s),
+                }
             }
             self.model.mark_current(input.map.frame_id, generation);
+            if let Some(k) = &mut self.keyframe_model {
+                k.mark_current(input.map.frame_id, generation);
+            }
         }
-        let prior = self.model.prior(&ids, self.config.lambda);
+        let mut prior = self.model.prior(&ids, self.config.lambda);
+        if let Some(k) = &self.keyframe_model {
+            for (p, &id) in prior.iter_mut().zip(&ids) {
+                for (p, v) in p.iter_mut().zip(k.information(id)) {
+                    *p += v;
+                }
+            }
+        }
         timings.model_ms = ms(t);
         Ok(Prepared {
             scoring,
@@ -548,7 +590,7 @@ impl FisherScorer {
                 steps
                     .iter()
                     .map(|s| {
-                        let p = f.poses[s - 1];
+                        let p = snap(f.poses[s - 1], config.path_snap);
                         *slot_of
                             .entry([p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()])
                             .or_insert_with(|| {
@@ -562,26 +604,21 @@ impl FisherScorer {
         let distinct_views =
             self.views(&scoring, &distinct, floor_z, ViewParts::DiagonalAndPose)?;
         outcome.distinct_path_views = distinct.len();
-        // Paths whose scored poses are the same sequence have the same terms: each distinct
-        // sequence is scored once.
-        let mut sequences: Vec<&Vec<usize>> = slots.iter().collect();
-        sequences.sort();
-        sequences.dedup();
-        let terms: std::collections::HashMap<&Vec<usize>, (Vec<f64>, Vec<f64>)> = sequences
-            .par_iter()
-            .map(|seq| {
-                let views: Vec<&ViewInformation> =
-                    seq.iter().map(|&k| &distinct_views[k]).collect();
-                (*seq, path_terms(&views, &prior, config.degenerate_ratio))
-            })
-            .collect();
+        // Path EIG along each path, the work of shared prefixes done once.
+        let terms = shared_path_terms(&distinct_views, &slots, &prior, config.degenerate_ratio);
+        let pixel_scale =
+            self.camera.pixel_count() as f64 / self.view.intrinsics.pixel_count() as f64;
         let scored: Vec<PathScore> = futures
             .iter()
             .zip(steps)
             .zip(&slots)
-            .map(|(((goal, f), steps), slots)| {
-                let (eig, c_local) = terms[slots].clone();
-                let objective = objective(&eig, &c_local, &config);
+            .zip(terms)
+            .map(|((((goal, f), steps), slots), (eig, c_local))| {
+                let low_opacity: Vec<f64> = slots
+                    .iter()
+                    .map(|&k| distinct_views[k].low_opacity_pixels as f64 * pixel_scale)
+                    .collect();
+                let objective = objective(&eig, &c_local, &low_opacity, &config);
                 PathScore {
                     goal: *goal,
                     waypoints: f.path.waypoints.clone(),
@@ -589,6 +626,7 @@ impl FisherScorer {
                     scored_steps: steps,
                     eig,
                     c_local,
+                    low_opacity,
                     objective,
                 }
             })
@@ -642,7 +680,45 @@ struct Prepared {
     timings: StageTimings,
 }
 
+/// `pose` on the lattice `[metres, degrees]` (SPEC §5 path poses, see
+/// [`FisherConfig::path_snap`]); unchanged without one.
+pub fn snap(pose: PlanarPose, lattice: Option<[f64; 2]>) -> PlanarPose {
+    let Some([m, deg]) = lattice else {
+        return pose;
+    };
+    let step = deg.to_radians();
+    // `+ 0.0` turns −0 into +0, so equal lattice points have equal bits (the view cache key).
+    PlanarPose::new(
+        (pose.x / m).round() * m + 0.0,
+        (pose.y / m).round() * m + 0.0,
+        activemap_geometry::robot::wrap_angle((pose.yaw / step).round() * step) + 0.0,
+    )
+}
+
 /// Milliseconds since `t`.
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Snapping moves a pose to the nearest lattice point (within half a step), maps nearby
+    /// poses to the same bits, and leaves poses alone without a lattice.
+    #[test]
+    fn snapped_poses_share_lattice_points() {
+        let lattice = Some([0.1, 10.0]);
+        let a = snap(PlanarPose::new(1.02, -0.04, 0.05), lattice);
+        let b = snap(PlanarPose::new(0.97, 0.03, -0.06), lattice);
+        assert_eq!(
+            [a.x.to_bits(), a.y.to_bits(), a.yaw.to_bits()],
+            [b.x.to_bits(), b.y.to_bits(), b.yaw.to_bits()]
+        );
+        assert!((a.x - 1.0).abs() < 1e-12 && a.y == 0.0 && a.yaw == 0.0);
+        let c = snap(PlanarPose::new(0.26, 0.0, 0.2), lattice);
+        assert!((c.x - 0.3).abs() < 1e-12 && (c.yaw - 10f64.to_radians()).abs() < 1e-12);
+        let p = PlanarPose::new(0.123, 0.456, 0.789);
+        assert_eq!(snap(p, None), p);
+    }
 }

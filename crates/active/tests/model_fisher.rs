@@ -3,10 +3,10 @@
 //! exact expectation over the clear cells (also for a Gaussian that appeared halfway, whose
 //! estimate is rescaled from the views taken after it appeared).
 
-use activemap_active::FisherConfig;
 use activemap_active::candidates::sample_free_space_poses;
 use activemap_active::information::PARAMS;
 use activemap_active::model::{ModelFisher, ModelSample};
+use activemap_active::{FisherConfig, ModelFisherSource};
 use activemap_geometry::PlanarPose;
 use activemap_planning::OccupancyGrid;
 use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
@@ -58,6 +58,7 @@ fn monte_carlo_model_fisher_is_unbiased() {
 
     let poses = 16;
     let config = FisherConfig {
+        model_fisher: ModelFisherSource::McFreeSpace,
         mc_poses: poses,
         ..FisherConfig::default()
     };

@@ -5,7 +5,9 @@
 use std::sync::Arc;
 
 use activemap_active::scorer::ScoringMap;
-use activemap_active::{FisherConfig, FisherScorer, GoalRequest, PathObjective, ReplanInput};
+use activemap_active::{
+    FisherConfig, FisherScorer, GoalRequest, ModelFisherSource, PathObjective, ReplanInput,
+};
 use activemap_geometry::{Intrinsics, PlanarPose, RobotModel};
 use activemap_planning::{Cell, CellState, GridGeometry, OccupancyGrid};
 use activemap_splat::Gaussians;
@@ -77,6 +79,7 @@ fn scorer(config: FisherConfig) -> FisherScorer {
 
 fn config() -> FisherConfig {
     FisherConfig {
+        model_fisher: ModelFisherSource::McFreeSpace,
         candidates: 64,
         top_candidates: 6,
         mc_poses: 8,

@@ -108,6 +108,9 @@ pub struct HouseMap {
     pub frames: usize,
     /// Keyframes the mapper took.
     pub keyframes: usize,
+    /// Frame id and camera pose (the simulator's true one, as every pose of the build) of each
+    /// frame the mapper mapped, in order (for the `keyframes` model Fisher).
+    pub keyframe_poses: Vec<(u64, Isometry3<f64>)>,
     /// Whether the exploration ran out of frontiers.
     pub finished: bool,
     /// Wall-clock seconds of the whole build.
@@ -188,6 +191,7 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
     let mut finished = false;
     let mut frames = 0usize;
     let mut pose = sim.true_pose();
+    let mut keyframe_poses = Vec::new();
     for step in 0..config.max_steps {
         let rgbd = sim.render();
         pose = sim.true_pose();
@@ -198,6 +202,7 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         let report = mapper.process(None, frame, &pose, PoseQuality::Ok)?;
         mapping_seconds += t.elapsed().as_secs_f64();
         if report.is_some() {
+            keyframe_poses.push((step as u64, pose));
             let (means, opacities) = map_points(mapper.map());
             explorer.mapper_mut().set_map_points(&means, &opacities)?;
         }
@@ -246,6 +251,7 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         frame_id: frames.saturating_sub(1) as u64,
         frames,
         keyframes,
+        keyframe_poses,
         finished,
         build_seconds: started.elapsed().as_secs_f64(),
         mapping_seconds,

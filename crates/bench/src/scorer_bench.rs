@@ -21,14 +21,14 @@ use std::fmt::Write as _;
 
 use activemap_active::scorer::{ScoringMap, StageTimings};
 use activemap_active::{FisherScorer, GoalRequest, ReplanInput, ReplanOutcome};
-use activemap_geometry::{RobotModel, planar_from_camera_pose};
+use activemap_geometry::{PlanarPose, RobotModel, planar_from_camera_pose};
 use activemap_planning::clearance::ClearanceConfig;
 use activemap_planning::frontier::{FrontierConfig, reachable_regions};
 use anyhow::Context as _;
 use nalgebra::Point2;
 
 use crate::house_map::HouseMap;
-use crate::stats::median;
+use crate::stats::{kendall_tau, median};
 
 /// The scorer's settings (re-exported for the CLI, which reads them from a flow's `scorer`
 /// node).
@@ -60,6 +60,10 @@ pub struct Case {
     /// Per replan with at least two paths of finite objective: whether the two best tie
     /// ([`best_two_tie`]).
     pub ties: Vec<bool>,
+    /// Per replan: each path's goal and objective (for the rank agreement of two settings).
+    pub objectives: Vec<Vec<(PlanarPose, f64)>>,
+    /// Per replan: the chosen path's goal.
+    pub chosen_goals: Vec<Option<PlanarPose>>,
 }
 
 /// Relative gap under which the two best paths' objectives count as tied: 1 % of the best's
@@ -95,6 +99,8 @@ impl Case {
             distinct_views: Vec::new(),
             path_actions: Vec::new(),
             ties: Vec::new(),
+            objectives: Vec::new(),
+            chosen_goals: Vec::new(),
         }
     }
 
@@ -111,6 +117,15 @@ impl Case {
         self.path_actions.push(median(&actions).unwrap_or(f64::NAN));
         let objectives: Vec<f64> = outcome.paths.iter().map(|p| p.objective).collect();
         self.ties.extend(best_two_tie(&objectives));
+        self.objectives.push(
+            outcome
+                .paths
+                .iter()
+                .map(|p| (p.goal, p.objective))
+                .collect(),
+        );
+        self.chosen_goals
+            .push(outcome.chosen.map(|i| outcome.paths[i].goal));
     }
 
     /// The median of one stage over the replans (ms).
@@ -145,13 +160,132 @@ pub struct ScorerBench {
     pub threads: usize,
     /// The last replan's note (why it fell back), if any.
     pub note: Option<String>,
+    /// Kendall τ of the top candidates' EIG between independent model Fisher draws, one per
+    /// pair of draws ([`model_tau`]).
+    pub model_tau: Vec<f64>,
 }
 
-/// Runs the three cases, `repeats` replans each, on `house`.
+/// Pairs of independent model Fisher draws [`run`] compares (`scorer model_tau`).
+pub const MODEL_TAU_PAIRS: usize = 3;
+
+/// A fresh scorer with `fisher` for `house`, told every keyframe of the build (the
+/// `keyframes` model Fisher renders them on its first replan).
+fn fresh_scorer(house: &HouseMap, fisher: &FisherConfig) -> anyhow::Result<FisherScorer> {
+    let sim = house.sim.config();
+    let mut scorer =
+        FisherScorer::new(fisher.clone(), sim.robot, sim.intrinsics).context("bench scorer")?;
+    for (frame, pose) in &house.keyframe_poses {
+        scorer.add_keyframe(*frame, *pose);
+    }
+    Ok(scorer)
+}
+
+/// The stability of the model Fisher (issue 34 item 2): for each of `pairs` pairs of fresh
+/// scorers whose Monte-Carlo draws are independent (`model_seed` 2p+1 and 2p+2; the same
+/// candidates and unknown space), Kendall τ between the view EIGs each gives the candidate
+/// poses `top` (the top candidates of a replan) on the house's last frame. A keyframe model
+/// Fisher draws nothing, so its τ is 1 by construction.
+pub fn model_tau(
+    house: &HouseMap,
+    fisher: &FisherConfig,
+    goal: GoalRequest,
+    top: &[PlanarPose],
+    pairs: usize,
+) -> anyhow::Result<Vec<f64>> {
+    let map = ScoringMap {
+        gaussians: house.gaussians.clone(),
+        ids: house.ids.clone(),
+        frame_id: house.frame_id,
+    };
+    let input = ReplanInput {
+        frame_id: house.frame_id,
+        grid: &house.grid,
+        pose: house.pose,
+        map: &map,
+        goal,
+    };
+    let mut taus = Vec::with_capacity(pairs);
+    for p in 0..pairs as u64 {
+        let eigs = |model_seed: u64| -> anyhow::Result<Vec<f64>> {
+            let config = FisherConfig {
+                model_seed,
+                ..fisher.clone()
+            };
+            Ok(fresh_scorer(house, &config)?.pose_eigs(&input, top)?)
+        };
+        let (a, b) = (eigs(2 * p + 1)?, eigs(2 * p + 2)?);
+        taus.push(kendall_tau(&a, &b).unwrap_or(f64::NAN));
+    }
+    Ok(taus)
+}
+
+/// How two settings' replans on the same house agree (the same frames, so the same
+/// candidate draws): per replan, Kendall τ of the objectives of the paths both scored (matched
+/// by goal), and whether both chose the same goal.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Agreement {
+    /// τ per replan with at least two common paths of finite objective in both.
+    pub taus: Vec<f64>,
+    /// Replans whose chosen goals are the same.
+    pub same_choice: usize,
+    /// Replans compared.
+    pub replans: usize,
+}
+
+/// The [`Agreement`] of `other`'s replans with `base`'s, case by case (by name), replan by
+/// replan (as many as both ran).
+pub fn agreement(base: &ScorerBench, other: &ScorerBench) -> Agreement {
+    let key = |p: &PlanarPose| [p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()];
+    let mut out = Agreement {
+        taus: Vec::new(),
+        same_choice: 0,
+        replans: 0,
+    };
+    for a in &base.cases {
+        let Some(b) = other.cases.iter().find(|b| b.name == a.name) else {
+            continue;
+        };
+        for r in 0..a.objectives.len().min(b.objectives.len()) {
+            out.replans += 1;
+            let chosen = (
+                a.chosen_goals[r].as_ref().map(key),
+                b.chosen_goals[r].as_ref().map(key),
+            );
+            out.same_choice += usize::from(chosen.0 == chosen.1);
+            let (mut x, mut y) = (Vec::new(), Vec::new());
+            for (goal, o) in &a.objectives[r] {
+                if let Some((_, q)) = b.objectives[r].iter().find(|(g, _)| key(g) == key(goal))
+                    && o.is_finite()
+                    && q.is_finite()
+                {
+                    x.push(*o);
+                    y.push(*q);
+                }
+            }
+            out.taus.extend(kendall_tau(&x, &y));
+        }
+    }
+    out
+}
+
+/// Runs the three cases, `repeats` replans each, on `house`, and [`MODEL_TAU_PAIRS`] pairs
+/// of model Fisher draws.
 pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::Result<ScorerBench> {
+    run_with(house, fisher, repeats, true, MODEL_TAU_PAIRS)
+}
+
+/// [`run`] with a choice: `all_cases` false runs one `cold` replan (it builds the model) and
+/// the `incremental` case only (what a comparison of settings needs); `tau_pairs` pairs of
+/// model Fisher draws (0: none).
+pub fn run_with(
+    house: &HouseMap,
+    fisher: &FisherConfig,
+    repeats: usize,
+    all_cases: bool,
+    tau_pairs: usize,
+) -> anyhow::Result<ScorerBench> {
     anyhow::ensure!(repeats >= 1, "bench scorer: --repeats must be at least 1");
     let robot: RobotModel = house.sim.config().robot;
-    let camera = house.sim.config().intrinsics;
     let grid = &house.grid;
     let planar = planar_from_camera_pose(&house.pose);
     let clearance = ClearanceConfig::for_disc(robot.radius_m, grid.geometry.resolution)?;
@@ -175,7 +309,7 @@ pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::R
         ids: house.ids.clone(),
         frame_id,
     };
-    let fresh = || FisherScorer::new(fisher.clone(), robot, camera).context("bench scorer");
+    let fresh = || fresh_scorer(house, fisher);
     let replan = |scorer: &mut FisherScorer, frame_id: u64, map: &ScoringMap| {
         let input = ReplanInput {
             frame_id,
@@ -190,11 +324,30 @@ pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::R
     };
 
     // Cold: a fresh scorer each time, same frame (same draws).
-    let mut cold = Case::new("cold", format!("built: {} MC poses", fisher.mc_poses));
+    use activemap_active::ModelFisherSource as Source;
+    let keyframes = house.keyframe_poses.len();
+    let (built, changed) = match fisher.model_fisher {
+        Source::McFreeSpace => (
+            format!("built: {} MC poses", fisher.mc_poses),
+            format!("map changed: {} fresh MC poses", fisher.mc_refresh),
+        ),
+        Source::Keyframes => (
+            format!("built: {keyframes} keyframes"),
+            "map changed: no new keyframe".to_string(),
+        ),
+        Source::Both => (
+            format!(
+                "built: {keyframes} keyframes + {} MC poses",
+                fisher.mc_poses
+            ),
+            format!("map changed: {} fresh MC poses", fisher.mc_refresh),
+        ),
+    };
+    let mut cold = Case::new("cold", built);
     let map0 = map_at(base);
     let mut scorer = fresh()?;
     let mut last = None;
-    for r in 0..repeats {
+    for r in 0..if all_cases { repeats } else { 1 } {
         if r > 0 {
             scorer = fresh()?;
         }
@@ -207,10 +360,7 @@ pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::R
         (k.width, k.height)
     };
     // Incremental: the last cold scorer goes on, the map snapshot changing before each replan.
-    let mut incremental = Case::new(
-        "incremental",
-        format!("map changed: {} fresh MC poses", fisher.mc_refresh),
-    );
+    let mut incremental = Case::new("incremental", changed);
     let mut frame = base;
     for _ in 0..repeats {
         frame += 1;
@@ -221,22 +371,38 @@ pub fn run(house: &HouseMap, fisher: &FisherConfig, repeats: usize) -> anyhow::R
     // Reused: the map of the last incremental replan, unchanged.
     let mut reused = Case::new("reused", "map unchanged: reused".into());
     let unchanged = map_at(frame);
-    for r in 0..repeats {
+    for r in 0..if all_cases { repeats } else { 0 } {
         let out = replan(&mut scorer, frame + 1 + r as u64, &unchanged)?;
         reused.push(&out);
         last = Some(out);
     }
     let last = last.expect("repeats >= 1");
+    let top: Vec<PlanarPose> = last
+        .candidates
+        .iter()
+        .take(fisher.top_candidates)
+        .map(|c| c.pose)
+        .collect();
+    let model_tau = if top.len() >= 2 && tau_pairs > 0 {
+        model_tau(house, fisher, goal, &top, tau_pairs)?
+    } else {
+        Vec::new()
+    };
     Ok(ScorerBench {
         gaussians: house.gaussians.len(),
         unknown_gaussians: last.unknown_gaussians,
         frontier,
         regions: regions.len(),
-        cases: vec![cold, incremental, reused],
+        cases: if all_cases {
+            vec![cold, incremental, reused]
+        } else {
+            vec![cold, incremental]
+        },
         fisher: fisher.clone(),
         scoring_size,
         threads: rayon::current_num_threads(),
         note: last.note,
+        model_tau,
     })
 }
 
@@ -251,7 +417,9 @@ impl ScorerBench {
 
     /// The summary lines `scorer replan_median_ms <x> gaussians <n>` (x: the `incremental`
     /// median total; n: the map's Gaussians) and `scorer tie_fraction <f> replans <m>` (the
-    /// share of all the cases' replans whose two best paths tie within 1 %).
+    /// share of all the cases' replans whose two best paths tie within 1 %) and `scorer
+    /// model_tau <τ> pairs <p>` (the mean Kendall τ of the top candidates' EIG between
+    /// independent model Fisher draws, [`model_tau`]).
     pub fn summary(&self) -> String {
         let ties: Vec<bool> = self
             .cases
@@ -263,11 +431,18 @@ impl ScorerBench {
         } else {
             ties.iter().filter(|&&t| t).count() as f64 / ties.len() as f64
         };
+        let tau = if self.model_tau.is_empty() {
+            f64::NAN
+        } else {
+            self.model_tau.iter().sum::<f64>() / self.model_tau.len() as f64
+        };
         format!(
-            "scorer replan_median_ms {:.1} gaussians {}\nscorer tie_fraction {fraction:.2} replans {}",
+            "scorer replan_median_ms {:.1} gaussians {}\nscorer tie_fraction {fraction:.2} replans {}\n\
+             scorer model_tau {tau:.3} pairs {}",
             self.incremental().median_total_ms(),
             self.gaussians,
-            ties.len()
+            ties.len(),
+            self.model_tau.len()
         )
     }
 
@@ -422,7 +597,14 @@ mod tests {
         assert!(bench.cases[1].model_reused.iter().all(|r| !r));
         assert!(bench.cases[2].model_reused.iter().all(|r| *r));
         let summary = bench.summary();
-        let (timing, ties) = summary.split_once('\n').expect("two lines");
+        let lines: Vec<&str> = summary.lines().collect();
+        let (timing, ties) = (lines[0], lines[1]);
+        let tau: Vec<&str> = lines[2].split(' ').collect();
+        assert_eq!((tau[0], tau[1], tau[3]), ("scorer", "model_tau", "pairs"));
+        assert_eq!(bench.model_tau.len(), MODEL_TAU_PAIRS);
+        let same = agreement(&bench, &bench);
+        assert_eq!(same.same_choice, same.replans);
+        assert!(same.taus.iter().all(|t| *t == 1.0));
         let tie_fields: Vec<&str> = ties.split(' ').collect();
         assert_eq!(
             (
