@@ -44,10 +44,84 @@ pub struct Config {
     /// resolution, when absent).
     #[serde(default)]
     pub downscale: Option<usize>,
-    /// The depth term of the mapping loss: `rendered` (SPEC §4, `|D̂ − D|`) or
-    /// `opacity_weighted` (`|D̂ − o·D|`); library default when absent.
+    /// The depth term of the mapping loss: `rendered` (SPEC §4, `|D̂ − D|`),
+    /// `opacity_weighted` (`|D̂ − o·D|`) or `normalised` (`|D̂/o − D|` where `o > 0.5`);
+    /// library default when absent.
     #[serde(default)]
     pub depth_loss: Option<activemap_slam::loss::MappingDepth>,
+    /// Mapping-loss tuning (issue 33); library defaults where absent.
+    #[serde(default)]
+    pub tuning: MapperTuning,
+}
+
+/// Optional overrides of the mapping loss, regularisers, pruning and insertion
+/// (`--set mapper.tuning.alpha=0.5`); each absent one keeps the library default
+/// ([`activemap_slam::MapperConfig`], [`activemap_slam::insert::InsertConfig`]).
+#[derive(Debug, Clone, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapperTuning {
+    /// Weight α of the colour term of the mapping loss.
+    #[serde(default)]
+    pub alpha: Option<f32>,
+    /// Weight of the isotropic scale regulariser.
+    #[serde(default)]
+    pub isotropic_weight: Option<f32>,
+    /// Weight of the flat scale regulariser (mean of the smallest scale).
+    #[serde(default)]
+    pub flat_weight: Option<f32>,
+    /// Opacity below which an old-enough Gaussian in the window is pruned.
+    #[serde(default)]
+    pub prune_opacity_window: Option<f64>,
+    /// Initial opacity of Gaussians inserted where the map is unobserved.
+    #[serde(default)]
+    pub insert_opacity: Option<f64>,
+    /// Fraction of the already explained depth pixels re-inserted at every keyframe.
+    #[serde(default)]
+    pub refresh_fraction: Option<f64>,
+    /// Initial opacity of the re-inserted Gaussians.
+    #[serde(default)]
+    pub refresh_opacity: Option<f64>,
+    /// Initial scale of an inserted Gaussian as a multiple of the sample spacing.
+    #[serde(default)]
+    pub scale_factor: Option<f64>,
+    /// Band behind the newest keyframe's readings whose centres are moved onto them, metres.
+    #[serde(default)]
+    pub snap_behind_m: Option<f64>,
+    /// Also move the centres in front of the readings, within the band.
+    #[serde(default)]
+    pub snap_in_front: Option<bool>,
+    /// Densification threshold on the mean NDC-space gradient of the projected mean.
+    #[serde(default)]
+    pub densify_grad: Option<f64>,
+}
+
+impl MapperTuning {
+    /// Writes the overrides that are set into `mapper`.
+    pub fn apply(&self, mapper: &mut activemap_slam::MapperConfig) {
+        let set = |value: Option<f32>, field: &mut f32| {
+            if let Some(v) = value {
+                *field = v;
+            }
+        };
+        set(self.alpha, &mut mapper.alpha);
+        set(self.isotropic_weight, &mut mapper.isotropic_weight);
+        set(self.flat_weight, &mut mapper.flat_weight);
+        let set = |value: Option<f64>, field: &mut f64| {
+            if let Some(v) = value {
+                *field = v;
+            }
+        };
+        set(self.prune_opacity_window, &mut mapper.prune_opacity_window);
+        set(self.insert_opacity, &mut mapper.insert.opacity);
+        set(self.refresh_fraction, &mut mapper.insert.refresh_fraction);
+        set(self.refresh_opacity, &mut mapper.insert.refresh_opacity);
+        set(self.scale_factor, &mut mapper.insert.scale_factor);
+        set(self.snap_behind_m, &mut mapper.snap_behind_m);
+        set(self.densify_grad, &mut mapper.densify_grad);
+        if let Some(v) = self.snap_in_front {
+            mapper.snap_in_front = v;
+        }
+    }
 }
 
 impl Config {
@@ -72,6 +146,7 @@ impl Config {
         if let Some(d) = self.depth_loss {
             config.mapper.depth_loss = d;
         }
+        self.tuning.apply(&mut config.mapper);
         config
             .validate()
             .map_err(|e| anyhow::anyhow!("mapper: {e}"))?;
@@ -343,6 +418,7 @@ pub(crate) mod tests {
             keyframe_min_interval: None,
             depth_loss: None,
             downscale: None,
+            tuning: MapperTuning::default(),
         };
         // Reference: the same core run synchronously.
         let mut core =

@@ -17,12 +17,21 @@ pub struct BenchRow {
 
 impl std::fmt::Display for BenchRow {
     /// `slam <case> ate_cm <x> psnr_train <y> psnr_test <z> track_fps <f>` plus mapping time,
-    /// Gaussian count, keyframes and lost frames.
+    /// Gaussian count, keyframes and lost frames, then held-out depth MAE and the surface offset
+    /// (issue 33): `surface_offset_cm` (opacity-weighted median signed distance of the centres,
+    /// positive in front), `surface_p90_cm` (90th percentile of its magnitude), the share within
+    /// 2 cm, and the same on the floor (`nan` without floor centres).
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let r = &self.result;
+        let floor = r.surface.floor.unwrap_or(activemap_eval::OffsetStats {
+            median_cm: f64::NAN,
+            p90_abs_cm: f64::NAN,
+            within_2cm: f64::NAN,
+            count: 0,
+        });
         write!(
             f,
-            "slam {} ate_cm {:.3} psnr_train {:.2} psnr_test {:.2} track_fps {:.2} map_s_per_kf {:.3} gaussians {} keyframes {} lost {} lost_unrecovered {}",
+            "slam {} ate_cm {:.3} psnr_train {:.2} psnr_test {:.2} track_fps {:.2} map_s_per_kf {:.3} gaussians {} keyframes {} lost {} lost_unrecovered {} depth_mae_test_cm {:.2} surface_offset_cm {:.2} surface_p90_cm {:.2} surface_within_2cm {:.3} floor_offset_cm {:.2} floor_p90_cm {:.2} floor_within_2cm {:.3}",
             self.case,
             r.ate_cm,
             r.psnr_train,
@@ -32,7 +41,14 @@ impl std::fmt::Display for BenchRow {
             r.gaussians,
             r.keyframes,
             r.lost,
-            r.lost_unrecovered
+            r.lost_unrecovered,
+            r.depth_mae_test_cm,
+            r.surface.all.median_cm,
+            r.surface.all.p90_abs_cm,
+            r.surface.all.within_2cm,
+            floor.median_cm,
+            floor.p90_abs_cm,
+            floor.within_2cm,
         )
     }
 }

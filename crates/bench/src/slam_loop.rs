@@ -14,8 +14,12 @@
 //! Umeyama SE(3) alignment), training-view PSNR (map rendered at the estimated keyframe poses
 //! against the keyframe images), held-out PSNR (map rendered at poses never given to SLAM:
 //! every `held_out_every`-th loop pose shifted 2.5 cm forward and turned 2.5°, against the
-//! simulator's image there), tracking frames per second, mapping seconds per keyframe and the
-//! Gaussian count.
+//! simulator's image there) and held-out depth MAE (SPEC §8, the un-normalised rendered depth as
+//! the evaluator reads it), tracking frames per second, mapping seconds per keyframe, the
+//! Gaussian count, and the surface offset of the final map (issue 33,
+//! [`activemap_eval::offset`]: the Gaussian centres, mapped into the true frame through the known
+//! start, against samples of the house's mesh every ~2 cm, normals turned towards the true
+//! camera centres).
 
 use activemap_eval::{AteOptions, ImageView};
 use activemap_geometry::tum::Trajectory;
@@ -99,6 +103,10 @@ pub struct LoopResult {
     pub psnr_train: f64,
     /// Mean PSNR at held-out poses, dB.
     pub psnr_test: f64,
+    /// Mean depth MAE at held-out poses (un-normalised rendered depth, SPEC §8), centimetres.
+    pub depth_mae_test_cm: f64,
+    /// Signed offset of the final map's Gaussian centres from the true surface (issue 33).
+    pub surface: activemap_eval::SurfaceOffsets,
     /// Tracked frames per second (tracking wall time only).
     pub track_fps: f64,
     /// Mean mapping wall time per keyframe, seconds.
@@ -153,7 +161,13 @@ pub fn rectangle_loop(
     (PlanarPose::new(x0, y0, 0.0), actions)
 }
 
-fn colour_psnr(map: &Gaussians<f32>, frame: &Frame, pose: &Isometry3<f64>) -> anyhow::Result<f64> {
+/// PSNR of the map's colour render at `pose` against `frame`, and depth MAE of its depth render
+/// (un-normalised, as the evaluator reads it) in metres.
+fn view_errors(
+    map: &Gaussians<f32>,
+    frame: &Frame,
+    pose: &Isometry3<f64>,
+) -> anyhow::Result<(f64, f64)> {
     let camera = Camera::from_world_pose(frame.intrinsics, pose);
     let out = render(
         map,
@@ -169,10 +183,66 @@ fn colour_psnr(map: &Gaussians<f32>, frame: &Frame, pose: &Isometry3<f64>) -> an
         .flat_map(|c| c.map(|v| v.clamp(0.0, 1.0)))
         .collect();
     let (width, height) = (frame.width(), frame.height());
-    Ok(activemap_eval::psnr(
+    let psnr = activemap_eval::psnr(
         ImageView::rgb(&rendered, width, height)?,
         ImageView::rgb(frame.rgb.as_flattened(), width, height)?,
         1.0,
+    )?;
+    let depth = activemap_eval::depth_mae(
+        ImageView::depth(&out.depth, width, height)?,
+        ImageView::depth(&frame.depth, width, height)?,
+    )?;
+    Ok((psnr, depth))
+}
+
+/// Spacing of the ground-truth surface samples of the surface offset, metres.
+const SURFACE_SAMPLE_SPACING_M: f64 = 0.02;
+/// Most ground-truth surface samples of the surface offset.
+const SURFACE_SAMPLES_MAX: usize = 3_000_000;
+
+/// The surface offsets of `map` (SLAM frame) against `sim`'s scene, with `true_from_slam`
+/// taking the map into the scene's frame and the normals turned towards `cameras` (true camera
+/// centres).
+fn map_surface_offsets(
+    map: &Gaussians<f32>,
+    sim: &Simulator,
+    true_from_slam: &Isometry3<f64>,
+    cameras: &[nalgebra::Point3<f64>],
+) -> anyhow::Result<activemap_eval::SurfaceOffsets> {
+    let scene = sim.scene();
+    let count = ((scene.surface_area() / SURFACE_SAMPLE_SPACING_M.powi(2)) as usize)
+        .clamp(1, SURFACE_SAMPLES_MAX);
+    let (samples, mut normals): (Vec<_>, Vec<_>) =
+        activemap_sim::ground_truth::oriented_surface_samples(scene, count, 0)
+            .into_iter()
+            .map(|s| (s.point, s.normal))
+            .unzip();
+    activemap_eval::orient_towards(&samples, &mut normals, cameras);
+    let ceiling_z = samples
+        .iter()
+        .map(|p| p.z)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let centres: Vec<_> = map
+        .means
+        .iter()
+        .map(|m| true_from_slam * nalgebra::Point3::from(m.map(f64::from)))
+        .collect();
+    let weights: Vec<f64> = (0..map.len())
+        .map(|i| {
+            if map.flags[i] & FLAG_UNKNOWN_SPACE != 0 {
+                0.0
+            } else {
+                map.opacity(i)
+            }
+        })
+        .collect();
+    Ok(activemap_eval::surface_offsets(
+        &centres,
+        &weights,
+        &samples,
+        &normals,
+        sim.navigation().floor_z(),
+        ceiling_z,
     )?)
 }
 
@@ -277,14 +347,22 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
     let keyframes = mapping.mapper().keyframes();
     let mut train = Vec::new();
     for kf in keyframes {
-        train.push(colour_psnr(map, &kf.frame, &kf.pose)?);
+        train.push(view_errors(map, &kf.frame, &kf.pose)?.0);
     }
-    let mut test = Vec::new();
+    let (mut test, mut test_depth) = (Vec::new(), Vec::new());
     for pose in &held_out {
         let rgbd = sim.render_at(pose);
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, 0.0)?;
-        test.push(colour_psnr(map, &frame, &(slam_from_true * pose))?);
+        let (psnr, depth) = view_errors(map, &frame, &(slam_from_true * pose))?;
+        test.push(psnr);
+        test_depth.push(depth);
     }
+    let cameras: Vec<_> = truth
+        .poses
+        .iter()
+        .map(|p| nalgebra::Point3::from(p.translation.vector))
+        .collect();
+    let surface = map_surface_offsets(map, &sim, &slam_from_true.inverse(), &cameras)?;
     let mean = |v: &[f64]| {
         if v.is_empty() {
             f64::NAN
@@ -300,6 +378,8 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
         ate_cm: ate_rmse * 100.0,
         psnr_train: mean(&train),
         psnr_test: mean(&test),
+        depth_mae_test_cm: mean(&test_depth) * 100.0,
+        surface,
         track_fps: if track_seconds > 0.0 {
             tracked as f64 / track_seconds
         } else {

@@ -8,6 +8,7 @@
 //! - [`completeness`](mod@completeness): fraction of ground-truth mesh samples with an observed point within 5 cm;
 //! - [`surface`]: surface completeness, accuracy and completion error of the map's
 //!   reconstructed surface (rendered depth fused in a TSDF);
+//! - [`offset`]: signed distance of the Gaussian centres to the ground-truth surface;
 //! - [`observable`]: which ground-truth samples a camera pose of the robot can see;
 //! - [`coverage`]: seen / navigable floor area;
 //! - [`fog`]: the release's fog-of-war 2D coverage along the true trajectory;
@@ -37,6 +38,7 @@ pub mod html;
 pub mod image;
 pub mod lpips;
 pub mod observable;
+pub mod offset;
 pub mod psnr;
 pub mod report;
 pub mod run_eval;
@@ -61,6 +63,7 @@ pub use depth::depth_mae;
 pub use error::EvalError;
 pub use image::ImageView;
 pub use lpips::LpipsAlex;
+pub use offset::{OffsetStats, SurfaceOffsets, orient_towards, surface_offsets};
 pub use psnr::{mean_squared_error, psnr};
 pub use report::MetricsReport;
 pub use run_folder::{RunError, RunFolder, Summary};
