@@ -114,14 +114,13 @@ fn describe_scene(spec: &activemap_sim::SceneSpec) -> String {
     if let Some(a) = spec.max_area {
         out += &format!(", max_area {a}");
     }
-    let defaults = activemap_sim::Placement::default();
     if let Some(up) = spec.placement.up_axis {
         out += &format!(", up_axis {up}");
     }
     if let Some(t) = spec.placement.transform {
         out += &format!(", transform {t}");
     }
-    if spec.placement.floor != defaults.floor {
+    if spec.placement.floor != activemap_sim::Floor::default() {
         out += &format!(", floor {}", spec.placement.floor);
     }
     out

@@ -98,29 +98,22 @@ pub struct MapperTuning {
 impl MapperTuning {
     /// Writes the overrides that are set into `mapper`.
     pub fn apply(&self, mapper: &mut activemap_slam::MapperConfig) {
-        let set = |value: Option<f32>, field: &mut f32| {
+        fn set<T: Copy>(value: Option<T>, field: &mut T) {
             if let Some(v) = value {
                 *field = v;
             }
-        };
+        }
         set(self.alpha, &mut mapper.alpha);
         set(self.isotropic_weight, &mut mapper.isotropic_weight);
         set(self.flat_weight, &mut mapper.flat_weight);
-        let set = |value: Option<f64>, field: &mut f64| {
-            if let Some(v) = value {
-                *field = v;
-            }
-        };
         set(self.prune_opacity_window, &mut mapper.prune_opacity_window);
         set(self.insert_opacity, &mut mapper.insert.opacity);
         set(self.refresh_fraction, &mut mapper.insert.refresh_fraction);
         set(self.refresh_opacity, &mut mapper.insert.refresh_opacity);
         set(self.scale_factor, &mut mapper.insert.scale_factor);
         set(self.snap_behind_m, &mut mapper.snap_behind_m);
+        set(self.snap_in_front, &mut mapper.snap_in_front);
         set(self.densify_grad, &mut mapper.densify_grad);
-        if let Some(v) = self.snap_in_front {
-            mapper.snap_in_front = v;
-        }
     }
 }
 
