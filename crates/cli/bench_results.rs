@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method, Suite};
 use activemap_operators::checks::ROBOT_OPERATORS;
@@ -86,11 +86,22 @@ pub struct ResultsArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Episodes run at once (default: one per two cores).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "connect")]
     jobs: Option<usize>,
-    /// Keep each episode's recording.mcap.
+    /// Keep each episode's recording.mcap (with --connect: brought back too).
     #[arg(long)]
     record: bool,
+    /// Run the cells on machine daemons (`activemap up --listen … --slots N`) reached through
+    /// this control endpoint (repeatable): each cell whole on one daemon with a free slot, its
+    /// run folder brought back here (`bench_remote`).
+    #[arg(long)]
+    connect: Vec<String>,
+    /// With --connect: how long to wait for a daemon's answer, in seconds.
+    #[arg(long, default_value_t = 5.0, requires = "connect")]
+    timeout: f64,
+    /// With --connect: mutual TLS towards the daemons.
+    #[command(flatten)]
+    tls: crate::daemons::Tls,
 }
 
 /// What to run: the cells and the description of the grid for `results.md`.
@@ -259,9 +270,23 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
         cell_flow(cell)?;
     }
     let exe = std::env::current_exe().context("locating the activemap executable")?;
+    let remote = if args.connect.is_empty() {
+        None
+    } else {
+        let client = crate::daemons::Connect {
+            connect: args.connect.clone(),
+            timeout: args.timeout,
+            tls: args.tls.clone(),
+        }
+        .client()?;
+        Some(crate::bench_remote::Remote::new(client, args.record)?)
+    };
     let stop = Arc::new(AtomicBool::new(false));
     activemap_runtime::node::install_stop_signals(&stop)?;
-    let jobs = args.jobs.unwrap_or_else(results::default_jobs).max(1);
+    let jobs = match &remote {
+        Some(r) => r.slots(),
+        None => args.jobs.unwrap_or_else(results::default_jobs).max(1),
+    };
     let count = |key: fn(&Cell) -> String| {
         cells
             .iter()
@@ -270,15 +295,24 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
             .len()
     };
     eprintln!(
-        "bench results: {} cells ({} methods × {} scenes × {} seeds), {jobs} at a time, in {}",
+        "bench results: {} cells ({} methods × {} scenes × {} seeds), {jobs} at a time{}, in {}",
         cells.len(),
         count(|c| c.method.name.clone()),
         count(|c| c.scene.clone()),
         count(|c| c.seed.to_string()),
+        remote
+            .as_ref()
+            .map_or(String::new(), |r| format!(" on {}", r.describe())),
         plan.out.display()
     );
-    let started = Instant::now();
-    let run = |cell: &Cell, dir: &Path| run_cell(&exe, cell, dir, args.record, &stop);
+    let suite = crate::bench_remote::SuiteProgress::new(cells.len(), jobs);
+    let run = |cell: &Cell, dir: &Path| match &remote {
+        Some(remote) => remote.run_cell(cell, dir, &stop, &suite),
+        None => {
+            suite.started(&cell.label(), "local");
+            run_cell(&exe, cell, dir, args.record, &stop)
+        }
+    };
     let progress = |r: &results::CellResult| {
         let what = match &r.outcome {
             CellOutcome::Reused(_) => "complete from an earlier run, kept".to_string(),
@@ -293,11 +327,8 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
             CellOutcome::Failed(why) => format!("FAILED: {why}"),
             CellOutcome::Interrupted => "stopped".to_string(),
         };
-        eprintln!(
-            "bench results: [{:>6.0} s] {}: {what}",
-            started.elapsed().as_secs_f64(),
-            r.cell.label()
-        );
+        let ran = !matches!(r.outcome, CellOutcome::Reused(_) | CellOutcome::Interrupted);
+        suite.ended(&r.cell.label(), &what, ran);
     };
     let outcome = results::run_cells(cells, &plan.out, jobs, &stop, run, progress)?;
     let (md, csv) = results::write_tables(&plan.out, &plan.heading, &outcome)?;
@@ -306,6 +337,15 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
         eprintln!("bench results: wrote {}", path.display());
     }
     print!("{}", std::fs::read_to_string(&md).unwrap_or_default());
+    if let Some((median, max)) = remote
+        .as_ref()
+        .and_then(|r| crate::bench_remote::median_and_max(&r.overheads()))
+    {
+        eprintln!(
+            "bench results: dispatch overhead per cell (submit, start, results back): median {median:.2} s, max {max:.2} s over {} cells",
+            remote.as_ref().map_or(0, |r| r.overheads().len())
+        );
+    }
     eprintln!(
         "bench results: wrote {}, {} and {}",
         md.display(),
@@ -331,7 +371,7 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
 
 /// The cell's dataflow derived from its method's file (same nodes in the same order, written in
 /// YAML flow style), validated against the operator catalog.
-fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
+pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     let file = &cell.method.dataflow;
     let text = std::fs::read_to_string(file)
         .with_context(|| format!("method `{}`: reading {}", cell.method.name, file.display()))?;
@@ -970,7 +1010,7 @@ mod tests {
     }
 
     fn wait_until(what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
-        let t0 = Instant::now();
+        let t0 = std::time::Instant::now();
         while !done() {
             assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
             std::thread::sleep(Duration::from_millis(50));

@@ -51,7 +51,8 @@ pub struct Connect {
 }
 
 impl Connect {
-    fn client(&self) -> anyhow::Result<DaemonClient> {
+    /// A client of the daemon network these options name.
+    pub fn client(&self) -> anyhow::Result<DaemonClient> {
         let tls = self.tls.files()?;
         Ok(DaemonClient::connect(
             &self.connect,
@@ -61,27 +62,38 @@ impl Connect {
     }
 }
 
+/// What `activemap up --listen` was asked for (daemon mode).
+pub struct Daemon {
+    /// This machine's id.
+    pub machine: String,
+    /// Control endpoints to listen on.
+    pub listen: Vec<String>,
+    /// Other daemons' control endpoints to join.
+    pub connect: Vec<String>,
+    /// Folder of the run folders.
+    pub runs: PathBuf,
+    /// Folders whose executables `path:` nodes may run.
+    pub allow_exec: Vec<PathBuf>,
+    /// Accept non-loopback listening without TLS.
+    pub insecure: bool,
+    /// Episodes run at once for `bench results --connect`.
+    pub slots: usize,
+}
+
 /// Run this machine's daemon until Ctrl-C or `activemap down`.
-pub fn up(
-    machine: String,
-    listen: Vec<String>,
-    connect: Vec<String>,
-    runs: PathBuf,
-    allow_exec: Vec<PathBuf>,
-    insecure: bool,
-    tls: &Tls,
-) -> anyhow::Result<()> {
+pub fn up(daemon: Daemon, tls: &Tls) -> anyhow::Result<()> {
     let opts = DaemonOptions {
-        machine,
-        listen,
-        connect,
-        runs_dir: runs,
+        machine: daemon.machine,
+        listen: daemon.listen,
+        connect: daemon.connect,
+        runs_dir: daemon.runs,
         exe: std::env::current_exe().context("locating the activemap executable")?,
         base_dir: std::env::current_dir().context("reading the working directory")?,
-        allow_exec,
-        insecure,
+        allow_exec: daemon.allow_exec,
+        insecure: daemon.insecure,
         tls: tls.files()?,
         derived: Some(Arc::new(crate::view::FoxgloveView)),
+        slots: daemon.slots,
     };
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;

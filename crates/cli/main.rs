@@ -18,6 +18,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 mod bench_explore;
 mod bench_fisher;
+mod bench_remote;
 mod bench_results;
 mod benches;
 mod daemons;
@@ -127,6 +128,10 @@ enum Command {
         /// start and at every submitted flow).
         #[arg(long, requires = "listen")]
         insecure: bool,
+        /// Daemon mode: exploration episodes it runs at once for `bench results --connect`
+        /// (an episode keeps about two cores busy).
+        #[arg(long, default_value_t = 1, requires = "listen", value_parser = clap::value_parser!(u64).range(1..=256))]
+        slots: u64,
         /// Daemon mode: mutual TLS on `quic/` and `tls/` endpoints (clients and other daemons
         /// must show a certificate of the same CA), also used by the runs it starts.
         #[command(flatten)]
@@ -446,6 +451,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             runs,
             allow_exec,
             insecure,
+            slots,
             tls,
             run_id,
             out,
@@ -471,7 +477,18 @@ fn real_main() -> anyhow::Result<ExitCode> {
             None if listen.is_empty() => {
                 bail!("`up` needs --listen ENDPOINT (daemon mode) or a dataflow FILE (one-shot)")
             }
-            None => daemons::up(machine, listen, connect, runs, allow_exec, insecure, &tls)?,
+            None => daemons::up(
+                daemons::Daemon {
+                    machine,
+                    listen,
+                    connect,
+                    runs,
+                    allow_exec,
+                    insecure,
+                    slots: slots as usize,
+                },
+                &tls,
+            )?,
         },
         Command::Start {
             file,

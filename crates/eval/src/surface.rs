@@ -522,15 +522,17 @@ pub fn mean_nearest_distance(
     }
     let points: Vec<[f64; 3]> = targets.iter().map(|p| [p.x, p.y, p.z]).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&points);
-    let total: f64 = queries
+    // Distances in parallel, summed in query order: a parallel sum's association order follows
+    // rayon's work stealing, and the same map must evaluate to the same bits on every machine.
+    let distances: Vec<f64> = queries
         .par_iter()
         .map(|q| {
             tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
                 .distance
                 .sqrt()
         })
-        .sum();
-    Ok(total / queries.len() as f64)
+        .collect();
+    Ok(distances.iter().sum::<f64>() / queries.len() as f64)
 }
 
 /// The surface points of `views` fused with `config` ([`fuse_jobs`], [`Tsdf::surface_points`]).

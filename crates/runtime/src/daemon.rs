@@ -26,6 +26,8 @@ use crate::node::logs_dir;
 use crate::tls::TlsFiles;
 use crate::transport::{ZenohSettings, open_zenoh};
 
+pub mod episodes;
+
 /// Zenoh key of a daemon request: `activemap/daemon/<machine>/<verb>` (`*` for every machine).
 pub fn daemon_key(machine: &str, verb: &str) -> String {
     format!("activemap/daemon/{machine}/{verb}")
@@ -58,6 +60,8 @@ pub struct DaemonOptions {
     pub tls: Option<TlsFiles>,
     /// Makes the derived channels (the view) of the recordings of the runs it starts.
     pub derived: Option<Arc<dyn crate::derived::DerivedFactory>>,
+    /// Episodes it runs at once for remote benchmark clients (`--slots`, [`episodes`]).
+    pub slots: usize,
 }
 
 /// True when a Zenoh endpoint (`tcp/HOST:PORT`, `udp/…`, `tls/…`, optionally with a
@@ -267,7 +271,9 @@ pub fn serve(
         opts.runs_dir.display()
     );
     let mut runs: BTreeMap<String, Run> = BTreeMap::new();
+    let mut host = episodes::EpisodeHost::new(opts)?;
     while !stop.load(Ordering::SeqCst) {
+        host.reap(false);
         // Join the supervisors of finished runs: a joinable thread keeps its stack until then
         // (a long-lived daemon would grow by one per run).
         for run in runs.values_mut() {
@@ -299,7 +305,9 @@ pub fn serve(
                 stop.store(true, Ordering::SeqCst);
                 Ok(b"down".to_vec())
             }
-            other => Err(format!("unknown daemon request `{other}`")),
+            other => host
+                .answer(other, payload.as_deref().unwrap_or_default(), catalog)
+                .unwrap_or_else(|| Err(format!("unknown daemon request `{other}`"))),
         };
         let key = daemon_key(&opts.machine, &verb);
         let sent = match answer {
@@ -310,6 +318,7 @@ pub fn serve(
             eprintln!("activemap daemon: cannot answer a `{verb}` request: {e}");
         }
     }
+    host.shutdown();
     for (id, run) in &mut runs {
         run.stop.store(true, Ordering::SeqCst);
         if let Some(t) = run.thread.take()
