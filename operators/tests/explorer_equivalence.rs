@@ -1,4 +1,4 @@
-//! The in-process explorer (`activemap_planning::explorer::Explorer`, what `bench planning`
+//! The in-process explorer (`activemap_policy::explorer::Explorer`, what `bench planning`
 //! and the library's tests run) and the operator pipeline (what `activemap run` runs) take the
 //! same actions: both are fed the same frames and poses of one simulator, step by step, and
 //! must agree on every action.
@@ -19,7 +19,8 @@ use activemap_operators::frontier::{self, frontier_regions};
 use activemap_operators::occupancy::{self, Occupancy};
 use activemap_operators::planner::{self, FbePlanner};
 use activemap_operators::scorer::path_for_goal;
-use activemap_planning::explorer::{Decision, Explorer, ExplorerConfig};
+use activemap_planning::astar::AstarConfig;
+use activemap_policy::explorer::{Decision, Explorer, ExplorerConfig};
 use activemap_schemas::{
     ActionKind, Frontiers, Goal, Path, Payload, PoseEstimate, ReplanRequest, TrackingStatus,
 };
@@ -141,6 +142,7 @@ impl Pipeline {
                             &frontiers,
                             &goal,
                             &activemap_geometry::RobotModel::default(),
+                            &AstarConfig::default(),
                         )
                         .unwrap(),
                     );
