@@ -387,7 +387,9 @@ impl Explorer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::goal::GoalConfig;
     use activemap_geometry::camera_pose_from_planar;
+    use activemap_llm::provider::{Completion, RecordedReply, Usage};
     use activemap_planning::grid::Cell;
     use activemap_planning::synthetic::SyntheticWorld;
 
@@ -542,5 +544,90 @@ mod tests {
             blocked_forward < 40,
             "bumped into walls {blocked_forward} times"
         );
+    }
+
+    /// Runs `explorer` on the 2×2-room house with true poses for at most `steps` steps.
+    fn run_on_small_house(explorer: &mut Explorer, steps: usize) {
+        let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
+        let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
+        let mut pose = world.start;
+        for _ in 0..steps {
+            let cam = camera_pose_from_planar(&pose, 0.0, 0.88);
+            let depth = world.render_depth(&k, &cam);
+            match explorer.step(&depth, &k, &cam).unwrap() {
+                Decision::Finished => break,
+                Decision::Act(a) => pose = world.step(&pose, a, &RobotModel::default(), 0.05),
+            }
+        }
+    }
+
+    /// The `llm` goal policy runs in process, with the offline heuristic (no provider) and
+    /// with a recorded provider serving replies (text prompt: no map needed); the shortest
+    /// path answers its goals, and the recorded exchanges come back out.
+    #[test]
+    fn the_llm_policy_runs_in_process_offline_and_recorded() {
+        let fail = |_: &std::path::Path, _: &str| anyhow::bail!("no recordings");
+        let offline: GoalConfig =
+            serde_json::from_value(serde_json::json!({ "policy": "llm" })).unwrap();
+        let recorded: GoalConfig = serde_json::from_value(serde_json::json!({
+            "policy": "llm",
+            "llm": { "prompt": "text", "provider": { "kind": "recorded", "recording": "r.mcap" } }
+        }))
+        .unwrap();
+        let reply = || RecordedReply {
+            system: String::new(),
+            user: String::new(),
+            completion: Completion {
+                provider: "openai".into(),
+                model: "m".into(),
+                request: "{}".into(),
+                http_status: Some(200),
+                attempts: 1,
+                latency_ms: 1.0,
+                usage: Usage::default(),
+                reply: "{\"target\": 0, \"reason\": \"the largest\"}".into(),
+                finish_reason: Some("stop".into()),
+                reasoning: String::new(),
+                schema_refused: false,
+                failure: None,
+            },
+            follow_up: None,
+        };
+        let replies = |_: &std::path::Path, node: &str| {
+            assert_eq!(node, "planner");
+            Ok((0..100).map(|_| reply()).collect())
+        };
+        for (config, load) in [
+            (offline, &fail as crate::goal::RecordedLoader<'_>),
+            (recorded, &replies),
+        ] {
+            let goals = GoalPolicy::new(&config, "planner", Some(300), load).unwrap();
+            let paths = PathPolicy::shortest(RobotModel::default(), AstarConfig::default());
+            let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
+            let (s, r) = (world.start, 1.0);
+            let mut ex = Explorer::with_policies(
+                ExplorerConfig::default(),
+                Point2::new(s.x - r, s.y - r),
+                Point2::new(s.x + r, s.y + r),
+                goals,
+                paths,
+            )
+            .unwrap();
+            run_on_small_house(&mut ex, 300);
+            let c = ex.counters();
+            assert!(c.plans >= 2, "{c:?}");
+            let llm = ex.goals().llm().expect("the llm policy");
+            match config.llm {
+                None => assert!(ex.last_exchange().is_none()),
+                Some(_) => {
+                    assert!(llm.planner().stats().calls >= 1);
+                    let e = ex.last_exchange().expect("a recorded exchange");
+                    assert_eq!(
+                        (e.target, e.reason.as_deref()),
+                        (Some(0), Some("the largest"))
+                    );
+                }
+            }
+        }
     }
 }
