@@ -451,7 +451,9 @@ fn compare_fisher(
         ExplorerConfig::default(),
         Point2::new(-2.0, -2.0),
         Point2::new(2.0, 2.0),
-        GoalPolicy::new(&planner_config, "planner", None, &no_recordings).unwrap(),
+        GoalPolicy::new(&planner_config, "planner", None, &no_recordings)
+            .unwrap()
+            .with_log(activemap_policy::no_log),
         PathPolicy::new(&explorer_scorer).unwrap(),
     )
     .unwrap();

@@ -42,7 +42,7 @@ use activemap_schemas::{FisherReport, Frontiers, LlmExchange, ReplanRequest};
 use crate::goal::{GoalInput, GoalPolicy, NoFrontier};
 use crate::path::{PathInput, PathPolicy};
 use crate::wire::{reason_to_wire, regions_to_wire};
-use crate::{MapSnapshot, no_log};
+use crate::{GoalChoice, MapSnapshot, PathChoice, no_log};
 
 /// Every setting of the loop (defaults: those of the operators in `dataflow.yaml`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -126,13 +126,14 @@ pub struct ExplorerCounters {
     pub executor: ExecutorCounters,
 }
 
-/// The loop state.
-pub struct Explorer {
+/// The loop state, running the goal choice `G` and the path choice `P` (by default the
+/// built-in policies).
+pub struct Explorer<G = GoalPolicy, P = PathPolicy> {
     config: ExplorerConfig,
     mapper: OccupancyMapper,
     executor: PathExecutor,
-    goals: GoalPolicy,
-    paths: PathPolicy,
+    goals: G,
+    paths: P,
     /// The frame of the next step.
     frame: u64,
     grid: Option<OccupancyGrid>,
@@ -149,22 +150,33 @@ pub struct Explorer {
 
 impl Explorer {
     /// The FBE loop (goal choice `config.fbe`, the episode ends with no frontier left, the
-    /// shortest path with `config.astar`) with an empty map initially covering `[min, max]` (it
-    /// grows; the `occupancy` operator starts with (−2, −2)–(2, 2) in the start-anchored frame).
+    /// shortest path with `config.astar`; no log) with an empty map initially covering
+    /// `[min, max]` (it grows; the `occupancy` operator starts with (−2, −2)–(2, 2) in the
+    /// start-anchored frame).
     pub fn new(config: ExplorerConfig, min: Point2<f64>, max: Point2<f64>) -> anyhow::Result<Self> {
-        let goals = GoalPolicy::fbe(config.fbe, NoFrontier::End)?;
+        let goals = GoalPolicy::fbe(config.fbe, NoFrontier::End)?.with_log(no_log);
         let paths = PathPolicy::shortest(config.robot, config.astar);
         Self::with_policies(config, min, max, goals, paths)
     }
+}
 
-    /// The loop running the goal policy `goals` and the path policy `paths` (their decisions
-    /// are not logged), with an empty map initially covering `[min, max]`.
+impl<P> Explorer<GoalPolicy, P> {
+    /// The FBE decision state (strikes, amnesties; for `llm`, its eligibility).
+    pub fn fbe(&self) -> &FbeState {
+        self.goals.fbe_state()
+    }
+}
+
+impl<G: GoalChoice, P: PathChoice> Explorer<G, P> {
+    /// The loop running the goal choice `goals` and the path choice `paths` (e.g. the
+    /// [`GoalPolicy`] and [`PathPolicy`] of the `planner` and `scorer` configs), with an empty
+    /// map initially covering `[min, max]`.
     pub fn with_policies(
         config: ExplorerConfig,
         min: Point2<f64>,
         max: Point2<f64>,
-        goals: GoalPolicy,
-        paths: PathPolicy,
+        goals: G,
+        paths: P,
     ) -> anyhow::Result<Self> {
         config.astar.validate()?;
         anyhow::ensure!(
@@ -179,7 +191,7 @@ impl Explorer {
         Ok(Self {
             mapper: OccupancyMapper::new(config.occupancy, min, max)?,
             executor: PathExecutor::new(config.executor, config.robot)?,
-            goals: goals.with_log(no_log),
+            goals,
             paths,
             config,
             frame: 0,
@@ -215,18 +227,13 @@ impl Explorer {
         self.executor.goal()
     }
 
-    /// The FBE decision state (strikes, amnesties; for `llm`, its eligibility).
-    pub fn fbe(&self) -> &FbeState {
-        self.goals.fbe_state()
-    }
-
-    /// The goal policy.
-    pub fn goals(&self) -> &GoalPolicy {
+    /// The goal choice.
+    pub fn goals(&self) -> &G {
         &self.goals
     }
 
-    /// The path policy.
-    pub fn paths(&self) -> &PathPolicy {
+    /// The path choice.
+    pub fn paths(&self) -> &P {
         &self.paths
     }
 
@@ -260,8 +267,8 @@ impl Explorer {
     /// What happened so far.
     pub fn counters(&self) -> ExplorerCounters {
         ExplorerCounters {
-            amnesties: self.goals.fbe_state().amnesties,
-            unobservable_goals: self.goals.fbe_state().unobservable_goals,
+            amnesties: self.goals.fbe_state().map_or(0, |s| s.amnesties),
+            unobservable_goals: self.goals.fbe_state().map_or(0, |s| s.unobservable_goals),
             executor: self.executor.counters,
             ..self.counters
         }
@@ -601,7 +608,9 @@ mod tests {
             (offline, &fail as crate::goal::RecordedLoader<'_>),
             (recorded, &replies),
         ] {
-            let goals = GoalPolicy::new(&config, "planner", Some(300), load).unwrap();
+            let goals = GoalPolicy::new(&config, "planner", Some(300), load)
+                .unwrap()
+                .with_log(no_log);
             let paths = PathPolicy::shortest(RobotModel::default(), AstarConfig::default());
             let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
             let (s, r) = (world.start, 1.0);
