@@ -64,23 +64,73 @@ struct Comparison {
     replans: usize,
 }
 
+/// What the occupancy and frontier operators make of frame k: the tracker's estimate (the true
+/// pose through its wire encoding), occupancy grid k (no Gaussian map: SLAM is not under test,
+/// every snapshot is empty) and frontier regions k.
+struct Perceived {
+    camera: activemap_geometry::Isometry3<f64>,
+    pose: activemap_geometry::PlanarPose,
+    grid: activemap_planning::OccupancyGrid,
+    frontiers: Frontiers,
+}
+
+/// The `occupancy` and `frontier` operators' cores.
+struct Front {
+    occupancy: Occupancy,
+    frontier: frontier::Config,
+}
+
+impl Front {
+    fn new() -> Self {
+        Self {
+            occupancy: Occupancy::from_config(defaults::<occupancy::Config>()).unwrap(),
+            frontier: defaults(),
+        }
+    }
+
+    fn perceive(&mut self, k: u64, depth: &[f32], sim: &activemap_sim::Simulator) -> Perceived {
+        let stamp = k as f64 * 0.1;
+        let estimate = wire(&estimate(k, stamp, sim));
+        let camera = pose_from_wire(&estimate.t_world_camera).unwrap();
+        let pose = planar_from_camera_pose(&camera);
+        self.occupancy.add_map(k, Vec::new(), Vec::new());
+        self.occupancy
+            .add_depth(k, depth.to_vec(), sim.config().intrinsics, stamp);
+        self.occupancy.add_pose(k, camera, estimate.status);
+        let grids = self.occupancy.process_ready().unwrap();
+        assert_eq!(grids.len(), 1, "one grid per frame");
+        let (gk, grid) = read_grid(&grids[0].to_bytes().unwrap()).unwrap();
+        assert_eq!(gk, k);
+        let robot = Point2::new(pose.x, pose.y);
+        let frontiers = wire(&Frontiers {
+            frame_id: k,
+            stamp,
+            regions: frontier_regions(&grid, robot, &self.frontier).unwrap(),
+        });
+        Perceived {
+            camera,
+            pose,
+            grid,
+            frontiers,
+        }
+    }
+}
+
 /// The pipeline's decision for frame `k`: `None` when the planner ends the episode (the
 /// follower then sends `Stop`).
 struct Pipeline {
-    occupancy: Occupancy,
+    front: Front,
     follower: Follower,
     planner: FbePlanner,
-    frontier: frontier::Config,
     replans: usize,
 }
 
 impl Pipeline {
     fn new() -> Self {
         Self {
-            occupancy: Occupancy::from_config(defaults::<occupancy::Config>()).unwrap(),
+            front: Front::new(),
             follower: Follower::from_config(&defaults::<follower::Config>()).unwrap(),
             planner: FbePlanner::new(&defaults::<planner::Config>()).unwrap(),
-            frontier: defaults(),
             replans: 0,
         }
     }
@@ -91,36 +141,13 @@ impl Pipeline {
         depth: &[f32],
         sim: &activemap_sim::Simulator,
     ) -> Option<ActionKind> {
-        let stamp = k as f64 * 0.1;
-        let estimate = wire(&PoseEstimate {
-            frame_id: k,
-            stamp,
-            t_world_camera: pose_to_wire(&sim.true_pose()),
-            status: TrackingStatus::Ok,
-            residual_rgb: 0.0,
-            residual_depth: 0.0,
-            iterations: 0,
-            graph_anchor: None,
-            keyframe_corrections: Vec::new(),
-        });
-        let camera = pose_from_wire(&estimate.t_world_camera).unwrap();
-        let pose = planar_from_camera_pose(&camera);
+        let Perceived {
+            camera: _,
+            pose,
+            grid,
+            frontiers,
+        } = self.front.perceive(k, depth, sim);
         let robot = Point2::new(pose.x, pose.y);
-        // occupancy: no Gaussian map (SLAM is not under test): every snapshot is empty.
-        self.occupancy.add_map(k, Vec::new(), Vec::new());
-        self.occupancy
-            .add_depth(k, depth.to_vec(), sim.config().intrinsics, stamp);
-        self.occupancy.add_pose(k, camera, estimate.status);
-        let grids = self.occupancy.process_ready().unwrap();
-        assert_eq!(grids.len(), 1, "one grid per frame");
-        let (gk, grid) = read_grid(&grids[0].to_bytes().unwrap()).unwrap();
-        assert_eq!(gk, k);
-        // frontier
-        let frontiers = wire(&Frontiers {
-            frame_id: k,
-            stamp,
-            regions: frontier_regions(&grid, robot, &self.frontier).unwrap(),
-        });
         // follower, with the planner and the scorer answering its requests on frame k.
         self.follower.add_grid(k, grid.clone());
         self.follower.add_pose(k, pose, false);
@@ -300,9 +327,8 @@ fn fisher_configs(size: u32, lag: u64) -> (planner::Config, scorer::Config) {
 /// planner's and the scorer's policies fed as their shells feed them (map snapshots as wire
 /// bytes, poses as the tracker's estimates).
 struct FisherPipeline {
-    occupancy: Occupancy,
+    front: Front,
     follower: Follower,
-    frontier: frontier::Config,
     goals: GoalPolicy,
     paths: PathPolicy,
     /// The scorer's reports, in order.
@@ -312,9 +338,8 @@ struct FisherPipeline {
 impl FisherPipeline {
     fn new(planner: &planner::Config, scorer: &scorer::Config) -> Self {
         Self {
-            occupancy: Occupancy::from_config(defaults::<occupancy::Config>()).unwrap(),
+            front: Front::new(),
             follower: Follower::from_config(&defaults::<follower::Config>()).unwrap(),
-            frontier: defaults(),
             goals: GoalPolicy::new(planner, "planner", None, &no_recordings)
                 .unwrap()
                 .with_log(activemap_policy::no_log),
@@ -335,24 +360,14 @@ impl FisherPipeline {
         depth: &[f32],
         sim: &activemap_sim::Simulator,
     ) -> Option<ActionKind> {
-        let stamp = k as f64 * 0.1;
-        let estimate = wire(&estimate(k, stamp, sim));
-        let camera = pose_from_wire(&estimate.t_world_camera).unwrap();
-        let pose = planar_from_camera_pose(&camera);
-        let robot = Point2::new(pose.x, pose.y);
+        let Perceived {
+            camera,
+            pose,
+            grid,
+            frontiers,
+        } = self.front.perceive(k, depth, sim);
         self.goals.add_pose(&pose);
         self.paths.add_pose(k, camera);
-        self.occupancy.add_map(k, Vec::new(), Vec::new());
-        self.occupancy
-            .add_depth(k, depth.to_vec(), sim.config().intrinsics, stamp);
-        self.occupancy.add_pose(k, camera, estimate.status);
-        let grids = self.occupancy.process_ready().unwrap();
-        let (_, grid) = read_grid(&grids[0].to_bytes().unwrap()).unwrap();
-        let frontiers = wire(&Frontiers {
-            frame_id: k,
-            stamp,
-            regions: frontier_regions(&grid, robot, &self.frontier).unwrap(),
-        });
         self.follower.add_grid(k, grid.clone());
         self.follower.add_pose(k, pose, false);
         let mut pending: std::collections::VecDeque<Output> = self.follower.poll().unwrap().into();
