@@ -17,9 +17,9 @@
 //!   path policy), taking the same actions as the operators.
 //!
 //! The seams are two traits, [`GoalChoice`] and [`PathChoice`], which the built-in policies
-//! implement and the explorer runs. Inputs are the occupancy grid, the frontier regions, map snapshots ([`MapSnapshot`]), poses
-//! and the operators' configs; outputs are the messages of `activemap-schemas` (`Goal`, `Path`,
-//! `FisherReport`, `LlmExchange`), one definition of each.
+//! implement and the explorer runs. Inputs are the occupancy grid, the frontier regions, map
+//! snapshots ([`MapSnapshot`]), poses and the operators' configs; outputs are the messages of
+//! `activemap-schemas` (`Goal`, `Path`, `FisherReport`, `LlmExchange`), one definition of each.
 
 pub mod explorer;
 pub mod fisher;
