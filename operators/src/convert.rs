@@ -154,6 +154,22 @@ pub fn read_map_with_ids(
     Ok((v.header, gaussians_of(&v), v.ids().into_owned()))
 }
 
+/// Calls `f` with the policies' view of the wire map `bytes` ([`activemap_policy::MapSnapshot`]):
+/// its header, and its Gaussians with their ids decoded only if a policy keeps a new map.
+pub fn with_map_snapshot<R>(
+    bytes: &[u8],
+    f: impl FnOnce(&activemap_policy::MapSnapshot<'_>) -> anyhow::Result<R>,
+) -> anyhow::Result<R> {
+    let header = GaussianMapView::parse(bytes)?.header;
+    let decode = || read_map_with_ids(bytes).map(|(_, gaussians, ids)| (gaussians, ids));
+    f(&activemap_policy::MapSnapshot {
+        frame_id: header.frame_id,
+        keyframe: header.keyframe(),
+        count: header.count,
+        decode: &decode,
+    })
+}
+
 fn gaussians_of(v: &GaussianMapView<'_>) -> Gaussians<f32> {
     let n = v.header.count as usize;
     let (means, colors, rotations, opacities, log_scales) = (

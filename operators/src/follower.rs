@@ -13,7 +13,6 @@ use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_planning::OccupancyGrid as PlanGrid;
 use activemap_planning::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
-use activemap_planning::replan::ReplanReason as PlanReason;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
@@ -105,35 +104,8 @@ impl Config {
     }
 }
 
-/// The executor's replan reason on the wire: the three map triggers (goal occupied, path
-/// blocked, obstacle ahead) are all `ObstacleAhead` there.
-pub fn reason_to_wire(reason: PlanReason) -> ReplanReason {
-    match reason {
-        PlanReason::Startup => ReplanReason::Startup,
-        PlanReason::PathDone => ReplanReason::PathDone,
-        PlanReason::GoalOccupied | PlanReason::PathBlocked { .. } | PlanReason::ObstacleAhead => {
-            ReplanReason::ObstacleAhead
-        }
-        PlanReason::NoPath => ReplanReason::NoPath,
-        PlanReason::Stuck => ReplanReason::Stuck,
-        PlanReason::TrackingLost => ReplanReason::TrackingLost,
-        PlanReason::Blocked => ReplanReason::Blocked,
-    }
-}
-
-/// A wire replan reason as the planning library's (for the planner's goal judgement; the
-/// obstacle triggers come back as `ObstacleAhead`, which judges the goal the same way).
-pub fn reason_from_wire(reason: ReplanReason) -> PlanReason {
-    match reason {
-        ReplanReason::Startup => PlanReason::Startup,
-        ReplanReason::PathDone => PlanReason::PathDone,
-        ReplanReason::ObstacleAhead => PlanReason::ObstacleAhead,
-        ReplanReason::NoPath => PlanReason::NoPath,
-        ReplanReason::Stuck => PlanReason::Stuck,
-        ReplanReason::TrackingLost => PlanReason::TrackingLost,
-        ReplanReason::Blocked => PlanReason::Blocked,
-    }
-}
+/// The replan reasons on the wire and back (the policies' conversions, [`activemap_policy::wire`]).
+pub use activemap_policy::wire::{reason_from_wire, reason_to_wire};
 
 /// What the follower wants this step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -391,6 +363,7 @@ mod tests {
     use activemap_planning::clearance::ClearanceMap;
     use activemap_planning::frontier::path_distances;
     use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
+    use activemap_planning::replan::ReplanReason as PlanReason;
     use activemap_sim::{
         Action as SimAction, Material, Scene, SimConfig, Simulator, Triangle, Vertex,
     };
@@ -434,11 +407,11 @@ mod tests {
         assert_eq!(config.executor(), ExecutorConfig::default());
         assert_eq!(
             config.max_replans_per_step,
-            activemap_planning::explorer::ExplorerConfig::default().max_replans_per_step
+            activemap_policy::explorer::ExplorerConfig::default().max_replans_per_step
         );
         assert_eq!(
             config.robot,
-            activemap_planning::explorer::ExplorerConfig::default().robot
+            activemap_policy::explorer::ExplorerConfig::default().robot
         );
     }
 
@@ -574,7 +547,7 @@ mod tests {
             )
             .unwrap()
             .unwrap();
-            core.set_path(&crate::scorer::path_to_wire(0, &path))
+            core.set_path(&activemap_policy::wire::path_to_wire(0, &path))
                 .unwrap();
             d
         };

@@ -55,27 +55,8 @@ pub fn frontier_regions(
         min_region_cells: config.min_region_cells,
         ..FrontierConfig::default()
     };
-    let mut regions: Vec<_> = reachable_regions(grid, robot, &clearance, &fc)?
-        .iter()
-        .filter_map(|r| {
-            let a = r.approach?;
-            Some(FrontierRegion {
-                id: 0,
-                size_cells: r.size() as u32,
-                centroid: [r.centroid.x, r.centroid.y],
-                closest_reachable_cell: [a.cell.x, a.cell.y],
-                path_distance_m: a.path_distance_m,
-                anchor: {
-                    let c = grid.geometry.center(r.anchor);
-                    [c.x, c.y]
-                },
-            })
-        })
-        .collect();
-    for (i, r) in regions.iter_mut().enumerate() {
-        r.id = i as u32;
-    }
-    Ok(regions)
+    let regions = reachable_regions(grid, robot, &clearance, &fc)?;
+    Ok(activemap_policy::wire::regions_to_wire(grid, &regions))
 }
 
 /// The inputs of one frame.

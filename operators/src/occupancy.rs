@@ -7,6 +7,7 @@
 //! tracker reports lost cast no depth rays.
 
 use activemap_geometry::frames::planar_from_camera_pose;
+use activemap_geometry::snapshots::LaggedSnapshots;
 use activemap_geometry::{Intrinsics, Isometry3, RobotModel};
 use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
 use activemap_runtime::{
@@ -21,7 +22,6 @@ use nalgebra::Point2;
 use crate::Registered;
 use crate::convert::{frame_intrinsics, grid_to_wire, pose_from_wire};
 use crate::join::FrameJoin;
-use crate::mapper::required_snapshot;
 
 /// Config.
 #[derive(Debug, Clone, serde::Deserialize)]
@@ -80,9 +80,8 @@ pub struct Occupancy {
     mapper: OccupancyMapper,
     footprint: f64,
     join: FrameJoin<Slot>,
-    lag: u64,
     /// Map snapshots by the frame they include, from the one the next frame needs on.
-    maps: std::collections::BTreeMap<u64, MapPoints>,
+    maps: LaggedSnapshots<MapPoints>,
     /// The snapshot last loaded into the occupancy mapper (an unchanged map is not reloaded).
     loaded: Option<(usize, u64)>,
     /// Frames whose depth was not integrated because tracking was lost.
@@ -112,8 +111,7 @@ impl Occupancy {
             mapper: OccupancyMapper::new(occ, Point2::new(-2.0, -2.0), Point2::new(2.0, 2.0))?,
             footprint,
             join: FrameJoin::new(),
-            lag: config.map_lag,
-            maps: std::collections::BTreeMap::new(),
+            maps: LaggedSnapshots::new(config.map_lag),
             loaded: None,
             skipped_lost: 0,
         })
@@ -141,18 +139,17 @@ impl Occupancy {
         let mut out = Vec::new();
         loop {
             let maps = &self.maps;
-            let lag = self.lag;
             let Some((k, slot)) = self
                 .join
-                .pop_ready_by(|k, s| s.complete() && maps.contains_key(&required_snapshot(k, lag)))
+                .pop_ready_by(|k, s| s.complete() && maps.for_frame(k).is_some())
             else {
                 break;
             };
             let (depth, intrinsics, stamp) = slot.depth.expect("complete");
             let (pose, status) = slot.pose.expect("complete");
-            let needed = required_snapshot(k, lag);
-            self.maps = self.maps.split_off(&needed);
-            let (means, opacities) = &self.maps[&needed];
+            let needed = self.maps.needed(k);
+            self.maps.retain_needed_from(k);
+            let (means, opacities) = self.maps.for_frame(k).expect("ready");
             let fingerprint = (means.len(), points_fingerprint(means, opacities));
             if self.loaded != Some(fingerprint) {
                 let ignored = self.mapper.set_map_points(means, opacities)?;

@@ -14,6 +14,7 @@
 //! - [`paths`]: A* paths to the best candidates, their future poses, path EIG and the
 //!   objective.
 //! - [`scorer`]: one replan end to end ([`scorer::FisherScorer`]).
+//! - [`report`]: its wire report (`FisherReport` from a [`ReplanOutcome`]).
 
 pub mod candidates;
 pub mod config;
@@ -21,6 +22,7 @@ pub mod information;
 pub mod model;
 pub mod paths;
 pub mod refine;
+pub mod report;
 pub mod scorer;
 pub mod unknown;
 

@@ -15,10 +15,10 @@ use nalgebra::Point2;
 
 use activemap_planning::PlanningError;
 use activemap_planning::dynamics::Action;
-use activemap_planning::explorer::{
+use activemap_planning::grid::{CellState, OccupancyGrid};
+use activemap_policy::explorer::{
     Decision, Explorer, ExplorerConfig, ExplorerCounters, StageTimes,
 };
-use activemap_planning::grid::{CellState, OccupancyGrid};
 
 /// What episode to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -126,7 +126,7 @@ fn sim_error(e: activemap_sim::SimError) -> PlanningError {
 }
 
 /// Runs one FBE episode on the configured procedural scene with true poses.
-pub fn run(config: &HouseEpisodeConfig) -> Result<HouseEpisode, PlanningError> {
+pub fn run(config: &HouseEpisodeConfig) -> anyhow::Result<HouseEpisode> {
     let spec = SceneSpec {
         max_rooms: config.max_rooms,
         max_area: config.max_area,

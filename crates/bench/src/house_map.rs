@@ -24,7 +24,7 @@ use std::time::Instant;
 use activemap_geometry::Isometry3;
 use activemap_planning::OccupancyGrid;
 use activemap_planning::dynamics::Action;
-use activemap_planning::explorer::{Decision, Explorer, ExplorerConfig};
+use activemap_policy::explorer::{Decision, Explorer, ExplorerConfig};
 use activemap_sim::{Action as SimAction, SceneSpec, SimConfig, Simulator};
 use activemap_slam::{Frame, KeyframeMapper, MappingConfig, PoseQuality};
 use activemap_splat::Gaussians;

@@ -11,7 +11,6 @@ use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::house_episode::{self, HouseEpisodeConfig};
-use activemap_planning::PlanningError;
 use activemap_planning::astar::{AstarConfig, plan};
 use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
 use activemap_planning::frontier::{FrontierConfig, extract_frontiers};
@@ -94,7 +93,7 @@ fn truth_grid(world: &SyntheticWorld) -> OccupancyGrid {
 }
 
 /// Runs every benchmark and returns its rows.
-pub fn run(config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
+pub fn run(config: &BenchConfig) -> anyhow::Result<Vec<BenchRow>> {
     let reps = config.repetitions.max(1);
     let mut rows = Vec::new();
     // A 6×6-room house of 3.3 m rooms: 398×398 cells at 5 cm.
@@ -201,7 +200,7 @@ pub fn run(config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
 /// default size, or a home or office) with true poses ([`crate::house_episode`]); rows: coverage, steps, steps to
 /// 85 %, path length, collisions, planning-loop steps per second (without rendering), the
 /// event counters and the time shares.
-pub fn explore_episode(scene: &str, config: &BenchConfig) -> Result<Vec<BenchRow>, PlanningError> {
+pub fn explore_episode(scene: &str, config: &BenchConfig) -> anyhow::Result<Vec<BenchRow>> {
     let mut episode = HouseEpisodeConfig::benchmark(scene)?;
     episode.steps = config.explore_steps;
     episode.image_size = config.depth_size;

@@ -7,7 +7,9 @@
 //!   (REP 103: x forward, y left, z up) to the camera optical frame;
 //! - [`robot`]: the robot model (camera height, radius, step and turn sizes) and its one
 //!   discrete [`Action`] type;
-//! - [`tum`]: trajectories in the TUM text format (`t tx ty tz qx qy qz qw`).
+//! - [`tum`]: trajectories in the TUM text format (`t tx ty tz qx qy qz qw`);
+//! - [`snapshots`]: map snapshots kept for a consumer running L frames behind the mapper (the map
+//!   lag every map consumer shares).
 //!
 //! Poses are `nalgebra::Isometry3<f64>` everywhere; `T_a_b` maps points of frame `b` into `a`.
 
@@ -15,6 +17,7 @@ pub mod camera;
 pub mod frames;
 pub mod robot;
 pub mod se3;
+pub mod snapshots;
 pub mod tum;
 
 pub use camera::Intrinsics;

@@ -1,6 +1,6 @@
 //! The path executor: the one state machine that turns a path into one action per step, used
 //! by the `follower` operator (what `activemap run` runs) and by the in-process
-//! [`crate::explorer::Explorer`]. Each step it either acts or asks for a new path:
+//! `activemap_policy::explorer::Explorer`. Each step it either acts or asks for a new path:
 //!
 //! - the episode starts with a look-around of [`ExecutorConfig::initial_spin_steps`] left turns
 //!   (72 × 5° = 360°: the camera sees nothing closer than ~0.9 m ahead, so the robot maps its

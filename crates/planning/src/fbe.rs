@@ -1,7 +1,7 @@
 //! Frontier-based exploration (Yamauchi 1997; SPEC §6 baseline): which frontier region to visit
 //! next, and which goals to stop trying. [`FbePlanner`] (the decision per replan request, over
 //! the one decision state [`FbeState`]) is what both the in-process
-//! [`crate::explorer::Explorer`] and the `planner` operator call:
+//! `activemap_policy::explorer::Explorer` and the `planner` operator call:
 //!
 //! - ranking ([`FbePolicy`]): the nearest region by path length, the largest, or (default) the
 //!   best utility = size / (path cost + turn cost + offset), which prefers large frontiers

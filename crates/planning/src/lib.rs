@@ -13,7 +13,6 @@
 //! - [`follower`], [`dynamics`], [`stuck`], [`replan`]: the pieces of path execution;
 //! - [`executor`]: the one path executor (the `follower` operator and the explorer run it);
 //! - [`fbe`]: the frontier-based-exploration goal choice (the `planner` operator's decision);
-//! - [`explorer`]: the whole FBE loop in process, driving the operators' pieces in their order;
 //! - [`synthetic`]: a 2.5D test world with an exact depth renderer and procedural houses;
 
 #![warn(missing_docs)]
@@ -24,7 +23,6 @@ pub mod distance;
 pub mod dynamics;
 pub mod error;
 pub mod executor;
-pub mod explorer;
 pub mod fbe;
 pub mod follower;
 pub mod frontier;

@@ -1,5 +1,5 @@
 //! The path to a goal cell as the `scorer` operator (mode `shortest`) and the in-process
-//! [`crate::explorer::Explorer`] make it: A* with the robot-width clearance and proximity cost,
+//! `activemap_policy::explorer::Explorer` make it: A* with the robot-width clearance and proximity cost,
 //! then shortcutting (SPEC §6), as waypoints with headings; the last one faces the point the
 //! robot came to look at (the frontier's centroid), which is where the follower's look turn at
 //! the end of the path aims.

@@ -34,11 +34,8 @@ use crate::pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 use crate::references::{ReferenceConfig, References};
 use crate::tracker::{TrackerConfig, TrackingStatus, track};
 
-/// The map snapshot frame `k` is tracked and gridded against under map lag `lag`:
-/// k − 1 − L, clamped at frame 0 (the first frames all use the first snapshot).
-pub fn required_snapshot(k: u64, lag: u64) -> u64 {
-    k.saturating_sub(1 + lag)
-}
+use activemap_geometry::snapshots::LaggedSnapshots;
+pub use activemap_geometry::snapshots::required_snapshot;
 
 /// The motion prediction that seeds tracking of a frame from the previous one.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -482,7 +479,7 @@ pub(crate) fn finite_pose(p: &Isometry3<f64>) -> bool {
 pub struct TrackingSession {
     config: TrackingConfig,
     /// Map snapshots by the frame they include, from the one the next frame needs on.
-    maps: BTreeMap<u64, Arc<Gaussians<f32>>>,
+    maps: LaggedSnapshots<Arc<Gaussians<f32>>>,
     frames: BTreeMap<u64, Frame>,
     /// The motion from frame k to k + 1, by k.
     motions: BTreeMap<u64, MotionPrior>,
@@ -509,8 +506,8 @@ impl TrackingSession {
                 .map(KeyframeGraph::new)
                 .transpose()?,
             pose: config.initial_pose,
+            maps: LaggedSnapshots::new(config.map_lag),
             config,
-            maps: BTreeMap::new(),
             frames: BTreeMap::new(),
             motions: BTreeMap::new(),
             next: 0,
@@ -598,10 +595,9 @@ impl TrackingSession {
                     None => break,
                 }
             };
-            let needed = required_snapshot(k, self.config.map_lag);
             let anchored = !self.references.is_empty();
             let map = if anchored {
-                match self.maps.get(&needed) {
+                match self.maps.for_frame(k) {
                     Some(m) => Some(m.clone()),
                     None => break,
                 }
@@ -702,7 +698,7 @@ impl TrackingSession {
             if k > 0 {
                 self.motions.remove(&(k - 1));
             }
-            self.maps = self.maps.split_off(&needed);
+            self.maps.retain_needed_from(k);
             self.frames.remove(&k);
             self.next += 1;
         }
@@ -728,16 +724,6 @@ mod tests {
             })
             .collect();
         Frame::new(k, rgb, vec![2.0; 576], stamp).unwrap()
-    }
-
-    #[test]
-    fn required_snapshot_is_k_minus_one_minus_lag_clamped_at_zero() {
-        assert_eq!(required_snapshot(0, 0), 0);
-        assert_eq!(required_snapshot(1, 0), 0);
-        assert_eq!(required_snapshot(5, 0), 4);
-        assert_eq!(required_snapshot(5, 3), 1);
-        assert_eq!(required_snapshot(4, 3), 0);
-        assert_eq!(required_snapshot(2, 10), 0);
     }
 
     /// With map lag L = 3, frame k is tracked once the snapshot of frame k − 4 and the motion

@@ -1,21 +1,26 @@
-//! The frontier-based exploration loop in one synchronous object: a thin in-process driver of
-//! the very pieces the pipeline's operators run, in the pipeline's order, so that both take the
-//! same actions on the same frames (the `activemap-operators` test
-//! `explorer_and_pipeline_take_the_same_actions` checks it on a house). Per step k:
+//! The exploration loop in one synchronous object: a thin in-process driver of the very pieces
+//! the pipeline's operators run, in the pipeline's order, so that both take the same actions
+//! on the same frames and map snapshots (the `activemap-operators` tests
+//! `explorer_and_pipeline_take_the_same_actions` (FBE) and
+//! `fisher_explorer_and_pipeline_take_the_same_actions` check it on a house). Per step k:
 //!
 //! 1. occupancy, as the `occupancy` operator: the depth rays of frame k at its pose, the map
 //!    points last given ([`Explorer::mapper_mut`]), the robot's footprint marked free
 //!    ([`ExplorerConfig::footprint_radius_m`]);
 //! 2. the [`PathExecutor`] (the `follower` operator) decides on grid k and pose k;
 //! 3. when it asks for a new path: the reachable frontier regions of grid k
-//!    ([`reachable_regions`], the `frontier` operator), the FBE goal ([`FbePlanner`], the
-//!    `planner` operator; `None` ends the episode), the path to it ([`shortest_path`], the
-//!    `scorer` operator), handed to the executor, which decides again on the same grid and
-//!    pose; after [`ExplorerConfig::max_replans_per_step`] requests in one step the robot
-//!    turns left instead, as the follower does.
+//!    ([`reachable_regions`], the `frontier` operator, as wire regions), the goal of the
+//!    [`GoalPolicy`] (the `planner` operator; `None` ends the episode), the path of the
+//!    [`PathPolicy`] (the `scorer` operator), handed to the executor, which decides again on the
+//!    same grid and pose; after [`ExplorerConfig::max_replans_per_step`] requests in one step
+//!    the robot turns left instead, as the follower does.
 //!
-//! Poses are taken as given (true ones in the benchmark, estimates in the pipeline): no SLAM
-//! and no transport here, and tracking is never lost.
+//! Any policy runs: FBE with the shortest path ([`Explorer::new`]), or the goal and path
+//! policies of the `planner` and `scorer` configs ([`Explorer::with_policies`]: `fisher`,
+//! `fisher_eig_only`, `llm`). Map snapshots ([`Explorer::add_map`]) go to both policies, as the
+//! mapper's `map` goes to the planner and the scorer. Poses are taken as given (true ones in
+//! the benchmark, estimates in the pipeline): no SLAM and no transport here, and tracking is
+//! never lost.
 
 use std::time::{Duration, Instant};
 
@@ -24,17 +29,20 @@ use activemap_geometry::{Intrinsics, Isometry3, PlanarPose};
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
-use crate::astar::AstarConfig;
-use crate::clearance::ClearanceConfig;
-use crate::dynamics::Action;
-use crate::dynamics::RobotModel;
-use crate::error::{PlanningError, require};
-use crate::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
-use crate::fbe::{FbeConfig, FbePlanner, FbeState};
-use crate::frontier::{FrontierConfig, FrontierRegion, reachable_regions};
-use crate::grid::OccupancyGrid;
-use crate::occupancy::{OccupancyConfig, OccupancyMapper};
-use crate::path::shortest_path;
+use activemap_planning::astar::AstarConfig;
+use activemap_planning::clearance::ClearanceConfig;
+use activemap_planning::dynamics::{Action, RobotModel};
+use activemap_planning::executor::{self, ExecutorConfig, ExecutorCounters, PathExecutor};
+use activemap_planning::fbe::{FbeConfig, FbeState};
+use activemap_planning::frontier::{FrontierConfig, FrontierRegion, reachable_regions};
+use activemap_planning::grid::OccupancyGrid;
+use activemap_planning::occupancy::{OccupancyConfig, OccupancyMapper};
+use activemap_schemas::{FisherReport, Frontiers, LlmExchange, ReplanRequest};
+
+use crate::goal::{GoalInput, GoalPolicy, NoFrontier};
+use crate::path::{PathInput, PathPolicy};
+use crate::wire::{reason_to_wire, regions_to_wire};
+use crate::{GoalChoice, MapSnapshot, PathChoice, no_log};
 
 /// Every setting of the loop (defaults: those of the operators in `dataflow.yaml`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -51,9 +59,9 @@ pub struct ExplorerConfig {
     pub robot: RobotModel,
     /// Frontier extraction.
     pub frontier: FrontierConfig,
-    /// A*.
+    /// A* of the shortest-path policy [`Explorer::new`] runs.
     pub astar: AstarConfig,
-    /// Goal ranking, strikes and amnesty.
+    /// Goal ranking, strikes and amnesty of the FBE policy [`Explorer::new`] runs.
     pub fbe: FbeConfig,
     /// Path execution.
     pub executor: ExecutorConfig,
@@ -82,7 +90,7 @@ impl Default for ExplorerConfig {
 pub enum Decision {
     /// Execute this action.
     Act(Action),
-    /// No reachable frontier is left: the episode is over (the pipeline's `Stop`).
+    /// The goal policy ended the episode (no reachable frontier left; the pipeline's `Stop`).
     Finished,
 }
 
@@ -95,7 +103,7 @@ pub struct StageTimes {
     pub triggers: Duration,
     /// Frontier extraction and goal choice.
     pub frontiers: Duration,
-    /// A* and shortcutting.
+    /// The path choice (A* and shortcutting, or the Fisher replan).
     pub planning: Duration,
 }
 
@@ -118,46 +126,80 @@ pub struct ExplorerCounters {
     pub executor: ExecutorCounters,
 }
 
-/// The FBE loop state.
-pub struct Explorer {
+/// The loop state, running the goal choice `G` and the path choice `P` (by default the
+/// built-in policies).
+pub struct Explorer<G = GoalPolicy, P = PathPolicy> {
     config: ExplorerConfig,
     mapper: OccupancyMapper,
     executor: PathExecutor,
-    planner: FbePlanner,
+    goals: G,
+    paths: P,
+    /// The frame of the next step.
+    frame: u64,
     grid: Option<OccupancyGrid>,
     regions: Option<Vec<FrontierRegion>>,
+    /// The wire regions of the last step that asked for a path (what the policies see).
+    frontiers: Option<Frontiers>,
+    /// The last LLM exchange and Fisher report, when the policies made them.
+    exchange: Option<LlmExchange>,
+    report: Option<FisherReport>,
     counters: ExplorerCounters,
     /// Time per stage.
     pub times: StageTimes,
 }
 
 impl Explorer {
-    /// A loop with an empty map initially covering `[min, max]` (it grows; the `occupancy`
-    /// operator starts with (−2, −2)–(2, 2) in the start-anchored frame).
-    pub fn new(
+    /// The FBE loop (goal choice `config.fbe`, the episode ends with no frontier left, the
+    /// shortest path with `config.astar`; no log) with an empty map initially covering
+    /// `[min, max]` (it grows; the `occupancy` operator starts with (−2, −2)–(2, 2) in the
+    /// start-anchored frame).
+    pub fn new(config: ExplorerConfig, min: Point2<f64>, max: Point2<f64>) -> anyhow::Result<Self> {
+        let goals = GoalPolicy::fbe(config.fbe, NoFrontier::End)?.with_log(no_log);
+        let paths = PathPolicy::shortest(config.robot, config.astar);
+        Self::with_policies(config, min, max, goals, paths)
+    }
+}
+
+impl<P> Explorer<GoalPolicy, P> {
+    /// The FBE decision state (strikes, amnesties; for `llm`, its eligibility).
+    pub fn fbe(&self) -> &FbeState {
+        self.goals.fbe_state()
+    }
+}
+
+impl<G: GoalChoice, P: PathChoice> Explorer<G, P> {
+    /// The loop running the goal choice `goals` and the path choice `paths` (e.g. the
+    /// [`GoalPolicy`] and [`PathPolicy`] of the `planner` and `scorer` configs), with an empty
+    /// map initially covering `[min, max]`.
+    pub fn with_policies(
         config: ExplorerConfig,
         min: Point2<f64>,
         max: Point2<f64>,
-    ) -> Result<Self, PlanningError> {
+        goals: G,
+        paths: P,
+    ) -> anyhow::Result<Self> {
         config.astar.validate()?;
-        require(
+        anyhow::ensure!(
             config.footprint_radius_m.is_finite() && config.footprint_radius_m >= 0.0,
-            "ExplorerConfig::footprint_radius_m",
-            "must be finite and non-negative",
-        )?;
-        require(
+            "invalid configuration `ExplorerConfig::footprint_radius_m`: must be finite and non-negative"
+        );
+        anyhow::ensure!(
             config.max_replans_per_step >= 1,
-            "ExplorerConfig::max_replans_per_step",
-            "must be at least 1",
-        )?;
+            "invalid configuration `ExplorerConfig::max_replans_per_step`: must be at least 1"
+        );
         ClearanceConfig::for_disc(config.robot.radius_m, config.occupancy.resolution)?;
         Ok(Self {
             mapper: OccupancyMapper::new(config.occupancy, min, max)?,
             executor: PathExecutor::new(config.executor, config.robot)?,
-            planner: FbePlanner::new(config.fbe)?,
+            goals,
+            paths,
             config,
+            frame: 0,
             grid: None,
             regions: None,
+            frontiers: None,
+            exchange: None,
+            report: None,
             counters: ExplorerCounters::default(),
             times: StageTimes::default(),
         })
@@ -185,9 +227,36 @@ impl Explorer {
         self.executor.goal()
     }
 
-    /// The FBE decision state (strikes, amnesties).
-    pub fn fbe(&self) -> &FbeState {
-        self.planner.state()
+    /// The goal choice.
+    pub fn goals(&self) -> &G {
+        &self.goals
+    }
+
+    /// The path choice.
+    pub fn paths(&self) -> &P {
+        &self.paths
+    }
+
+    /// The wire frontier regions of the last step that asked for a path.
+    pub fn frontiers(&self) -> Option<&Frontiers> {
+        self.frontiers.as_ref()
+    }
+
+    /// The last LLM exchange (policy `llm` with a provider).
+    pub fn last_exchange(&self) -> Option<&LlmExchange> {
+        self.exchange.as_ref()
+    }
+
+    /// The last Fisher report (path policy `fisher`).
+    pub fn last_report(&self) -> Option<&FisherReport> {
+        self.report.as_ref()
+    }
+
+    /// Hands a map snapshot to both policies (the LLM's BEV and the Fisher scorer read the
+    /// snapshot of frame k − 1 − L at step k; it must be there by then).
+    pub fn add_map(&mut self, map: &MapSnapshot<'_>) -> anyhow::Result<()> {
+        self.goals.add_map(map)?;
+        self.paths.add_map(map)
     }
 
     /// The path executor.
@@ -198,8 +267,8 @@ impl Explorer {
     /// What happened so far.
     pub fn counters(&self) -> ExplorerCounters {
         ExplorerCounters {
-            amnesties: self.planner.state().amnesties,
-            unobservable_goals: self.planner.state().unobservable_goals,
+            amnesties: self.goals.fbe_state().map_or(0, |s| s.amnesties),
+            unobservable_goals: self.goals.fbe_state().map_or(0, |s| s.unobservable_goals),
             executor: self.executor.counters,
             ..self.counters
         }
@@ -210,14 +279,17 @@ impl Explorer {
         &mut self.mapper
     }
 
-    /// One step: integrate the depth frame taken at camera pose `t_world_camera` (the robot's
-    /// planar pose is derived from it, as every operator does), then decide.
+    /// One step (frame k = the number of steps before): integrate the depth frame taken at
+    /// camera pose `t_world_camera` (the robot's planar pose is derived from it, as every
+    /// operator does), then decide.
     pub fn step(
         &mut self,
         depth: &[f32],
         intrinsics: &Intrinsics,
         t_world_camera: &Isometry3<f64>,
-    ) -> Result<Decision, PlanningError> {
+    ) -> anyhow::Result<Decision> {
+        let k = self.frame;
+        self.frame += 1;
         let t0 = Instant::now();
         self.mapper
             .integrate_depth(depth, intrinsics, t_world_camera)?;
@@ -226,18 +298,22 @@ impl Explorer {
             .mark_free_disc(Point2::new(pose.x, pose.y), self.config.footprint_radius_m)?;
         let grid = self.mapper.grid();
         self.times.occupancy += t0.elapsed();
-        let decision = self.decide(&pose, &grid);
+        self.goals.add_pose(&pose);
+        self.paths.add_pose(k, *t_world_camera);
+        let decision = self.decide(k, t_world_camera, &pose, &grid);
         self.grid = Some(grid);
         decision
     }
 
     /// The follower's per-step loop: decide; answer each replan request with a goal and a
-    /// path on the same grid and pose, at most `max_replans_per_step` times.
+    /// path on the same grid and pose (of frame `k`), at most `max_replans_per_step` times.
     fn decide(
         &mut self,
+        k: u64,
+        camera: &Isometry3<f64>,
         pose: &PlanarPose,
         grid: &OccupancyGrid,
-    ) -> Result<Decision, PlanningError> {
+    ) -> anyhow::Result<Decision> {
         let here = Point2::new(pose.x, pose.y);
         let clearance =
             ClearanceConfig::for_disc(self.config.robot.radius_m, grid.geometry.resolution)?;
@@ -259,40 +335,58 @@ impl Explorer {
             let t = Instant::now();
             // The frontier operator's regions of this frame, extracted once per step.
             if replans == 1 {
-                self.regions = Some(reachable_regions(
-                    grid,
-                    here,
-                    &clearance,
-                    &self.config.frontier,
-                )?);
+                let regions = reachable_regions(grid, here, &clearance, &self.config.frontier)?;
+                self.frontiers = Some(Frontiers {
+                    frame_id: k,
+                    stamp: 0.0,
+                    regions: regions_to_wire(grid, &regions),
+                });
+                self.regions = Some(regions);
             }
-            let found = self.regions.as_deref().unwrap_or_default();
-            let choice = self.planner.choose(reason, grid, found, pose);
+            let frontiers = self.frontiers.as_ref().expect("extracted above");
+            let choice = self.goals.goal(&GoalInput {
+                request: ReplanRequest {
+                    frame_id: k,
+                    reason: reason_to_wire(reason),
+                },
+                grid,
+                frontiers,
+                pose: *pose,
+                camera_z: camera.translation.z,
+            })?;
             self.times.frontiers += t.elapsed();
-            let Some(choice) = choice else {
+            if choice.exchange.is_some() {
+                self.exchange = choice.exchange;
+            }
+            let Some(goal) = choice.goal else {
                 return Ok(Decision::Finished);
             };
             let t = Instant::now();
-            let path = shortest_path(
+            let answer = self.paths.path(&PathInput {
+                goal: &goal,
                 grid,
-                here,
-                choice.cell,
-                choice.focus,
-                &clearance,
-                &self.config.astar,
-            )?;
+                pose: *camera,
+                frontiers: Some(frontiers),
+            })?;
             self.times.planning += t.elapsed();
-            let waypoints = match &path {
-                Some(p) => p.waypoints.as_slice(),
-                None => {
-                    self.counters.unreachable_goals += 1;
-                    &[]
-                }
-            };
+            if answer.report.is_some() {
+                self.report = answer.report;
+            }
+            let waypoints: Vec<PlanarPose> = answer
+                .path
+                .waypoints
+                .iter()
+                .map(|w| PlanarPose::new(w.x, w.y, w.yaw))
+                .collect();
+            // No path found: an empty path of infinite objective (a path to the robot's own
+            // cell is empty too, at a finite cost).
+            if waypoints.is_empty() && answer.path.objective == f64::INFINITY {
+                self.counters.unreachable_goals += 1;
+            }
             if !waypoints.is_empty() {
                 self.counters.plans += 1;
             }
-            self.executor.set_path(waypoints)?;
+            self.executor.set_path(&waypoints)?;
         }
     }
 }
@@ -300,10 +394,11 @@ impl Explorer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dynamics::RobotModel;
-    use crate::grid::Cell;
-    use crate::synthetic::SyntheticWorld;
+    use crate::goal::GoalConfig;
     use activemap_geometry::camera_pose_from_planar;
+    use activemap_llm::provider::{Completion, RecordedReply, Usage};
+    use activemap_planning::grid::Cell;
+    use activemap_planning::synthetic::SyntheticWorld;
 
     /// The point `dist` metres along the polyline from `from` through `path`, if it is at least
     /// 0.25 m shorter than the polyline.
@@ -428,9 +523,9 @@ mod tests {
                 for x in 0..g.geometry.width {
                     let c = Cell::new(x as i32, y as i32);
                     txt.push(match g.get(c).unwrap() {
-                        crate::grid::CellState::Free => '.',
-                        crate::grid::CellState::Occupied => '#',
-                        crate::grid::CellState::Unknown => ' ',
+                        activemap_planning::grid::CellState::Free => '.',
+                        activemap_planning::grid::CellState::Occupied => '#',
+                        activemap_planning::grid::CellState::Unknown => ' ',
                     });
                 }
                 txt.push('\n');
@@ -456,5 +551,92 @@ mod tests {
             blocked_forward < 40,
             "bumped into walls {blocked_forward} times"
         );
+    }
+
+    /// Runs `explorer` on the 2×2-room house with true poses for at most `steps` steps.
+    fn run_on_small_house(explorer: &mut Explorer, steps: usize) {
+        let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
+        let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
+        let mut pose = world.start;
+        for _ in 0..steps {
+            let cam = camera_pose_from_planar(&pose, 0.0, 0.88);
+            let depth = world.render_depth(&k, &cam);
+            match explorer.step(&depth, &k, &cam).unwrap() {
+                Decision::Finished => break,
+                Decision::Act(a) => pose = world.step(&pose, a, &RobotModel::default(), 0.05),
+            }
+        }
+    }
+
+    /// The `llm` goal policy runs in process, with the offline heuristic (no provider) and
+    /// with a recorded provider serving replies (text prompt: no map needed); the shortest
+    /// path answers its goals, and the recorded exchanges come back out.
+    #[test]
+    fn the_llm_policy_runs_in_process_offline_and_recorded() {
+        let fail = |_: &std::path::Path, _: &str| anyhow::bail!("no recordings");
+        let offline: GoalConfig =
+            serde_json::from_value(serde_json::json!({ "policy": "llm" })).unwrap();
+        let recorded: GoalConfig = serde_json::from_value(serde_json::json!({
+            "policy": "llm",
+            "llm": { "prompt": "text", "provider": { "kind": "recorded", "recording": "r.mcap" } }
+        }))
+        .unwrap();
+        let reply = || RecordedReply {
+            system: String::new(),
+            user: String::new(),
+            completion: Completion {
+                provider: "openai".into(),
+                model: "m".into(),
+                request: "{}".into(),
+                http_status: Some(200),
+                attempts: 1,
+                latency_ms: 1.0,
+                usage: Usage::default(),
+                reply: "{\"target\": 0, \"reason\": \"the largest\"}".into(),
+                finish_reason: Some("stop".into()),
+                reasoning: String::new(),
+                schema_refused: false,
+                failure: None,
+            },
+            follow_up: None,
+        };
+        let replies = |_: &std::path::Path, node: &str| {
+            assert_eq!(node, "planner");
+            Ok((0..100).map(|_| reply()).collect())
+        };
+        for (config, load) in [
+            (offline, &fail as crate::goal::RecordedLoader<'_>),
+            (recorded, &replies),
+        ] {
+            let goals = GoalPolicy::new(&config, "planner", Some(300), load)
+                .unwrap()
+                .with_log(no_log);
+            let paths = PathPolicy::shortest(RobotModel::default(), AstarConfig::default());
+            let world = SyntheticWorld::procedural_house(7, 2, 2, 3.0).unwrap();
+            let (s, r) = (world.start, 1.0);
+            let mut ex = Explorer::with_policies(
+                ExplorerConfig::default(),
+                Point2::new(s.x - r, s.y - r),
+                Point2::new(s.x + r, s.y + r),
+                goals,
+                paths,
+            )
+            .unwrap();
+            run_on_small_house(&mut ex, 300);
+            let c = ex.counters();
+            assert!(c.plans >= 2, "{c:?}");
+            let llm = ex.goals().llm().expect("the llm policy");
+            match config.llm {
+                None => assert!(ex.last_exchange().is_none()),
+                Some(_) => {
+                    assert!(llm.planner().stats().calls >= 1);
+                    let e = ex.last_exchange().expect("a recorded exchange");
+                    assert_eq!(
+                        (e.target, e.reason.as_deref()),
+                        (Some(0), Some("the largest"))
+                    );
+                }
+            }
+        }
     }
 }
