@@ -15,12 +15,15 @@ import shutil
 import subprocess
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
 from . import _native
 from .splat import Gaussians
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: Environment variable naming the ``activemap`` binary to run.
 BINARY_ENV = "ACTIVEMAP_BIN"
@@ -140,7 +143,7 @@ def bench_results(
     jobs: int | None = None,
     cwd: str | os.PathLike[str] | None = None,
     timeout: float | None = None,
-) -> "Any":
+) -> "pd.DataFrame":
     """Run (or resume) the benchmark suite file ``suite`` with ``activemap bench results --suite
     SUITE --out OUT`` and return :func:`results` of ``out``. Method names of the suite resolve
     against ``cwd`` (the repository root for ``benchmarks/*.yaml``)."""
@@ -152,7 +155,7 @@ def bench_results(
     return results(folder)
 
 
-def results(dir: str | os.PathLike[str], table: str = "results") -> "Any":
+def results(dir: str | os.PathLike[str], table: str = "results") -> "pd.DataFrame":
     """The table ``activemap bench results --out DIR`` wrote, as a pandas DataFrame.
 
     ``table="results"`` (``results.csv``): one row per method over all scenes (``scene`` =
@@ -229,24 +232,24 @@ class Run:
         d = _native.read_map(self.path)
         return Gaussians(**d)
 
-    def coverage(self) -> Any:
+    def coverage(self) -> "pd.DataFrame | None":
         """``coverage.csv`` as a DataFrame (``step``, ``coverage`` in [0, 1]); ``None`` when
         absent."""
         return _frame(_native.read_coverage(self.path))
 
-    def fisher(self) -> Any:
+    def fisher(self) -> "pd.DataFrame | None":
         """``fisher.csv`` as a DataFrame, one row per Fisher replan (``step``, ``refine``,
         ``candidates``, ``paths``, ``chosen``, ``objective``, ``eig_sum``, ``eig_first``,
         ``c_local_sum``, ``actions``, ``total_ms``, ``model_reused``, ``fallback``; NaN where
         empty); ``None`` when the run made no Fisher replan."""
         return _frame(_native.read_fisher(self.path))
 
-    def timings(self) -> Any:
+    def timings(self) -> "pd.DataFrame | None":
         """``timings.csv`` as a DataFrame (``stage``, ``seconds``, ``calls``), ``None`` when
         absent."""
         return _frame(_native.read_timings(self.path))
 
-    def views(self) -> Any:
+    def views(self) -> "pd.DataFrame | None":
         """``eval/views.csv`` (per test view PSNR, SSIM, LPIPS, depth MAE) as a DataFrame,
         ``None`` before ``activemap eval``."""
         return _frame(_native.read_views(self.path))
@@ -262,7 +265,7 @@ class Run:
         return [(step, Run(p)) for step, p in _native.checkpoints(self.path)]
 
 
-def _frame(columns: Mapping[str, Any] | None) -> Any:
+def _frame(columns: Mapping[str, Any] | None) -> "pd.DataFrame | None":
     if columns is None:
         return None
     import pandas as pd

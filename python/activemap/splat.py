@@ -236,7 +236,10 @@ def _intrinsics(k: IntrinsicsLike) -> tuple[int, int, float, float, float, float
         return k.astuple()
     if isinstance(k, Mapping):
         try:
-            return Intrinsics(**{f: k[f] for f in ("width", "height", "fx", "fy", "cx", "cy")}).astuple()
+            return Intrinsics(
+                int(k["width"]), int(k["height"]), float(k["fx"]), float(k["fy"]),
+                float(k["cx"]), float(k["cy"]),
+            ).astuple()
         except KeyError as e:
             raise ValueError(f"intrinsics mapping lacks {e}: needs width, height, fx, fy, cx, cy") from None
     values = tuple(k)

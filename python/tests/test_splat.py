@@ -170,6 +170,8 @@ def test_natural_units_and_dict_input(splat_fixture):
     a = activemap.render(g, np.eye(4), k)
     b = activemap.render({f: getattr(g, f) for f in ("means", "sh_dc", "rotations", "opacity_logits", "log_scales")}, np.eye(4), k)
     np.testing.assert_array_equal(a.colour, b.colour)
+    c = activemap.render(g, np.eye(4), {"width": 16, "height": 16, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})
+    np.testing.assert_array_equal(a.colour, c.colour)
     centre = a.colour[7:9, 7:9].mean(axis=(0, 1))
     assert centre[0] > centre[1] > centre[2] > 0  # reddish, seen
 
