@@ -1,11 +1,14 @@
 """activemap from Python: run episodes, read their run folders and the ``bench results`` table
 into numpy and pandas, and call the CPU splat renderer and the Fisher information on numpy arrays.
 
->>> import activemap
->>> run = activemap.Run("runs/smoke/fbe/house-1/seed1")      # a run folder
->>> run.summary["coverage"], run.trajectory_est.shape         # dict, (N, 8) numpy
->>> gaussians = run.map()                                     # numpy arrays of the final map
->>> colour, depth, opacity = activemap.render(gaussians, pose, activemap.Intrinsics.from_hfov(160, 160, 90))
+Example::
+
+    import activemap
+    run = activemap.Run("runs/smoke/fbe/house-1/seed1")       # a run folder
+    run.summary["coverage"], run.trajectory_est.shape          # dict, (N, 8) numpy
+    gaussians = run.map()                                      # numpy arrays of the final map
+    k = activemap.Intrinsics.from_hfov(160, 160, 90)
+    colour, depth, opacity = activemap.render(gaussians, pose_4x4, k)
 
 The Rust crates do the work (``activemap-eval``'s run-folder reader, ``activemap-splat``'s
 renderer and Fisher pass, ``activemap-active``'s view information and EIG); episodes run the
