@@ -15,7 +15,7 @@ import shutil
 import subprocess
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -137,19 +137,25 @@ def run(
 
 
 def bench_results(
-    suite: str | os.PathLike[str],
+    suite: str | os.PathLike[str] | None,
     out: str | os.PathLike[str],
     *,
     jobs: int | None = None,
+    extra_args: Sequence[str] = (),
     cwd: str | os.PathLike[str] | None = None,
     timeout: float | None = None,
 ) -> "pd.DataFrame":
     """Run (or resume) the benchmark suite file ``suite`` with ``activemap bench results --suite
     SUITE --out OUT`` and return :func:`results` of ``out``. Method names of the suite resolve
-    against ``cwd`` (the repository root for ``benchmarks/*.yaml``)."""
-    args = ["bench", "results", "--suite", os.fspath(suite), "--out", os.fspath(out)]
+    against ``cwd`` (the repository root for ``benchmarks/*.yaml``). With ``suite=None`` the grid
+    comes from ``extra_args`` (``["--method", "fbe", "--houses", "1", ...]``, see
+    ``activemap bench results --help``)."""
+    args = ["bench", "results", "--out", os.fspath(out)]
+    if suite is not None:
+        args += ["--suite", os.fspath(suite)]
     if jobs is not None:
         args += ["--jobs", str(int(jobs))]
+    args += [str(a) for a in extra_args]
     _run_cli(args, cwd, timeout)
     folder = Path(out) if Path(out).is_absolute() or cwd is None else Path(cwd) / out
     return results(folder)

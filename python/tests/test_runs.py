@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pandas as pd
 import pytest
 
 import activemap
+from conftest import ROOT
 
 
 def test_an_episode_runs_and_its_folder_reads_back(episode: activemap.Run):
@@ -125,25 +127,35 @@ def test_a_missing_binary_says_how_to_get_one(monkeypatch, tmp_path: Path):
         activemap.find_binary()
 
 
-def test_results_reads_the_bench_results_table(binary, tmp_path: Path):
-    """One cell of 10 steps at 32x32 through `activemap bench results`, then the table."""
-    from conftest import ROOT
-
-    import subprocess
-
-    out = tmp_path / "bench"
-    subprocess.run(
-        [str(binary), "bench", "results", "--method", "fbe", "--houses", "7", "--seeds", "1",
-         "--steps", "10", "--resolution", "32", "--eval-views", "4", "--out", str(out)],
-        cwd=ROOT, check=True, capture_output=True, timeout=600,
-    )
-    table = activemap.results(out)
+def check_table(folder: Path) -> None:
+    table = activemap.results(folder)
     assert isinstance(table, pd.DataFrame)
     assert list(table.columns[:4]) == ["method", "scene", "complete", "cells"]
     assert table.loc[table["scene"] == "all", "method"].tolist() == ["fbe"]
-    assert table["complete"].iloc[0] == 1 and "psnr_db" in table.columns
-    assert table["psnr_db"].dtype == np.float64
-    paired = activemap.results(out, table="paired")
+    assert table["complete"].iloc[0] == 1 and table["psnr_db"].dtype == np.float64
+    assert np.isnan(table["psnr_db_std"].iloc[0])  # one seed: no spread
+    paired = activemap.results(folder, table="paired")
     assert isinstance(paired, pd.DataFrame)
+
+
+def test_results_reads_the_bench_results_table(tmp_path: Path):
+    """The tables `activemap bench results --method fbe --houses 7 --seeds 1 --steps 10
+    --resolution 32 --eval-views 4` wrote (tests/data/bench/)."""
+    check_table(Path(__file__).parent / "data" / "bench")
     with pytest.raises(FileNotFoundError, match="results.csv"):
         activemap.results(tmp_path)
+    with pytest.raises(ValueError, match="table must be"):
+        activemap.results(tmp_path, table="bogus")
+
+
+@pytest.mark.skipif(not os.environ.get("ACTIVEMAP_PY_BENCH"), reason="set ACTIVEMAP_PY_BENCH=1 (runs one evaluated cell, 5-20 s)")
+def test_bench_results_runs_a_suite_cell(binary, tmp_path: Path):
+    """The same one-cell table made now through activemap.bench_results."""
+    out = tmp_path / "bench"
+    table = activemap.bench_results(
+        None, out, cwd=ROOT, timeout=600,
+        extra_args=["--method", "fbe", "--houses", "7", "--seeds", "1", "--steps", "10",
+                    "--resolution", "32", "--eval-views", "4"],
+    )
+    assert table.equals(activemap.results(out))
+    check_table(out)
