@@ -48,8 +48,8 @@ fn splat_err(e: SplatError) -> PyErr {
     }
 }
 
-/// The elements of `array`, which must be C-contiguous with `K` columns (or 1-D when `K` is
-/// 0), named `what` in errors.
+/// The rows of `array`, which must be C-contiguous of shape (N, `K`), read in place; `what`
+/// names it in errors.
 fn rows<'a, T: Element, const K: usize>(
     array: &'a PyReadonlyArray2<'_, T>,
     what: &str,
