@@ -30,18 +30,19 @@
 
 use std::path::PathBuf;
 
+use activemap_eval::CorrectedTrajectory;
 use activemap_eval::run_folder::{
-    Bev, BevCell, CoverageRow, FisherRow, LlmFollowUpRecord, LlmRecord, LlmSummary, RunFolder,
+    CoverageRow, FisherRow, LlmFollowUpRecord, LlmRecord, LlmSummary, RunFolder,
+};
+use activemap_eval::step_metrics::{
+    CoverageTruth, ate_rmse, bev, blocked_forwards, observed_only, path_length_m, run_warnings,
 };
 use activemap_eval::validity::{self, RunWarning};
-use activemap_eval::{AteOptions, CorrectedTrajectory, ate, coverage_2d};
 use activemap_geometry::RobotModel;
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_planning::OccupancyGrid as PlanGrid;
-use activemap_planning::dynamics::forward_was_blocked;
-use activemap_planning::grid::CellState;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
@@ -49,8 +50,7 @@ use activemap_schemas::{
     Action, ActionKind, EpisodeStatus, FisherReport, Frontiers, LlmExchange, MessageKind as K,
     PoseEstimate, RgbdFrameView, TruePose,
 };
-use activemap_sim::NavigableMap;
-use activemap_splat::{FLAG_UNKNOWN_SPACE, Gaussians};
+use activemap_splat::Gaussians;
 use nalgebra::Point2;
 
 use crate::Registered;
@@ -123,50 +123,6 @@ fn default_scale() -> u32 {
 /// What the evaluator measured: `summary.json`, defined with the rest of the run folder in
 /// `activemap-eval` ([`RunFolder`]).
 pub use activemap_eval::run_folder::Summary;
-
-/// Ground-truth coverage: the reachable navigable floor of the scene.
-pub struct CoverageTruth {
-    navigable: NavigableMap,
-    reachable: Vec<bool>,
-}
-
-impl CoverageTruth {
-    /// The truth for a start at world (x, y).
-    pub fn new(navigable: NavigableMap, start: Point2<f64>) -> Self {
-        let reachable = navigable.reachable_from(start.x, start.y);
-        Self {
-            navigable,
-            reachable,
-        }
-    }
-
-    /// Fraction of the reachable navigable cells that are free in `grid`, whose frame is the
-    /// robot's start frame `start` (planar, world).
-    pub fn coverage(&self, grid: &PlanGrid, start: &PlanarPose) -> anyhow::Result<f64> {
-        let f = &self.navigable.frame;
-        let (s, c) = start.yaw.sin_cos();
-        let mut seen = vec![false; self.reachable.len()];
-        for j in 0..f.height {
-            for i in 0..f.width {
-                let idx = j * f.width + i;
-                if !self.reachable[idx] {
-                    continue;
-                }
-                let (x, y) = f.centre(i, j);
-                let (dx, dy) = (x - start.x, y - start.y);
-                let local = Point2::new(c * dx + s * dy, -s * dx + c * dy);
-                seen[idx] = grid.get(grid.geometry.cell_of(local)) == Some(&CellState::Free);
-            }
-        }
-        Ok(coverage_2d(&seen, &self.reachable, f.width, f.height)?)
-    }
-
-    /// Area of the navigable floor reachable from the start, m².
-    pub fn reachable_area_m2(&self) -> f64 {
-        let cell = self.navigable.frame.cell_size;
-        self.reachable.iter().filter(|&&r| r).count() as f64 * cell * cell
-    }
-}
 
 /// The operator.
 pub struct Evaluator {
@@ -250,24 +206,6 @@ fn thinking(reply: &str) -> Option<String> {
     (!blocks.is_empty()).then(|| blocks.join("\n\n"))
 }
 
-/// Counts the forward actions whose outcome is known, and the blocked ones among them: the
-/// action computed on frame `k` shows in frame `k + 1`, and it is blocked when the robot moved
-/// less than `forward_step_m / 2` between the two (module doc).
-pub fn blocked_forwards(
-    forward_steps: &[u64],
-    true_positions: &std::collections::BTreeMap<u64, Point2<f64>>,
-    forward_step_m: f64,
-) -> (u64, u64) {
-    let (mut known, mut blocked) = (0, 0);
-    for k in forward_steps {
-        if let (Some(a), Some(b)) = (true_positions.get(k), true_positions.get(&(k + 1))) {
-            known += 1;
-            blocked += u64::from(forward_was_blocked(*a, *b, forward_step_m));
-        }
-    }
-    (known, blocked)
-}
-
 /// The `fisher.csv` row of one Fisher replan: counts, the chosen path's objective, EIG (summed
 /// over its scored poses, and of the first) and `C_local` sum, and the replan time. An error
 /// names the frame when the report does not hold together (a chosen index out of range, a NaN
@@ -309,32 +247,15 @@ impl Evaluator {
     /// first frame's valid depth (when the `rgbd` input is connected), the motion counts of
     /// `summary`, the final map's observed Gaussians and the reachable floor.
     pub fn warnings(&self, summary: &Summary) -> Vec<RunWarning> {
-        let (observed, unknown) = self.map.as_ref().map_or((0, 0), |m| {
-            let unknown = m
-                .flags
-                .iter()
-                .filter(|f| *f & FLAG_UNKNOWN_SPACE != 0)
-                .count();
-            (m.len() - unknown, unknown)
-        });
-        [
-            self.start_depth
-                .and_then(|(frame, valid)| validity::start_view(frame, valid)),
-            validity::motion(
-                summary.steps,
-                summary.path_length_m,
-                summary.forward_actions,
-                summary.blocked_forwards,
-                self.robot.forward_step_m,
-            ),
-            validity::map(observed, unknown),
+        run_warnings(
+            self.start_depth,
+            summary,
+            self.robot.forward_step_m,
+            self.map.as_ref(),
             self.truth
                 .as_ref()
-                .and_then(|(truth, _, _)| validity::reachable_floor(truth.reachable_area_m2())),
-        ]
-        .into_iter()
-        .flatten()
-        .collect()
+                .map(|(truth, _, _)| truth.reachable_area_m2()),
+        )
     }
 
     fn score_pending(&mut self) -> anyhow::Result<()> {
@@ -382,31 +303,25 @@ impl Evaluator {
             out.write_map(&observed_only(map)?)?;
         }
         if let (Some(grid), Some((_, _, anchor))) = (&self.grid, &self.truth) {
+            let frontiers: Vec<[f64; 2]> = self
+                .regions
+                .as_ref()
+                .map_or_else(Vec::new, |f| f.regions.iter().map(|r| r.centroid).collect());
             out.write_bev(&bev(
                 grid,
                 &self.estimated,
                 &self.true_traj,
                 anchor,
-                self.regions.as_ref(),
+                &frontiers,
                 self.scale,
             ))?;
         }
-        let ate_of = |estimated: &Trajectory| -> anyhow::Result<Option<f64>> {
-            Ok(if estimated.len() >= 3 {
-                Some(ate(&self.true_traj, estimated, AteOptions::default())?.rmse)
-            } else {
-                None
-            })
-        };
-        let ate_m = ate_of(&self.estimated)?;
+        let ate_m = ate_rmse(&self.true_traj, &self.estimated)?;
         let ate_final_m = match self.corrected.trajectory() {
-            Some(t) => ate_of(t)?,
+            Some(t) => ate_rmse(&self.true_traj, t)?,
             None => None,
         };
-        let mut path_length_m = 0.0;
-        for w in self.true_traj.poses.windows(2) {
-            path_length_m += (w[1].translation.vector - w[0].translation.vector).norm();
-        }
+        let path_length_m = path_length_m(&self.true_traj);
         let (forward_actions, blocked) = blocked_forwards(
             &self.forward_steps,
             &self.true_positions,
@@ -455,70 +370,6 @@ impl Evaluator {
             eprintln!("{}", w.log_line(out.dir()));
         }
         Ok(summary)
-    }
-}
-
-/// The map without the Gaussians flagged [`FLAG_UNKNOWN_SPACE`] (what `map.ply` holds: the PLY
-/// layout stores no flags, so they could not be told apart after writing).
-pub fn observed_only(map: &Gaussians<f32>) -> anyhow::Result<Gaussians<f32>> {
-    let keep: Vec<bool> = map
-        .flags
-        .iter()
-        .map(|f| f & FLAG_UNKNOWN_SPACE == 0)
-        .collect();
-    let mut out = map.clone();
-    out.retain(&keep)?;
-    Ok(out)
-}
-
-/// What `bev.png` shows ([`Bev`], drawn by the run folder): the grid, the true path (mapped
-/// into the start frame by `start_from_world`), the estimated path and the frontier centroids,
-/// all in the grid's cell units.
-pub fn bev(
-    grid: &PlanGrid,
-    estimated: &Trajectory,
-    truth: &Trajectory,
-    start_from_world: &Isometry3<f64>,
-    regions: Option<&Frontiers>,
-    pixels_per_cell: u32,
-) -> Bev {
-    let g = &grid.geometry;
-    let units = |x: f64, y: f64| {
-        let u = g.to_cell_units(Point2::new(x, y));
-        [u.x, u.y]
-    };
-    Bev {
-        width: g.width,
-        height: g.height,
-        cells: grid
-            .data
-            .iter()
-            .map(|state| match state {
-                CellState::Free => BevCell::Free,
-                CellState::Occupied => BevCell::Occupied,
-                CellState::Unknown => BevCell::Unknown,
-            })
-            .collect(),
-        truth: truth
-            .poses
-            .iter()
-            .map(|p| {
-                let q = start_from_world * p;
-                units(q.translation.x, q.translation.y)
-            })
-            .collect(),
-        estimated: estimated
-            .poses
-            .iter()
-            .map(|p| units(p.translation.x, p.translation.y))
-            .collect(),
-        frontiers: regions.map_or_else(Vec::new, |f| {
-            f.regions
-                .iter()
-                .map(|r| units(r.centroid[0], r.centroid[1]))
-                .collect()
-        }),
-        pixels_per_cell,
     }
 }
 
@@ -699,49 +550,10 @@ pub fn registered() -> Registered {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_forward_move_that_does_not_move_the_robot_counts_as_blocked() {
-        // Frames 0..=4 along x: 5 cm, 5 cm, 0 (blocked), 2 cm (a slide), then frame 5 unseen.
-        let xs = [0.0, 0.05, 0.10, 0.10, 0.12];
-        let positions = xs
-            .iter()
-            .enumerate()
-            .map(|(k, x)| (k as u64, Point2::new(*x, 1.0)))
-            .collect();
-        // Forward on frames 0, 1, 2, 3 and 4 (whose outcome, frame 5, never came).
-        assert_eq!(blocked_forwards(&[0, 1, 2, 3, 4], &positions, 0.05), (4, 2));
-        assert_eq!(blocked_forwards(&[0, 1], &positions, 0.05), (2, 0));
-        // With a 2 cm step the 2 cm slide is a full move.
-        assert_eq!(blocked_forwards(&[3], &positions, 0.02), (1, 0));
-    }
-
-    #[test]
-    fn map_ply_keeps_exactly_the_observed_gaussians() {
-        let mut map = Gaussians::<f32>::new();
-        for i in 0..6 {
-            map.push(
-                [i as f64, 0.0, 1.0],
-                [0.5, 0.5, 0.5],
-                [1.0, 0.0, 0.0, 0.0],
-                0.9,
-                [0.05, 0.05, 0.05],
-            );
-        }
-        map.flags[1] = FLAG_UNKNOWN_SPACE;
-        map.flags[4] = FLAG_UNKNOWN_SPACE | 0x80;
-        map.flags[5] = 0x80;
-        let kept = observed_only(&map).unwrap();
-        let xs: Vec<f32> = kept.means.iter().map(|m| m[0]).collect();
-        assert_eq!(xs, [0.0, 2.0, 3.0, 5.0]);
-        // Through the file the operator writes.
-        let dir = tempfile::tempdir().unwrap();
-        let run = RunFolder::new(dir.path());
-        run.write_map(&kept).unwrap();
-        let back = run.read_map().unwrap();
-        assert_eq!(back.len(), 4);
-        assert_eq!(back.means[3][0], 5.0);
-    }
+    use activemap_eval::bev::BevCell;
+    use activemap_planning::grid::CellState;
+    use activemap_sim::NavigableMap;
+    use activemap_splat::FLAG_UNKNOWN_SPACE;
 
     /// The evaluator writes its run folder through the contract: everything it wrote reads
     /// back through `RunFolder` as the same values, and the drawn BEV has the grid's size.
@@ -844,7 +656,7 @@ mod tests {
             &ev.estimated,
             &ev.true_traj,
             &Isometry3::identity(),
-            None,
+            &[],
             3,
         );
         assert_eq!((b.width, b.height, b.cells[1]), (20, 10, BevCell::Occupied));

@@ -11,13 +11,17 @@
 //! - [`offset`]: signed distance of the Gaussian centres to the ground-truth surface;
 //! - [`observable`]: which ground-truth samples a camera pose of the robot can see;
 //! - [`coverage`]: seen / navigable floor area;
+//! - [`step_metrics`]: what the `evaluator` node measures as a run goes (coverage against the
+//!   reachable floor, blocked forward moves, path length, ATE, the observed map, the BEV of the
+//!   last grid, the run's validity warnings);
 //! - [`fog`]: the release's fog-of-war 2D coverage along the true trajectory;
 //! - [`test_poses`]: the seeded test poses on the navigable plane;
 //! - [`views`]: all image metrics of one test view and their means over the views;
 //! - [`report`]: [`MetricsReport`], all of them with missing values explicit;
 //! - [`bench`](mod@bench): timings of every metric (`bench::run`);
 //! - [`run_folder`]: the run folder as one typed contract ([`RunFolder`]: every file's name
-//!   and format, [`Summary`], the CSV rows, the bird's-eye PNG);
+//!   and format, [`Summary`], the CSV rows);
+//! - [`bev`](mod@bev): the bird's-eye view of a run and its drawing ([`bev::Bev`]);
 //! - [`run_eval`]: `activemap eval RUN_DIR` ([`run_eval::evaluate_run`]) over a run folder;
 //! - [`html`]: the self-contained `report.html` of a run ([`html::write_report`]);
 //! - [`validity`]: the checks that mark a run invalid ([`RunWarning`]: a start that sees nothing,
@@ -28,6 +32,7 @@
 
 pub mod ate;
 pub mod bench;
+pub mod bev;
 pub mod completeness;
 pub mod corrected;
 pub mod coverage;
@@ -44,6 +49,7 @@ pub mod report;
 pub mod run_eval;
 pub mod run_folder;
 pub mod ssim;
+pub mod step_metrics;
 pub mod surface;
 pub mod test_poses;
 pub mod validity;

@@ -14,8 +14,10 @@
 //! - [`dense`], [`references`]: dense RGB-D alignment to keyframes, and which keyframes a
 //!   frame is aligned to (the newest, plus older ones of the same place);
 //! - [`pose_graph`]: a keyframe pose graph (relative-pose edges, Levenberg–Marquardt with
-//!   faer's sparse Cholesky), which the tracking session keeps over its references when
-//!   configured ([`KeyframeGraph`]);
+//!   faer's sparse Cholesky);
+//! - [`keyframe_graph`]: that graph over the tracking session's reference keyframes, kept when
+//!   configured ([`KeyframeGraph`]: odometry and loop edges, optimisation, corrections for the
+//!   mapper);
 //! - [`session`]: the tracking session (prediction, lagged map snapshots, reference
 //!   keyframes, lost/skipped frames), as the `tracker` operator holds it;
 //! - [`mapping`]: the mapping session (keyframe rule, insertion, window optimisation in a
@@ -43,6 +45,7 @@ pub mod frame;
 pub mod gauss_newton;
 pub mod insert;
 pub mod keyframe;
+pub mod keyframe_graph;
 pub mod lockstep;
 pub mod loss;
 pub mod mapper;
@@ -55,6 +58,9 @@ pub mod tracker;
 pub use error::SlamError;
 pub use frame::{Frame, SkipReason};
 pub use keyframe::{KeyframeConfig, KeyframeDecision};
+pub use keyframe_graph::{
+    GraphStats, KeyframeCorrection, KeyframeGraph, KeyframeGraphConfig, LoopClosure,
+};
 pub use lockstep::{LockstepSlam, SlamConfig};
 pub use mapper::{Mapper, MapperConfig, MappingReport};
 pub use mapping::{
@@ -63,8 +69,5 @@ pub use mapping::{
 };
 pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
-pub use session::{
-    GraphStats, KeyframeCorrection, KeyframeGraph, KeyframeGraphConfig, LoopClosure, MotionPrior,
-    TrackedFrame, TrackingConfig, TrackingSession, required_snapshot,
-};
+pub use session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, required_snapshot};
 pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

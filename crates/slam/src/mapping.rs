@@ -34,8 +34,9 @@ use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, rend
 use crate::error::SlamError;
 use crate::frame::Frame;
 use crate::keyframe::{KeyframeConfig, decide};
+use crate::keyframe_graph::KeyframeCorrection;
 use crate::mapper::{Mapper, MapperConfig, MappingReport};
-use crate::session::{KeyframeCorrection, required_snapshot};
+use crate::session::required_snapshot;
 use crate::tracker::{TrackerConfig, TrackingStatus};
 
 /// Settings of the mapping session.
