@@ -32,7 +32,8 @@ use std::path::PathBuf;
 
 use activemap_eval::CorrectedTrajectory;
 use activemap_eval::run_folder::{
-    CoverageRow, FisherRow, LlmFollowUpRecord, LlmRecord, LlmSummary, RunFolder,
+    CoverageRow, FisherRow, LLM_OUTCOME_HORIZON_STEPS, LlmFollowUpRecord, LlmRecord, LlmSummary,
+    RunFolder,
 };
 use activemap_eval::step_metrics::{
     CoverageTruth, ate_rmse, bev, blocked_forwards, observed_only, path_length_m, run_warnings,
@@ -177,6 +178,7 @@ pub fn llm_record(e: &LlmExchange, bev: Option<String>) -> LlmRecord {
         target: e.target.map(i64::from),
         reason: e.reason.clone(),
         decision: Some(i64::from(e.decision)),
+        fallback_target: (e.fallback_target >= 0).then_some(i64::from(e.fallback_target)),
         failure: e.failure.clone(),
         failure_detail: e.failure_detail.clone(),
         finish_reason: e.finish_reason.clone(),
@@ -345,7 +347,13 @@ impl Evaluator {
             transform: self.scene.placement.transform,
             floor: Some(self.scene.placement.floor).filter(|f| !f.is_none()),
             robot: Some(self.robot),
-            llm: (!self.llm.is_empty()).then(|| LlmSummary::of(&self.llm)),
+            llm: (!self.llm.is_empty()).then(|| {
+                LlmSummary::of(&self.llm).with_outcomes(
+                    &self.llm,
+                    &self.coverage,
+                    LLM_OUTCOME_HORIZON_STEPS,
+                )
+            }),
             warnings: Vec::new(),
         };
         summary.warnings = self.warnings(&summary);

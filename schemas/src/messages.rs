@@ -355,7 +355,8 @@ small_message!(FisherReport, 1);
 /// provider serves these back in order.
 ///
 /// Version 2 added everything after `bev_png` but `reply`, `target`; version 3 the finish
-/// reason, the reasoning, `schema_refused` and the follow-up turn.
+/// reason, the reasoning, `schema_refused` and the follow-up turn; version 4
+/// `fallback_target`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LlmExchange {
     /// Frame the decision was made on.
@@ -392,6 +393,9 @@ pub struct LlmExchange {
     pub reason: Option<String>,
     /// The target decided: the model's, or the largest frontier's on a fallback (−1: refine).
     pub decision: i32,
+    /// The largest frontier's number: what the fallback would have decided without the model
+    /// (−1 when no candidate was offered).
+    pub fallback_target: i32,
     /// Kind of failure that made the planner fall back (`timeout`, `no_json`, …), if any.
     pub failure: Option<String>,
     /// What exactly failed.
@@ -407,7 +411,7 @@ pub struct LlmExchange {
     /// and `failure` are then its outcome.
     pub follow_up: Option<LlmFollowUp>,
 }
-small_message!(LlmExchange, 3);
+small_message!(LlmExchange, 4);
 
 /// The follow-up turn of an [`LlmExchange`]: the conversation again, with the model's first
 /// reply as the assistant's message and a user message asking only for the JSON.

@@ -525,6 +525,59 @@ pub struct Summary {
     pub warnings: Vec<RunWarning>,
 }
 
+/// Whether a record's decision differs from the fallback's choice: `None` when it does not say
+/// (no decision or no recorded fallback target).
+fn differs(r: &LlmRecord) -> Option<bool> {
+    Some(r.decision? != r.fallback_target?)
+}
+
+impl LlmOutcomes {
+    /// The outcomes of `records` on `coverage` (rows in step order); `None` without a decision
+    /// whose window of `horizon_steps` closes inside the rows.
+    pub fn of(records: &[LlmRecord], coverage: &[CoverageRow], horizon_steps: u64) -> Option<Self> {
+        let last = coverage.last()?.step;
+        // Coverage at step s: the last row at or before s (0 before the first row).
+        let at = |s: u64| {
+            let i = coverage.partition_point(|c| c.step <= s);
+            if i == 0 {
+                0.0
+            } else {
+                coverage[i - 1].coverage
+            }
+        };
+        let mut out = Self {
+            horizon_steps,
+            ..Self::default()
+        };
+        let (mut differed_sum, mut same_sum) = (0.0, 0.0);
+        let mut open_until = None;
+        for r in records {
+            let (Some(step), Some(differs)) = (r.step, differs(r)) else {
+                continue;
+            };
+            let end = step + horizon_steps;
+            if end > last || open_until.is_some_and(|u| step < u) {
+                continue;
+            }
+            open_until = Some(end);
+            let gain = (at(end) - at(step)) * 100.0;
+            if differs {
+                out.differed += 1;
+                differed_sum += gain;
+            } else {
+                out.same += 1;
+                same_sum += gain;
+            }
+        }
+        if out.differed + out.same == 0 {
+            return None;
+        }
+        out.differed_gain_pp = (out.differed > 0).then(|| differed_sum / out.differed as f64);
+        out.same_gain_pp = (out.same > 0).then(|| same_sum / out.same as f64);
+        Some(out)
+    }
+}
+
 /// The LLM planner's totals in `summary.json` (SPEC §7), over its recorded exchanges.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -549,7 +602,40 @@ pub struct LlmSummary {
     pub follow_ups: u64,
     /// Follow-up turns that gave a valid answer.
     pub recovered: u64,
+    /// Queries the model answered validly (no fallback).
+    pub model_decisions: u64,
+    /// Of those, the ones whose choice differed from the fallback's (the largest frontier;
+    /// counted only where the run recorded it): where the model made a difference.
+    pub differed: u64,
+    /// What the choices led to ([`LlmSummary::with_outcomes`]); `None`: not computed (no
+    /// coverage rows, or no decision with a whole window after it).
+    pub outcomes: Option<LlmOutcomes>,
 }
+
+/// What the LLM planner's decisions led to: the 2D coverage gained in the `horizon_steps`
+/// steps after each decision, averaged separately over the decisions where the model's choice
+/// differed from the fallback's and over those where the decision equals the fallback's (the
+/// model agreed, or the planner fell back). Decisions closer than `horizon_steps` to the end of
+/// the run are left out (their window is cut), as are decisions made while an earlier one's
+/// window is still open, so each gain belongs to one decision.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LlmOutcomes {
+    /// Steps after a decision over which the gain is measured.
+    pub horizon_steps: u64,
+    /// Decisions with a whole window where the model's choice differed from the fallback's.
+    pub differed: u64,
+    /// Their mean coverage gain, percentage points of the reachable floor.
+    pub differed_gain_pp: Option<f64>,
+    /// Decisions with a whole window that equal the fallback's.
+    pub same: u64,
+    /// Their mean coverage gain, percentage points.
+    pub same_gain_pp: Option<f64>,
+}
+
+/// The default window of [`LlmSummary::with_outcomes`] in the evaluator and the report, steps:
+/// the order of one path to a frontier at the default step length (5 cm forward, 10° turns).
+pub const LLM_OUTCOME_HORIZON_STEPS: u64 = 50;
 
 impl LlmSummary {
     /// The totals of `records`.
@@ -574,8 +660,24 @@ impl LlmSummary {
                 s.completion_tokens += f.completion_tokens.unwrap_or(0);
                 s.latency_s += f.latency_ms.unwrap_or(0.0) / 1e3;
             }
+            if r.target.is_some() {
+                s.model_decisions += 1;
+                s.differed += u64::from(differs(r) == Some(true));
+            }
         }
         s
+    }
+
+    /// The totals with [`LlmSummary::outcomes`] measured on the run's `coverage` rows (step
+    /// order) over windows of `horizon_steps` steps.
+    pub fn with_outcomes(
+        mut self,
+        records: &[LlmRecord],
+        coverage: &[CoverageRow],
+        horizon_steps: u64,
+    ) -> Self {
+        self.outcomes = LlmOutcomes::of(records, coverage, horizon_steps);
+        self
     }
 
     /// One line for the report's summary table.
@@ -606,6 +708,25 @@ impl LlmSummary {
             line += &format!(
                 ", {} follow-ups ({} recovered)",
                 self.follow_ups, self.recovered
+            );
+        }
+        if self.model_decisions > 0 {
+            line += &format!(
+                "; the model decided {} times, {} of them differently from the fallback",
+                self.model_decisions, self.differed
+            );
+        }
+        if let Some(o) = &self.outcomes {
+            let gain = |n: u64, g: Option<f64>| match g {
+                Some(g) => format!("{g:+.2} pp over {n}"),
+                None => "none".to_string(),
+            };
+            line += &format!(
+                "; coverage gained in the {} steps after a decision: {} where the model differed, \
+                 {} where the decision was the fallback's",
+                o.horizon_steps,
+                gain(o.differed, o.differed_gain_pp),
+                gain(o.same, o.same_gain_pp)
             );
         }
         line
@@ -894,6 +1015,9 @@ pub struct LlmRecord {
     pub reason: Option<String>,
     /// The target decided (the model's or the fallback's; −1: refine).
     pub decision: Option<i64>,
+    /// The largest frontier's number: what the fallback would have decided without the model
+    /// (absent in runs before it was recorded).
+    pub fallback_target: Option<i64>,
     /// Failure kind that made the planner fall back, if any.
     pub failure: Option<String>,
     /// What failed.
@@ -1200,9 +1324,74 @@ mod tests {
                 cut: 1,
                 follow_ups: 1,
                 recovered: 1,
+                model_decisions: 2,
+                differed: 1,
+                outcomes: Some(LlmOutcomes {
+                    horizon_steps: 50,
+                    differed: 1,
+                    differed_gain_pp: Some(4.25),
+                    same: 1,
+                    same_gain_pp: Some(1.5),
+                }),
             }),
             warnings: Vec::new(),
         }
+    }
+
+    /// What the LLM decisions led to, on hand-made coverage rows (one every 10 steps, the
+    /// coverage rising 1 point per 10 steps, 3 per 10 from step 100 on): the model's choice
+    /// at step 100 differs from the fallback's and gains 3 × 5 = 15 points in the 50 steps
+    /// after it; the model agreeing at step 20 and the fallback at step 160 gain 5 and 15
+    /// points (mean 10); the decision at step 40 (inside step 20's window), the one at step
+    /// 200 (its window passes the last row, 240) and a record without a fallback target (an
+    /// older run) are left out. Counted as differing: the model's differing choice only.
+    #[test]
+    fn llm_outcomes_split_the_coverage_gain_by_whether_the_model_differed() {
+        let coverage: Vec<CoverageRow> = (0..=24)
+            .map(|i| {
+                let step = i * 10;
+                let points = if step <= 100 {
+                    step as f64 / 10.0
+                } else {
+                    10.0 + 3.0 * (step - 100) as f64 / 10.0
+                };
+                CoverageRow {
+                    step,
+                    coverage: points / 100.0,
+                }
+            })
+            .collect();
+        let record = |step, target: Option<i64>, decision, fallback_target| LlmRecord {
+            step: Some(step),
+            target,
+            decision: Some(decision),
+            fallback_target,
+            ..LlmRecord::default()
+        };
+        let records = [
+            record(20, Some(1), 1, Some(1)),
+            record(40, Some(3), 3, Some(0)),
+            record(100, Some(2), 2, Some(0)),
+            record(160, None, 0, Some(0)),
+            record(170, Some(4), 4, None),
+            record(200, Some(1), 1, Some(0)),
+        ];
+        let summary = LlmSummary::of(&records).with_outcomes(&records, &coverage, 50);
+        assert_eq!((summary.model_decisions, summary.differed), (5, 3));
+        let o = summary.outcomes.clone().unwrap();
+        assert_eq!((o.horizon_steps, o.differed, o.same), (50, 1, 2));
+        assert!((o.differed_gain_pp.unwrap() - 15.0).abs() < 1e-9, "{o:?}");
+        assert!((o.same_gain_pp.unwrap() - 10.0).abs() < 1e-9, "{o:?}");
+        let line = summary.line();
+        assert!(
+            line.contains("the model decided 5 times, 3 of them differently")
+                && line.contains("+15.00 pp over 1 where the model differed")
+                && line.contains("+10.00 pp over 2 where the decision was the fallback's"),
+            "{line}"
+        );
+        // No coverage rows, or no whole window: no outcomes.
+        assert_eq!(LlmOutcomes::of(&records, &[], 50), None);
+        assert_eq!(LlmOutcomes::of(&records, &coverage, 1000), None);
     }
 
     /// The summary survives the file; its JSON keeps the field names and `null`s the evaluator

@@ -104,6 +104,9 @@ pub struct Exchange {
     pub answer: Option<Answer>,
     /// The decision taken: the candidate index, or −1.
     pub decision: i64,
+    /// The largest candidate's index: what the paper's fallback would have decided without
+    /// the model, so a report can tell where the model's choice made a difference.
+    pub fallback_target: u32,
     /// Why it fell back to the largest frontier, if it did.
     pub fallback: Option<Failure>,
     /// The planner's own time (BEV, PNG, prompt, request, parsing), without the model's.
@@ -390,6 +393,7 @@ impl LlmPlanner {
                 follow_up,
                 answer,
                 decision: choice.target(),
+                fallback_target: fallback as u32,
                 fallback: fallback_reason,
                 overhead_ms,
             }),

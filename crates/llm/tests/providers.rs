@@ -345,6 +345,8 @@ fn bad_replies_fall_back_to_the_largest_frontier_with_their_reason() {
         assert_eq!(e.fallback.as_ref().map(|f| f.kind), *kind, "{reply}");
         assert_eq!(e.completion.reply, *reply);
         assert_eq!(e.decision, choice.target());
+        // The largest of the three candidates is the first: the fallback's choice.
+        assert_eq!(e.fallback_target, 0);
         match kind {
             Some(k) => {
                 assert!(matches!(&d.source, Source::Fallback(f) if f.kind == *k));

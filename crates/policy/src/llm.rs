@@ -59,6 +59,7 @@ pub fn exchange_to_wire(frame_id: u64, e: &Exchange) -> LlmExchange {
         target: e.answer.as_ref().map(|a| a.target as i32),
         reason: e.answer.as_ref().map(|a| a.reason.clone()),
         decision: e.decision as i32,
+        fallback_target: e.fallback_target as i32,
         failure: e.fallback.as_ref().map(|f| f.kind.name().to_string()),
         failure_detail: e.fallback.as_ref().map(|f| f.detail.clone()),
         finish_reason: c.finish_reason.clone(),

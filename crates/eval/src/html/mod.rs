@@ -517,12 +517,21 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
         s += "<p class=\"missing\">None: this run made no LLM exchange (no llm.jsonl).</p>";
         return Ok(s + "</div>");
     };
-    let totals = crate::run_folder::LlmSummary::of(&records);
+    let coverage = run.read_coverage()?.unwrap_or_default();
+    let totals = crate::run_folder::LlmSummary::of(&records).with_outcomes(
+        &records,
+        &coverage,
+        crate::run_folder::LLM_OUTCOME_HORIZON_STEPS,
+    );
     let _ = write!(s, "<p>{}</p>", escape(&totals.line()));
     let dash = || "—".to_string();
     for r in &records {
         let decided = match (r.target, r.failure.as_deref()) {
-            (Some(t), _) => format!("target {t}"),
+            (Some(t), _) => match r.fallback_target {
+                Some(f) if f != t => format!("target {t} (the fallback's: {f})"),
+                Some(_) => format!("target {t} (as the fallback)"),
+                None => format!("target {t}"),
+            },
             (None, Some(kind)) => format!(
                 "fallback to {} ({kind})",
                 r.decision.map_or_else(dash, |v| v.to_string())
