@@ -179,6 +179,8 @@ pub fn llm_record(e: &LlmExchange, bev: Option<String>) -> LlmRecord {
         reason: e.reason.clone(),
         decision: Some(i64::from(e.decision)),
         fallback_target: (e.fallback_target >= 0).then_some(i64::from(e.fallback_target)),
+        answered_step: e.answered_frame,
+        stale: e.stale.clone(),
         failure: e.failure.clone(),
         failure_detail: e.failure_detail.clone(),
         finish_reason: e.finish_reason.clone(),

@@ -142,7 +142,7 @@ impl Operator for Planner {
                 inputs::MAP => with_map_snapshot(input.bytes, |map| self.goals.add_map(map))?,
                 other => anyhow::bail!("planner: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: inputs::POSE } => return Ok(Flow::Stop),
+            Event::InputClosed { port: inputs::POSE } => return self.finish(ctx),
             _ => return Ok(Flow::Continue),
         }
         while let Some(request) = self.requests.first().copied() {
@@ -173,12 +173,23 @@ impl Operator for Planner {
             }
             match decision.goal {
                 Some(goal) => ctx.send(outputs::GOAL, &goal)?,
-                None => return Ok(Flow::Stop),
+                None => return self.finish(ctx),
             }
             // Older frames are no longer needed (requests come in frame order).
             self.join.discard_before(k);
         }
         Ok(Flow::Continue)
+    }
+}
+
+impl Planner {
+    /// Ends the node: a `background` LLM question still being asked is waited for and
+    /// recorded (never taken up), so nothing asked is lost.
+    fn finish(&mut self, ctx: &mut Context<'_>) -> anyhow::Result<Flow> {
+        if let Some(exchange) = self.goals.finish()? {
+            ctx.send(outputs::LLM, &exchange)?;
+        }
+        Ok(Flow::Stop)
     }
 }
 
@@ -315,6 +326,8 @@ mod tests {
             user: String::new(),
             completion: first,
             follow_up: Some(second),
+            background: false,
+            answered_frame: None,
         });
         assert_eq!(choice, LlmChoice::Frontier(2));
         assert_eq!((live.target, live.failure.as_deref()), (Some(2), None));

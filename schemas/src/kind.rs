@@ -82,7 +82,7 @@ kinds! {
     FisherReport: Small, false, <FisherReport as SmallMessage>::VERSION as u32,
         "FisherReport { frame_id, refine, focus, candidates: [{ x, y, yaw, eig }], paths: [{ goal, waypoints, actions, scored_steps, eig, c_local, objective }], chosen: i32 (-1 none), gaussians, unknown_gaussians, model_reused, note, timings, fallback } one Fisher replan (u16 version + postcard)";
     LlmExchange: Small, false, <LlmExchange as SmallMessage>::VERSION as u32,
-        "LlmExchange { frame_id, system, prompt, bev_png, provider, model, request, candidates, http_status, attempts, latency_ms, prompt_tokens, completion_tokens, reply, target, reason, decision, fallback_target, failure, failure_detail, finish_reason, reasoning, schema_refused, follow_up } (u16 version + postcard)";
+        "LlmExchange { frame_id, system, prompt, bev_png, provider, model, request, candidates, http_status, attempts, latency_ms, prompt_tokens, completion_tokens, reply, target, reason, decision, fallback_target, failure, failure_detail, finish_reason, reasoning, schema_refused, follow_up, answered_frame, stale } (u16 version + postcard)";
     Counter: Small, false, <Counter as SmallMessage>::VERSION as u32,
         "Counter { seq: u64, value: i64 } diagnostics and runtime tests (u16 version + postcard)";
 }

@@ -356,7 +356,7 @@ small_message!(FisherReport, 1);
 ///
 /// Version 2 added everything after `bev_png` but `reply`, `target`; version 3 the finish
 /// reason, the reasoning, `schema_refused` and the follow-up turn; version 4
-/// `fallback_target`.
+/// `fallback_target`, `answered_frame` and `stale`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LlmExchange {
     /// Frame the decision was made on.
@@ -410,6 +410,13 @@ pub struct LlmExchange {
     /// The follow-up turn, when the reply was cut or held no JSON answer; `target`, `reason`
     /// and `failure` are then its outcome.
     pub follow_up: Option<LlmFollowUp>,
+    /// The frame whose replan took the answer up: `frame_id` itself when the replan waited
+    /// for it (`ask.mode: blocking`), a later frame in `background` mode, `None` when the
+    /// episode ended before the answer came.
+    pub answered_frame: Option<u64>,
+    /// Why a `background` answer was not applied (the question too old, the chosen frontier
+    /// gone, the episode over first); `decision` is then not what the robot did.
+    pub stale: Option<String>,
 }
 small_message!(LlmExchange, 4);
 

@@ -552,7 +552,11 @@ impl LlmOutcomes {
         let (mut differed_sum, mut same_sum) = (0.0, 0.0);
         let mut open_until = None;
         for r in records {
-            let (Some(step), Some(differs)) = (r.step, differs(r)) else {
+            // A stale answer decided nothing; a background answer acted from the step that
+            // took it up.
+            let (Some(step), Some(differs), None) =
+                (r.answered_step.or(r.step), differs(r), &r.stale)
+            else {
                 continue;
             };
             let end = step + horizon_steps;
@@ -604,6 +608,9 @@ pub struct LlmSummary {
     pub recovered: u64,
     /// Queries the model answered validly (no fallback).
     pub model_decisions: u64,
+    /// Answers asked in the background and not applied (too old, their frontier gone, the
+    /// episode over first).
+    pub stale: u64,
     /// Of those, the ones whose choice differed from the fallback's (the largest frontier;
     /// counted only where the run recorded it): where the model made a difference.
     pub differed: u64,
@@ -615,8 +622,10 @@ pub struct LlmSummary {
 /// What the LLM planner's decisions led to: the 2D coverage gained in the `horizon_steps`
 /// steps after each decision, averaged separately over the decisions where the model's choice
 /// differed from the fallback's and over those where the decision equals the fallback's (the
-/// model agreed, or the planner fell back). Decisions closer than `horizon_steps` to the end of
-/// the run are left out (their window is cut), as are decisions made while an earlier one's
+/// model agreed, or the planner fell back). A window starts where the decision acted: at the
+/// replan that asked, or for an answer asked in the background at the one that took it up;
+/// stale answers (never applied) are left out. Decisions closer than `horizon_steps` to the end
+/// of the run are left out (their window is cut), as are decisions made while an earlier one's
 /// window is still open, so each gain belongs to one decision.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -660,6 +669,7 @@ impl LlmSummary {
                 s.completion_tokens += f.completion_tokens.unwrap_or(0);
                 s.latency_s += f.latency_ms.unwrap_or(0.0) / 1e3;
             }
+            s.stale += u64::from(r.stale.is_some());
             if r.target.is_some() {
                 s.model_decisions += 1;
                 s.differed += u64::from(differs(r) == Some(true));
@@ -715,6 +725,9 @@ impl LlmSummary {
                 "; the model decided {} times, {} of them differently from the fallback",
                 self.model_decisions, self.differed
             );
+        }
+        if self.stale > 0 {
+            line += &format!(", {} answers not applied (stale)", self.stale);
         }
         if let Some(o) = &self.outcomes {
             let gain = |n: u64, g: Option<f64>| match g {
@@ -1018,6 +1031,11 @@ pub struct LlmRecord {
     /// The largest frontier's number: what the fallback would have decided without the model
     /// (absent in runs before it was recorded).
     pub fallback_target: Option<i64>,
+    /// The step whose replan took the answer up: `step` when the replan waited for it, later
+    /// when asked in the background (`ask.mode: background`); absent when never taken up.
+    pub answered_step: Option<u64>,
+    /// Why a background answer was not applied (too old, its frontier gone, the episode over).
+    pub stale: Option<String>,
     /// Failure kind that made the planner fall back, if any.
     pub failure: Option<String>,
     /// What failed.
@@ -1325,6 +1343,7 @@ mod tests {
                 follow_ups: 1,
                 recovered: 1,
                 model_decisions: 2,
+                stale: 0,
                 differed: 1,
                 outcomes: Some(LlmOutcomes {
                     horizon_steps: 50,
@@ -1342,9 +1361,10 @@ mod tests {
     /// coverage rising 1 point per 10 steps, 3 per 10 from step 100 on): the model's choice
     /// at step 100 differs from the fallback's and gains 3 × 5 = 15 points in the 50 steps
     /// after it; the model agreeing at step 20 and the fallback at step 160 gain 5 and 15
-    /// points (mean 10); the decision at step 40 (inside step 20's window), the one at step
-    /// 200 (its window passes the last row, 240) and a record without a fallback target (an
-    /// older run) are left out. Counted as differing: the model's differing choice only.
+    /// points (mean 10); the decision at step 40 (inside step 20's window), the stale answer
+    /// at step 150 (never applied; counted, it would have taken step 160's place), the one at
+    /// step 200 (its window passes the last row, 240) and a record without a fallback target
+    /// (an older run) are left out. Counted as differing: the model's differing choice only.
     #[test]
     fn llm_outcomes_split_the_coverage_gain_by_whether_the_model_differed() {
         let coverage: Vec<CoverageRow> = (0..=24)
@@ -1372,19 +1392,27 @@ mod tests {
             record(20, Some(1), 1, Some(1)),
             record(40, Some(3), 3, Some(0)),
             record(100, Some(2), 2, Some(0)),
+            LlmRecord {
+                stale: Some("frontier 1 of frame 150 is gone".into()),
+                ..record(150, Some(1), 1, Some(0))
+            },
             record(160, None, 0, Some(0)),
             record(170, Some(4), 4, None),
             record(200, Some(1), 1, Some(0)),
         ];
         let summary = LlmSummary::of(&records).with_outcomes(&records, &coverage, 50);
-        assert_eq!((summary.model_decisions, summary.differed), (5, 3));
+        assert_eq!(
+            (summary.model_decisions, summary.differed, summary.stale),
+            (6, 4, 1)
+        );
         let o = summary.outcomes.clone().unwrap();
         assert_eq!((o.horizon_steps, o.differed, o.same), (50, 1, 2));
         assert!((o.differed_gain_pp.unwrap() - 15.0).abs() < 1e-9, "{o:?}");
         assert!((o.same_gain_pp.unwrap() - 10.0).abs() < 1e-9, "{o:?}");
         let line = summary.line();
         assert!(
-            line.contains("the model decided 5 times, 3 of them differently")
+            line.contains("the model decided 6 times, 4 of them differently")
+                && line.contains("1 answers not applied (stale)")
                 && line.contains("+15.00 pp over 1 where the model differed")
                 && line.contains("+10.00 pp over 2 where the decision was the fallback's"),
             "{line}"

@@ -179,6 +179,32 @@ pub struct AskPolicy {
     /// those of the last query: its answer is reused, as the same question would be asked.
     #[serde(default = "yes")]
     pub skip_unchanged_map: bool,
+    /// `blocking` (the default, the paper's protocol): the replan waits for the model's
+    /// answer, so the decisions do not depend on how fast the server is. `background`: the
+    /// replan that asks gets the fallback's goal (the largest frontier) at once, the robot goes
+    /// on while the model thinks, and the answer is taken up at the first replan after it
+    /// arrived (applied, or recorded as stale).
+    #[serde(default)]
+    pub mode: AskMode,
+    /// `background`: an answer taken up more than this many steps after its question is
+    /// stale (the map it was asked on is that old) and is not applied.
+    #[serde(default = "default_stale_after_steps")]
+    pub stale_after_steps: u64,
+}
+
+/// Whether a replan waits for the model (see [`AskPolicy::mode`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AskMode {
+    /// The replan waits for the answer.
+    #[default]
+    Blocking,
+    /// The replan takes the fallback's goal; the answer is applied at a later replan.
+    Background,
+}
+
+fn default_stale_after_steps() -> u64 {
+    200
 }
 
 fn yes() -> bool {
@@ -190,6 +216,8 @@ impl Default for AskPolicy {
         Self {
             min_interval_steps: 0,
             skip_unchanged_map: true,
+            mode: AskMode::Blocking,
+            stale_after_steps: default_stale_after_steps(),
         }
     }
 }

@@ -25,7 +25,9 @@ pub mod planner;
 pub mod prompt;
 pub mod provider;
 
-pub use config::{FollowUpConfig, LlmConfig, PromptStyle, ProviderConfig, StructuredOutput};
+pub use config::{
+    AskMode, FollowUpConfig, LlmConfig, PromptStyle, ProviderConfig, StructuredOutput,
+};
 pub use error::LlmError;
 pub use planner::{Choice, Decision, Exchange, FollowUp, LlmPlanner, Query, Source, Stats};
 pub use prompt::Candidate;

@@ -223,6 +223,33 @@ impl LlmPlanner {
         }
     }
 
+    /// True when deciding `query` would send a request to the model: a provider is set, the
+    /// last answer is not reused, the last target is not held and the budget is not spent.
+    /// Otherwise [`LlmPlanner::decide`] returns at once (what `background` asking relies on:
+    /// only real requests go to the background).
+    pub fn will_query(&self, query: &Query<'_>) -> bool {
+        if self.provider.is_none() {
+            return false;
+        }
+        if let Some(last) = &self.last_query {
+            if self.config.ask.skip_unchanged_map
+                && last.map_version == query.map_version
+                && last.candidates == query.candidates
+            {
+                return false;
+            }
+            if query.step < last.step + self.config.ask.min_interval_steps {
+                return false;
+            }
+        }
+        let budget = self.config.budget;
+        let spent_calls = budget.max_calls.is_some_and(|m| self.stats.calls >= m);
+        let spent_tokens = budget
+            .max_tokens
+            .is_some_and(|m| self.stats.usage.total() >= m);
+        !(spent_calls || spent_tokens)
+    }
+
     /// Decides among `query.candidates` (at least one).
     pub fn decide(&mut self, query: &Query<'_>) -> Result<Decision, LlmError> {
         let n = query.candidates.len();
@@ -496,7 +523,7 @@ fn parse(c: &Completion, n: usize) -> Parsed {
 }
 
 /// The candidate whose label lies nearest `p`, and the distance.
-fn nearest(candidates: &[Candidate], p: [f64; 2]) -> Option<(usize, f64)> {
+pub fn nearest(candidates: &[Candidate], p: [f64; 2]) -> Option<(usize, f64)> {
     candidates
         .iter()
         .enumerate()

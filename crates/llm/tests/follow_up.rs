@@ -451,6 +451,8 @@ fn replay_serves_the_follow_up_of_the_exchange() {
             user: e.prompt.user.clone(),
             completion: e.completion.clone(),
             follow_up,
+            background: false,
+            answered_frame: None,
         }]);
         let mut p = LlmPlanner::new(live.config().clone(), Some(Box::new(recorded))).unwrap();
         p.decide(&q).unwrap()

@@ -599,6 +599,8 @@ mod tests {
                 failure: None,
             },
             follow_up: None,
+            background: false,
+            answered_frame: None,
         };
         let replies = |_: &std::path::Path, node: &str| {
             assert_eq!(node, "planner");
@@ -629,7 +631,7 @@ mod tests {
             match config.llm {
                 None => assert!(ex.last_exchange().is_none()),
                 Some(_) => {
-                    assert!(llm.planner().stats().calls >= 1);
+                    assert!(llm.stats().calls >= 1);
                     let e = ex.last_exchange().expect("a recorded exchange");
                     assert_eq!(
                         (e.target, e.reason.as_deref()),

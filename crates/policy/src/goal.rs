@@ -388,6 +388,15 @@ impl GoalPolicy {
         }
     }
 
+    /// Ends the episode: the LLM policy's `background` question still being asked, if any,
+    /// waited for and returned for the recording (never taken up).
+    pub fn finish(&mut self) -> anyhow::Result<Option<LlmExchange>> {
+        match &mut self.kind {
+            GoalKind::Fbe(_) => Ok(None),
+            GoalKind::Llm(l) => l.finish(),
+        }
+    }
+
     /// The goal for one request.
     pub fn goal(&mut self, input: &GoalInput<'_>) -> anyhow::Result<GoalDecision> {
         Ok(match &mut self.kind {

@@ -550,6 +550,14 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
             .finish_reason
             .as_deref()
             .map_or(String::new(), |f| format!(" · finish {f}"));
+        let background = match (r.answered_step, &r.stale) {
+            (_, Some(why)) => format!(" · not applied: {why}"),
+            (Some(a), None) if Some(a) != r.step => {
+                format!(" · asked in the background, applied at step {a}")
+            }
+            _ => String::new(),
+        };
+        let decided = decided + &background;
         let refused = if r.schema_refused == Some(true) {
             " · JSON schema refused by the server, sent without"
         } else {

@@ -18,6 +18,12 @@ pub struct RecordedReply {
     pub completion: Completion,
     /// What the provider made of the follow-up turn, if one was asked.
     pub follow_up: Option<Completion>,
+    /// The question was asked in the background (`ask.mode: background`): its answer was
+    /// taken up at a later replan, ...
+    pub background: bool,
+    /// ... the one of this frame (`None`: never, the episode ended first). A replay takes it
+    /// up at the same frame, so its goals are the recorded ones.
+    pub answered_frame: Option<u64>,
 }
 
 /// The recorded provider.
