@@ -161,6 +161,7 @@ fn plan_from_args(args: &ResultsArgs) -> anyhow::Result<Plan> {
         camera_height_m: None,
         when_no_frontier: None,
         checkpoints: Vec::new(),
+        llm: None,
     };
     let list = |v: &[u64]| v.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
     let heading = format!(
@@ -251,11 +252,75 @@ fn plan_from_suite(file: &Path, out: Option<&Path>) -> anyhow::Result<Plan> {
             .map_or("suite".into(), |f| f.to_string_lossy().into_owned());
         PathBuf::from("runs").join(stem)
     });
+    // A method that would only ask the offline fallback is not run under the `llm` name.
+    let mut silent = Vec::new();
+    for method in &suite.methods {
+        if asks_no_model(&method.dataflow, s.llm.as_ref())
+            .with_context(|| format!("method `{}`", method.name))?
+        {
+            eprintln!(
+                "bench results: method `{}` skipped: its planner has policy `llm` but asks no model \
+                 ({} names no `llm.provider`, nor does the suite's `llm:`); offline it would be \
+                 the largest-frontier fallback under another name. Name one in the suite, e.g. \
+                 `llm: {{ provider: {{ kind: ollama, base_url: \"http://127.0.0.1:11434\", model: \
+                 qwen2.5:1.5b }} }}`",
+                method.name,
+                method.dataflow.display()
+            );
+            silent.push(method.name.clone());
+        }
+    }
+    let cells: Vec<Cell> = suite
+        .cells()
+        .into_iter()
+        .filter(|c| !silent.contains(&c.method.name))
+        .collect();
+    if cells.is_empty() {
+        bail!(
+            "{}: every method was skipped: nothing to run",
+            file.display()
+        );
+    }
+    let heading = if silent.is_empty() {
+        heading
+    } else {
+        format!(
+            "{heading} Skipped (policy `llm` without a provider): {}.",
+            silent.join(", ")
+        )
+    };
     Ok(Plan {
-        cells: suite.cells(),
+        cells,
         heading,
         out,
     })
+}
+
+/// True when the flow `file` has a `planner` of policy `llm` that asks no model: no
+/// `llm.provider` in its config, and none in the suite's `llm:` keys.
+fn asks_no_model(file: &Path, suite_llm: Option<&Value>) -> anyhow::Result<bool> {
+    if suite_llm.is_some_and(|l| l.get("provider").is_some_and(|p| !p.is_null())) {
+        return Ok(false);
+    }
+    let text =
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let tree = yaml::parse(&text)
+        .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), e.loc, e.message))?;
+    let Some(YamlNode::Seq { items: nodes, .. }) = tree.get("nodes") else {
+        return Ok(false);
+    };
+    Ok(nodes.iter().any(|node| {
+        let config = node.get("config");
+        node.get("operator").and_then(YamlNode::as_str) == Some("planner")
+            && config
+                .and_then(|c| c.get("policy"))
+                .and_then(YamlNode::as_str)
+                == Some("llm")
+            && config
+                .and_then(|c| c.get("llm"))
+                .and_then(|l| l.get("provider"))
+                .is_none_or(|p| p.to_json().is_null())
+    }))
 }
 
 /// Runs the grid, writes the tables and prints the Markdown.
@@ -465,6 +530,13 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
             "planner" => {
                 if let Some(when) = &s.when_no_frontier {
                     set(config, "when_no_frontier", Some(scalar(when)));
+                }
+                let llm_policy = config.get("policy").and_then(YamlNode::as_str) == Some("llm");
+                if let (true, Some(Value::Object(keys))) = (llm_policy, &s.llm) {
+                    let block = child_map(config, "llm");
+                    for (key, value) in keys {
+                        set(block, key, Some(from_json(value)));
+                    }
                 }
             }
             _ => {}
@@ -732,6 +804,32 @@ mod tests {
         let mut m = Method::parse("fbe=dataflow.yaml").unwrap();
         m.dataflow = root().join("dataflow.yaml");
         results::cells(&[m], &["house:3".into()], &[5], &settings).remove(0)
+    }
+
+    /// A suite's `llm:` keys reach the `llm` planner's `llm:` block (the flow's own keys kept,
+    /// the provider added) and make the flow ask a model; without them `flows/llm.yaml` asks
+    /// none (skipped by a suite), and a flow without an `llm` planner is never skipped.
+    #[test]
+    fn a_suites_llm_keys_reach_the_llm_planner_and_an_llm_method_without_provider_is_skipped() {
+        let llm_flow = root().join("flows/llm.yaml");
+        let provider = serde_json::json!({ "provider": {
+            "kind": "ollama", "base_url": "http://127.0.0.1:11434", "model": "qwen2.5:1.5b" } });
+        assert!(asks_no_model(&llm_flow, None).unwrap());
+        assert!(!asks_no_model(&llm_flow, Some(&provider)).unwrap());
+        assert!(!asks_no_model(&root().join("flows/fisher.yaml"), None).unwrap());
+        let mut m = Method::parse("llm").unwrap();
+        m.dataflow = llm_flow;
+        let settings = GridSettings {
+            llm: Some(provider),
+            ..small()
+        };
+        let cell = results::cells(&[m], &["house:3".into()], &[5], &settings).remove(0);
+        let text = cell_flow(&cell).unwrap();
+        let flow = Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+        let planner = &flow.node("planner").unwrap().config;
+        assert_eq!(planner["policy"], "llm");
+        assert_eq!(planner["llm"]["provider"]["model"], "qwen2.5:1.5b");
+        assert_eq!(planner["llm"]["provider"]["kind"], "ollama");
     }
 
     fn small() -> GridSettings {

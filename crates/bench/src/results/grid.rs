@@ -149,6 +149,10 @@ pub struct GridSettings {
     /// written at each ([`crate::results::write_checkpoint_tables`]). Empty: the last step only.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub checkpoints: Vec<u64>,
+    /// Keys set in the `llm:` block of every `planner` node whose policy is `llm` (a suite's
+    /// `llm:`, typically the `provider`); `None` keeps the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub llm: Option<serde_json::Value>,
 }
 
 /// One cell of the grid: a method on a scene with a seed, under the grid's settings.

@@ -19,7 +19,13 @@
 //! eval_views: 500
 //! when_no_frontier: refine          # optional, default refine: every method runs all steps
 //! checkpoints: [500, 1000]          # optional: tables also at these steps, same episodes
+//! llm:                              # optional: keys of the `llm` planners' `llm:` block
+//!   provider: { kind: ollama, base_url: "http://127.0.0.1:11434", model: qwen2.5:1.5b }
 //! ```
+//!
+//! A method whose planner has policy `llm` but asks no model (no `provider` in its flow nor in
+//! the suite's `llm:`) is skipped with a message: offline it would be the largest-frontier
+//! fallback under the `llm` name.
 //!
 //! Paths (scene files, a method's `dataflow`) are relative to the suite file's folder; a known
 //! method name ([`KNOWN_METHODS`]) stands for its dataflow relative to the working directory
@@ -64,7 +70,7 @@ pub struct Suite {
 }
 
 /// Keys of a suite file.
-const SUITE_KEYS: [&str; 11] = [
+const SUITE_KEYS: [&str; 12] = [
     "description",
     "methods",
     "scenes",
@@ -75,6 +81,7 @@ const SUITE_KEYS: [&str; 11] = [
     "noise",
     "eval_views",
     "when_no_frontier",
+    "llm",
     // Reserved for evaluating one episode at several step counts; refused until it exists.
     "checkpoints",
 ];
@@ -322,6 +329,16 @@ impl Parser<'_> {
                     })
                 }
                 "checkpoints" => checkpoints = self.checkpoints(value),
+                "llm" => match value {
+                    Node::Map { .. } => settings.llm = Some(value.to_json()),
+                    other => self.err(
+                        other.loc(),
+                        format!(
+                            "`llm` must be a mapping (the planner's `llm:` keys), got {}",
+                            other.type_name()
+                        ),
+                    ),
+                },
                 _ => {} // refused by `entries`
             }
         }
@@ -778,6 +795,16 @@ eval_views: 20
         assert_eq!(s.noise.as_deref(), Some("realistic"));
         assert_eq!(s.when_no_frontier.as_deref(), Some("refine"), "the default");
         assert!(s.checkpoints.is_empty(), "none unless asked for");
+        assert_eq!(s.llm, None, "none unless asked for");
+        let llm = VALID.replace(
+            "eval_views: 20",
+            "eval_views: 20\nllm: { provider: { kind: ollama, base_url: \"http://127.0.0.1:1\", model: m } }",
+        );
+        let keys = parse(dir.path(), &llm).unwrap().settings.llm.unwrap();
+        assert_eq!(keys["provider"]["model"], "m");
+        let scalar = VALID.replace("eval_views: 20", "eval_views: 20\nllm: ollama");
+        let e = parse(dir.path(), &scalar).unwrap_err().to_string();
+        assert!(e.contains("`llm` must be a mapping"), "{e}");
         let with = VALID.replace("eval_views: 20", "eval_views: 20\ncheckpoints: [100, 200]");
         let checked = parse(dir.path(), &with).unwrap().settings;
         assert_eq!(checked.checkpoints, [100, 200]);
