@@ -1011,6 +1011,9 @@ eval_views: 20
         assert_eq!(smoke.settings.when_no_frontier.as_deref(), Some("refine"));
         let large = Suite::load(&root().join("benchmarks/large.yaml"), &root()).unwrap();
         assert_eq!(large.scenes.len(), 4);
+        let graph = Suite::load(&root().join("benchmarks/pose-graph.yaml"), &root()).unwrap();
+        assert_eq!(graph.methods[1].name, "fisher_pose_graph");
+        assert_eq!(graph.settings.noise.as_deref(), Some("realistic"));
         assert_eq!(large.settings.checkpoints, [500, 1000]);
         let house = root().join("../shared/data/scenes/aws_small_house.glb");
         if !house.is_file() {
