@@ -949,6 +949,105 @@ fn bench_results_over_tls_daemons_equals_a_local_run_and_survives_a_killed_daemo
     }
 }
 
+/// The issue's own check, as a user runs it: `activemap bench results --suite
+/// benchmarks/smoke.yaml --connect …` (FBE and `fisher` on one house, 300 steps at 96×96) over
+/// two daemons with mutual TLS on `quic/`, one slot each. Both cells run on the daemons, never
+/// locally, come back with their files, and the suite's table and paired comparison are
+/// written. About two minutes on 2 cores.
+#[test]
+fn the_smoke_suite_runs_over_two_mutual_tls_daemons() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ids = test_pki(
+        tmp.path(),
+        "smoke",
+        &[
+            ("m2", &["127.0.0.2"]),
+            ("m3", &["127.0.0.3"]),
+            ("client", &["activemap-client"]),
+        ],
+    );
+    let control: Vec<String> = (2..=3)
+        .map(|i| {
+            let ip = format!("127.0.0.{i}");
+            format!("quic/{ip}:{}", free_udp_port(&ip))
+        })
+        .collect();
+    let runs: Vec<std::path::PathBuf> = (2..=3)
+        .map(|i| tmp.path().join(format!("runs{i}")))
+        .collect();
+    let daemons: Vec<_> = (0..2)
+        .map(|k| {
+            let machine = format!("m{}", k + 2);
+            let mut args = vec!["up", "--machine", &machine, "--listen", &control[k]];
+            if k > 0 {
+                args.extend(["--connect", &control[0]]);
+            }
+            args.extend(["--runs", runs[k].to_str().unwrap(), "--slots", "1"]);
+            args.extend(tls_args(&ids[k]));
+            spawn(&args, &root())
+        })
+        .collect();
+    let client = tls_args(&ids[2]);
+    let mut list = vec!["list", "--connect", &control[0]];
+    list.extend(client.iter());
+    let answered = (0..120).any(|_| {
+        let out = run(&list, &root(), Duration::from_secs(60));
+        let both = out.stderr.contains("daemons answering: m2, m3");
+        if !both {
+            std::thread::sleep(Duration::from_millis(250));
+        }
+        both
+    });
+    assert!(answered, "the daemons m2, m3 never both answered");
+
+    let out = tmp.path().join("smoke");
+    let mut args = vec![
+        "bench",
+        "results",
+        "--suite",
+        "benchmarks/smoke.yaml",
+        "--out",
+        out.to_str().unwrap(),
+        "--connect",
+        &control[0],
+    ];
+    args.extend(client.iter());
+    let done = run(&args, &root(), Duration::from_secs(1200));
+    let err = &done.stderr;
+    assert!(done.status.success(), "{err}");
+    assert!(!err.contains("started on local"), "{err}");
+    assert!(err.contains("dispatch overhead per cell"), "{err}");
+    let table = std::fs::read_to_string(out.join("results.md")).unwrap();
+    assert!(
+        table.contains("| fbe |") && table.contains("| fisher |"),
+        "{table}"
+    );
+    assert!(table.contains("Paired against `fbe`"), "{table}");
+    let metrics: Vec<_> = walk(&out)
+        .into_iter()
+        .filter(|p| p.file_name().is_some_and(|f| f == "metrics.json"))
+        .collect();
+    assert_eq!(metrics.len(), 2, "{metrics:?}");
+    for m in &metrics {
+        for brought in ["summary.json", "trajectory_est.tum", "report.html"] {
+            assert!(
+                m.with_file_name(brought).is_file(),
+                "{brought} of {}",
+                m.display()
+            );
+        }
+    }
+
+    let mut down = vec!["down", "--connect", &control[0]];
+    down.extend(client.iter());
+    let down = run(&down, &root(), Duration::from_secs(30));
+    assert!(down.status.success(), "{}", down.stderr);
+    for (k, d) in daemons.into_iter().enumerate() {
+        let out = wait(d, Duration::from_secs(60), "daemon");
+        assert!(out.status.success(), "daemon m{}:\n{}", k + 2, out.stderr);
+    }
+}
+
 /// Every file under `dir`.
 fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();
