@@ -349,13 +349,8 @@ impl Evaluator {
             transform: self.scene.placement.transform,
             floor: Some(self.scene.placement.floor).filter(|f| !f.is_none()),
             robot: Some(self.robot),
-            llm: (!self.llm.is_empty()).then(|| {
-                LlmSummary::of(&self.llm).with_outcomes(
-                    &self.llm,
-                    &self.coverage,
-                    LLM_OUTCOME_HORIZON_STEPS,
-                )
-            }),
+            llm: (!self.llm.is_empty())
+                .then(|| LlmSummary::of_run(&self.llm, &self.coverage, LLM_OUTCOME_HORIZON_STEPS)),
             warnings: Vec::new(),
         };
         summary.warnings = self.warnings(&summary);

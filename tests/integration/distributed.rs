@@ -782,41 +782,9 @@ fn bench_results_over_tls_daemons_equals_a_local_run_and_survives_a_killed_daemo
     );
     assert!(alone.status.success(), "{}", alone.stderr);
 
-    let control: Vec<String> = (2..=4)
-        .map(|i| {
-            let ip = format!("127.0.0.{i}");
-            format!("quic/{ip}:{}", free_udp_port(&ip))
-        })
-        .collect();
-    let runs: Vec<std::path::PathBuf> = (2..=4)
-        .map(|i| tmp.path().join(format!("runs{i}")))
-        .collect();
-    let up = |k: usize| {
-        let machine = format!("m{}", k + 2);
-        let mut args = vec!["up", "--machine", &machine, "--listen", &control[k]];
-        if k > 0 {
-            args.extend(["--connect", &control[0]]);
-        }
-        args.extend(["--runs", runs[k].to_str().unwrap(), "--slots", "1"]);
-        args.extend(tls_args(&ids[k]));
-        Some(spawn(&args, &root()))
-    };
+    let (control, runs) = suite_daemons(tmp.path(), 3);
+    let up = |k: usize| Some(up_suite_daemon(k, &control, &runs, &ids[k]));
     let client = tls_args(&ids[3]);
-    let until_answering = |machines: &str| {
-        let mut list = vec!["list", "--connect", &control[0]];
-        list.extend(client.iter());
-        let answered = (0..120).any(|_| {
-            let out = run(&list, &root(), Duration::from_secs(60));
-            let all = out
-                .stderr
-                .contains(&format!("daemons answering: {machines}"));
-            if !all {
-                std::thread::sleep(Duration::from_millis(250));
-            }
-            all
-        });
-        assert!(answered, "the daemons {machines} never all answered");
-    };
     let remote_args = |out: &std::path::Path| -> Vec<String> {
         let mut args: Vec<String> = ["bench", "results", "--suite", suite, "--out"]
             .iter()
@@ -849,7 +817,7 @@ fn bench_results_over_tls_daemons_equals_a_local_run_and_survives_a_killed_daemo
 
     // Three daemons; m4 is killed as soon as it runs a cell.
     let mut daemons = vec![up(0), up(1), up(2)];
-    until_answering("m2, m3, m4");
+    until_answering(&control[0], &client, "m2, m3, m4");
     let three = tmp.path().join("three");
     let args = remote_args(&three);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
@@ -966,39 +934,12 @@ fn the_smoke_suite_runs_over_two_mutual_tls_daemons() {
             ("client", &["activemap-client"]),
         ],
     );
-    let control: Vec<String> = (2..=3)
-        .map(|i| {
-            let ip = format!("127.0.0.{i}");
-            format!("quic/{ip}:{}", free_udp_port(&ip))
-        })
-        .collect();
-    let runs: Vec<std::path::PathBuf> = (2..=3)
-        .map(|i| tmp.path().join(format!("runs{i}")))
-        .collect();
+    let (control, runs) = suite_daemons(tmp.path(), 2);
     let daemons: Vec<_> = (0..2)
-        .map(|k| {
-            let machine = format!("m{}", k + 2);
-            let mut args = vec!["up", "--machine", &machine, "--listen", &control[k]];
-            if k > 0 {
-                args.extend(["--connect", &control[0]]);
-            }
-            args.extend(["--runs", runs[k].to_str().unwrap(), "--slots", "1"]);
-            args.extend(tls_args(&ids[k]));
-            spawn(&args, &root())
-        })
+        .map(|k| up_suite_daemon(k, &control, &runs, &ids[k]))
         .collect();
     let client = tls_args(&ids[2]);
-    let mut list = vec!["list", "--connect", &control[0]];
-    list.extend(client.iter());
-    let answered = (0..120).any(|_| {
-        let out = run(&list, &root(), Duration::from_secs(60));
-        let both = out.stderr.contains("daemons answering: m2, m3");
-        if !both {
-            std::thread::sleep(Duration::from_millis(250));
-        }
-        both
-    });
-    assert!(answered, "the daemons m2, m3 never both answered");
+    until_answering(&control[0], &client, "m2, m3");
 
     let out = tmp.path().join("smoke");
     let mut args = vec![
@@ -1046,6 +987,55 @@ fn the_smoke_suite_runs_over_two_mutual_tls_daemons() {
         let out = wait(d, Duration::from_secs(60), "daemon");
         assert!(out.status.success(), "daemon m{}:\n{}", k + 2, out.stderr);
     }
+}
+
+/// The control endpoints (`quic/127.0.0.{2,3,…}` on free ports) and run folders (under `dir`)
+/// of `n` suite daemons `m2`, `m3`, ….
+fn suite_daemons(dir: &std::path::Path, n: usize) -> (Vec<String>, Vec<std::path::PathBuf>) {
+    (2..2 + n)
+        .map(|i| {
+            let ip = format!("127.0.0.{i}");
+            (
+                format!("quic/{ip}:{}", free_udp_port(&ip)),
+                dir.join(format!("runs{i}")),
+            )
+        })
+        .unzip()
+}
+
+/// Starts suite daemon `k` (`m{k+2}`, one slot, mutual TLS with `id`), joined to the first.
+fn up_suite_daemon(
+    k: usize,
+    control: &[String],
+    runs: &[std::path::PathBuf],
+    id: &[String; 3],
+) -> std::process::Child {
+    let machine = format!("m{}", k + 2);
+    let mut args = vec!["up", "--machine", &machine, "--listen", &control[k]];
+    if k > 0 {
+        args.extend(["--connect", &control[0]]);
+    }
+    args.extend(["--runs", runs[k].to_str().unwrap(), "--slots", "1"]);
+    args.extend(tls_args(id));
+    spawn(&args, &root())
+}
+
+/// Waits until `list` through `control` (as the TLS client `client`) names the daemons
+/// `machines` (`m2, m3`) as answering; fails after about a minute.
+fn until_answering(control: &str, client: &[&str], machines: &str) {
+    let mut list = vec!["list", "--connect", control];
+    list.extend(client.iter());
+    let answered = (0..120).any(|_| {
+        let out = run(&list, &root(), Duration::from_secs(60));
+        let all = out
+            .stderr
+            .contains(&format!("daemons answering: {machines}"));
+        if !all {
+            std::thread::sleep(Duration::from_millis(250));
+        }
+        all
+    });
+    assert!(answered, "the daemons {machines} never all answered");
 }
 
 /// Every file under `dir`.

@@ -614,7 +614,7 @@ pub struct LlmSummary {
     /// Of those, the ones whose choice differed from the fallback's (the largest frontier;
     /// counted only where the run recorded it): where the model made a difference.
     pub differed: u64,
-    /// What the choices led to ([`LlmSummary::with_outcomes`]); `None`: not computed (no
+    /// What the choices led to ([`LlmSummary::of_run`]); `None`: not computed (no
     /// coverage rows, or no decision with a whole window after it).
     pub outcomes: Option<LlmOutcomes>,
 }
@@ -642,7 +642,7 @@ pub struct LlmOutcomes {
     pub same_gain_pp: Option<f64>,
 }
 
-/// The default window of [`LlmSummary::with_outcomes`] in the evaluator and the report, steps:
+/// The default window of [`LlmSummary::of_run`] in the evaluator and the report, steps:
 /// the order of one path to a frontier at the default step length (5 cm forward, 10° turns).
 pub const LLM_OUTCOME_HORIZON_STEPS: u64 = 50;
 
@@ -678,16 +678,13 @@ impl LlmSummary {
         s
     }
 
-    /// The totals with [`LlmSummary::outcomes`] measured on the run's `coverage` rows (step
-    /// order) over windows of `horizon_steps` steps.
-    pub fn with_outcomes(
-        mut self,
-        records: &[LlmRecord],
-        coverage: &[CoverageRow],
-        horizon_steps: u64,
-    ) -> Self {
-        self.outcomes = LlmOutcomes::of(records, coverage, horizon_steps);
-        self
+    /// The totals of `records` with [`LlmSummary::outcomes`] measured on the run's `coverage`
+    /// rows (step order) over windows of `horizon_steps` steps.
+    pub fn of_run(records: &[LlmRecord], coverage: &[CoverageRow], horizon_steps: u64) -> Self {
+        Self {
+            outcomes: LlmOutcomes::of(records, coverage, horizon_steps),
+            ..Self::of(records)
+        }
     }
 
     /// One line for the report's summary table.
@@ -1400,7 +1397,7 @@ mod tests {
             record(170, Some(4), 4, None),
             record(200, Some(1), 1, Some(0)),
         ];
-        let summary = LlmSummary::of(&records).with_outcomes(&records, &coverage, 50);
+        let summary = LlmSummary::of_run(&records, &coverage, 50);
         assert_eq!(
             (summary.model_decisions, summary.differed, summary.stale),
             (6, 4, 1)

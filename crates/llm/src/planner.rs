@@ -176,6 +176,16 @@ pub struct LlmPlanner {
     stats: Stats,
 }
 
+/// Why a decision needs no request ([`LlmPlanner::will_query`]).
+enum Shortcut {
+    /// No provider: the paper's fallback.
+    NoProvider,
+    /// Same map and candidates as the last query: its choice.
+    Reused(Choice),
+    /// Too soon after the last query: its target held.
+    Held,
+}
+
 /// The largest candidate (ties: the nearer by path, then the lower index): the paper's
 /// fallback.
 pub fn largest(candidates: &[Candidate]) -> Option<usize> {
@@ -228,26 +238,35 @@ impl LlmPlanner {
     /// Otherwise [`LlmPlanner::decide`] returns at once (what `background` asking relies on:
     /// only real requests go to the background).
     pub fn will_query(&self, query: &Query<'_>) -> bool {
+        self.shortcut(query).is_none() && self.budget_spent().is_none()
+    }
+
+    /// Why `query` is decided without asking (no provider, the last answer reused, the last
+    /// target held), if it is.
+    fn shortcut(&self, query: &Query<'_>) -> Option<Shortcut> {
         if self.provider.is_none() {
-            return false;
+            return Some(Shortcut::NoProvider);
         }
-        if let Some(last) = &self.last_query {
-            if self.config.ask.skip_unchanged_map
-                && last.map_version == query.map_version
-                && last.candidates == query.candidates
-            {
-                return false;
-            }
-            if query.step < last.step + self.config.ask.min_interval_steps {
-                return false;
-            }
+        let last = self.last_query.as_ref()?;
+        if self.config.ask.skip_unchanged_map
+            && last.map_version == query.map_version
+            && last.candidates == query.candidates
+        {
+            return Some(Shortcut::Reused(last.choice));
         }
+        (query.step < last.step + self.config.ask.min_interval_steps).then_some(Shortcut::Held)
+    }
+
+    /// Which per-episode budget is spent, if one is (`call budget of N spent`, …).
+    fn budget_spent(&self) -> Option<String> {
         let budget = self.config.budget;
-        let spent_calls = budget.max_calls.is_some_and(|m| self.stats.calls >= m);
-        let spent_tokens = budget
+        if let Some(m) = budget.max_calls.filter(|&m| self.stats.calls >= m) {
+            return Some(format!("call budget of {m} spent"));
+        }
+        let m = budget
             .max_tokens
-            .is_some_and(|m| self.stats.usage.total() >= m);
-        !(spent_calls || spent_tokens)
+            .filter(|&m| self.stats.usage.total() >= m)?;
+        Some(format!("token budget of {m} spent"))
     }
 
     /// Decides among `query.candidates` (at least one).
@@ -282,28 +301,26 @@ impl LlmPlanner {
         n: usize,
         fallback: usize,
     ) -> Result<Decision, LlmError> {
-        if self.provider.is_none() {
-            return Ok(Decision {
-                choice: Choice::Frontier(fallback),
-                source: Source::Fallback(Failure::new(
-                    FailureKind::NoProvider,
-                    "no provider configured",
-                )),
-                exchange: None,
-            });
-        }
-        if let Some(last) = &self.last_query {
-            if self.config.ask.skip_unchanged_map
-                && last.map_version == query.map_version
-                && last.candidates == query.candidates
-            {
+        match self.shortcut(query) {
+            None => {}
+            Some(Shortcut::NoProvider) => {
                 return Ok(Decision {
-                    choice: last.choice,
+                    choice: Choice::Frontier(fallback),
+                    source: Source::Fallback(Failure::new(
+                        FailureKind::NoProvider,
+                        "no provider configured",
+                    )),
+                    exchange: None,
+                });
+            }
+            Some(Shortcut::Reused(choice)) => {
+                return Ok(Decision {
+                    choice,
                     source: Source::Reused,
                     exchange: None,
                 });
             }
-            if query.step < last.step + self.config.ask.min_interval_steps {
+            Some(Shortcut::Held) => {
                 let held = self.last_choice.and_then(|p| {
                     nearest(query.candidates, p).filter(|&(_, d)| d <= HOLD_RADIUS_M)
                 });
@@ -324,12 +341,8 @@ impl LlmPlanner {
             last_choice: self.last_choice,
         };
         let prompt = build(self.config.prompt, &facts);
-        let budget = self.config.budget;
-        let spent_calls = budget.max_calls.is_some_and(|m| self.stats.calls >= m);
-        let spent_tokens = budget
-            .max_tokens
-            .is_some_and(|m| self.stats.usage.total() >= m);
-        let bev_png = if self.config.prompt.sends_image() && !(spent_calls || spent_tokens) {
+        let spent = self.budget_spent();
+        let bev_png = if self.config.prompt.sends_image() && spent.is_none() {
             let annotations = Annotations {
                 robot: query.robot,
                 path: query.path.to_vec(),
@@ -347,12 +360,7 @@ impl LlmPlanner {
         } else {
             Vec::new()
         };
-        let completion = if spent_calls || spent_tokens {
-            let what = if spent_calls {
-                format!("call budget of {} spent", budget.max_calls.unwrap_or(0))
-            } else {
-                format!("token budget of {} spent", budget.max_tokens.unwrap_or(0))
-            };
+        let completion = if let Some(what) = spent {
             Completion::failed("", FailureKind::Budget, what)
         } else {
             let request = ChatRequest {
@@ -499,12 +507,7 @@ impl LlmPlanner {
             error,
             ParseError::NoJson | ParseError::Truncated(_) | ParseError::MissingTarget
         );
-        let budget = self.config.budget;
-        let spent = budget.max_calls.is_some_and(|m| self.stats.calls >= m)
-            || budget
-                .max_tokens
-                .is_some_and(|m| self.stats.usage.total() >= m);
-        self.config.follow_up.enabled && (cut || no_answer) && !spent
+        self.config.follow_up.enabled && (cut || no_answer) && self.budget_spent().is_none()
     }
 }
 

@@ -289,7 +289,7 @@ impl LlmPolicy {
             return Ok(None);
         };
         let asked = pending.asked;
-        let decision = join(pending)?;
+        let decision = join(pending.worker)?;
         (self.fbe.log)(&format!(
             "planner: the question asked at frame {asked} was not taken up before the end"
         ));
@@ -469,9 +469,13 @@ impl LlmPolicy {
     /// frontier whose label lies within [`HOLD_RADIUS_M`] of the chosen one's), else recorded
     /// as stale and the largest frontier taken.
     fn take_up(&mut self, at: &Replan<'_>) -> anyhow::Result<(Option<Goal>, Option<LlmExchange>)> {
-        let pending = self.pending.take().expect("checked by the caller");
-        let (asked, asked_candidates) = (pending.asked, pending.candidates.clone());
-        let decision = join(pending)?;
+        let Pending {
+            asked,
+            candidates: asked_candidates,
+            worker,
+            ..
+        } = self.pending.take().expect("checked by the caller");
+        let decision = join(worker)?;
         let k = at.k;
         let age = k.saturating_sub(asked);
         let now = match decision.choice {
@@ -513,7 +517,7 @@ impl LlmPolicy {
                 self.log_goal(k, &goal, at.candidates.len(), &how);
                 (Some(goal), None)
             }
-            (Ok(_), true) | (Err(_), true) => {
+            (_, true) => {
                 self.fbe.planner.commit(at.regions, None, at.grid);
                 let goal = no_frontier_goal(self.when_no_frontier, k, at.pose, self.fbe.log);
                 (
@@ -634,9 +638,8 @@ struct Pending {
 }
 
 /// The decision of a `background` question (waits for it).
-fn join(pending: Pending) -> anyhow::Result<Decision> {
-    pending
-        .worker
+fn join(worker: JoinHandle<anyhow::Result<Decision>>) -> anyhow::Result<Decision> {
+    worker
         .join()
         .map_err(|_| anyhow::anyhow!("planner: the LLM question's thread panicked"))?
 }

@@ -518,7 +518,7 @@ fn llm_section(run: &RunFolder) -> Result<String, RunError> {
         return Ok(s + "</div>");
     };
     let coverage = run.read_coverage()?.unwrap_or_default();
-    let totals = crate::run_folder::LlmSummary::of(&records).with_outcomes(
+    let totals = crate::run_folder::LlmSummary::of_run(
         &records,
         &coverage,
         crate::run_folder::LLM_OUTCOME_HORIZON_STEPS,
