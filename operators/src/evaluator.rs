@@ -36,7 +36,8 @@ use activemap_eval::run_folder::{
     RunFolder,
 };
 use activemap_eval::step_metrics::{
-    CoverageTruth, ate_rmse, bev, blocked_forwards, observed_only, path_length_m, run_warnings,
+    CoverageTruth, FrameReport, ate_rmse, bev, blocked_forwards, observed_only, path_length_m,
+    run_warnings, tracking_summary,
 };
 use activemap_eval::validity::{self, RunWarning};
 use activemap_geometry::RobotModel;
@@ -132,6 +133,8 @@ pub struct Evaluator {
     scale: u32,
     truth: Option<(CoverageTruth, PlanarPose, Isometry3<f64>)>,
     estimated: Trajectory,
+    /// What the tracker said of each estimate (lost and why, relocalised, loop closure).
+    reports: Vec<FrameReport>,
     /// The estimates moved by the pose graph's later corrections (when the graph is on).
     corrected: CorrectedTrajectory,
     true_traj: Trajectory,
@@ -351,6 +354,11 @@ impl Evaluator {
             robot: Some(self.robot),
             llm: (!self.llm.is_empty())
                 .then(|| LlmSummary::of_run(&self.llm, &self.coverage, LLM_OUTCOME_HORIZON_STEPS)),
+            tracking: Some(tracking_summary(
+                &self.true_traj,
+                &self.estimated,
+                &self.reports,
+            )),
             warnings: Vec::new(),
         };
         summary.warnings = self.warnings(&summary);
@@ -371,6 +379,21 @@ impl Evaluator {
             summary.forward_actions,
             out.dir().display()
         );
+        if let Some(t) = &summary.tracking {
+            eprintln!(
+                "evaluator: tracking: {} lost frame(s) in {} run(s) {:?}, {} relocalisation(s), \
+                 {} loop closure(s), largest error jump {:.1} cm, {} jump(s) above {:.0} cm that \
+                 no tracking event explains",
+                t.lost_frames,
+                t.lost_runs,
+                t.lost_by_reason,
+                t.relocalisations,
+                t.loop_closures,
+                100.0 * t.max_error_jump_m,
+                t.unexplained_jumps,
+                100.0 * activemap_eval::step_metrics::JUMP_LIMIT_M
+            );
+        }
         for w in &summary.warnings {
             eprintln!("{}", w.log_line(out.dir()));
         }
@@ -408,6 +431,7 @@ impl Operator for Evaluator {
             scale: config.bev_pixels_per_cell,
             truth: None,
             estimated: Trajectory::default(),
+            reports: Vec::new(),
             corrected: CorrectedTrajectory::default(),
             true_traj: Trajectory::default(),
             coverage: Vec::new(),
@@ -440,6 +464,16 @@ impl Operator for Evaluator {
                     self.corrected
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);
+                    self.reports.push(FrameReport {
+                        stamp: e.stamp,
+                        lost: e
+                            .lost_reason
+                            .map(|r| r.key())
+                            .or((e.status == activemap_schemas::TrackingStatus::Lost)
+                                .then_some("unknown")),
+                        relocalised: e.relocalised.is_some(),
+                        loop_closure: !e.keyframe_corrections.is_empty(),
+                    });
                     let steps = self.estimated.len() as u64;
                     if self.checkpoints.binary_search(&steps).is_ok() {
                         self.score_pending()?;
@@ -594,6 +628,7 @@ mod tests {
             scale: 3,
             truth: None,
             estimated,
+            reports: Vec::new(),
             corrected: CorrectedTrajectory::default(),
             true_traj,
             coverage: coverage.clone(),
@@ -737,6 +772,7 @@ mod tests {
             scale: 3,
             truth: Some((truth, PlanarPose::new(0.0, 0.0, 0.0), Isometry3::identity())),
             estimated,
+            reports: Vec::new(),
             corrected: CorrectedTrajectory::default(),
             true_traj,
             coverage: vec![CoverageRow {

@@ -17,8 +17,8 @@ use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
 use activemap_schemas::{
-    Action, ActionKind, MessageKind as K, Path, PoseEstimate, ReplanReason, ReplanRequest,
-    TrackingStatus,
+    Action, ActionKind, LostReason, MessageKind as K, Path, PoseEstimate, ReplanReason,
+    ReplanRequest, TrackingStatus,
 };
 
 use crate::Registered;
@@ -49,6 +49,11 @@ pub struct Config {
     /// forward step before the follower replans. 0 disables it.
     #[serde(default = "default_bumps")]
     pub bumps_to_replan: usize,
+    /// While tracking is lost the robot turns on the spot; back after fewer lost frames in a
+    /// row than this, it resumes its path, after as many or more it asks for a new one
+    /// (`TrackingLost`). 1 always asks.
+    #[serde(default = "default_lost_replan_after")]
+    pub lost_replan_after: usize,
     /// The robot (radius for the clearance, forward step for the bumper; any field left out
     /// keeps its default).
     #[serde(default)]
@@ -75,6 +80,9 @@ fn default_look_skip() -> f64 {
 fn default_bumps() -> usize {
     ExecutorConfig::default().bumps_to_replan
 }
+fn default_lost_replan_after() -> usize {
+    ExecutorConfig::default().lost_replan_after
+}
 
 impl Default for Config {
     fn default() -> Self {
@@ -85,6 +93,7 @@ impl Default for Config {
             initial_spin_steps: default_spin(),
             look_skip_half_angle_deg: default_look_skip(),
             bumps_to_replan: default_bumps(),
+            lost_replan_after: default_lost_replan_after(),
             robot: RobotModel::default(),
         }
     }
@@ -99,6 +108,7 @@ impl Config {
             initial_spin_steps: self.initial_spin_steps,
             look_skip_half_angle_rad: self.look_skip_half_angle_deg.to_radians(),
             bumps_to_replan: self.bumps_to_replan,
+            lost_replan_after: self.lost_replan_after,
             ..ExecutorConfig::default()
         }
     }
@@ -279,6 +289,15 @@ impl Follower {
     }
 }
 
+/// Whether the estimate `e` makes the robot stop following its path and look around: tracking
+/// is lost, unless the only failure is a solution the tracker's motion check rejected (the
+/// estimate is then the commanded motion's prediction, good for the next steps; turning away
+/// and back for it would keep a robot whose tracker rejects every other frame from moving).
+pub fn stops_the_robot(e: &PoseEstimate) -> bool {
+    e.status == TrackingStatus::Lost
+        && !matches!(e.lost_reason, Some(LostReason::MotionMismatch { .. }))
+}
+
 impl Operator for Follower {
     type Config = Config;
 
@@ -296,7 +315,7 @@ impl Operator for Follower {
                 inputs::POSE => {
                     let e: PoseEstimate = input.decode()?;
                     let pose = planar_from_camera_pose(&pose_from_wire(&e.t_world_camera)?);
-                    self.add_pose(e.frame_id, pose, e.status == TrackingStatus::Lost);
+                    self.add_pose(e.frame_id, pose, stops_the_robot(&e));
                 }
                 inputs::PATH => self.add_path(input.decode()?),
                 other => anyhow::bail!("follower: unexpected input `{other}`"),

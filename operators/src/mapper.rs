@@ -374,6 +374,8 @@ pub(crate) mod tests {
                     iterations: 0,
                     graph_anchor: None,
                     keyframe_corrections: Vec::new(),
+                    lost_reason: None,
+                    relocalised: None,
                 };
                 (frame, estimate)
             })

@@ -137,6 +137,75 @@ pub struct Config {
     /// different episodes (seed 0 too is reproducible); ground-truth renders stay noise-free.
     #[serde(default)]
     pub noise: NoiseConfig,
+    /// Faults injected into the episode to test how the loop reacts to tracking failures
+    /// (issue 34): frames whose lens is covered or blacked out, spins the tracker is not told
+    /// of. Empty by default; the ground truth the evaluator gets is the true pose whatever the
+    /// fault.
+    #[serde(default)]
+    pub faults: Vec<Fault>,
+}
+
+/// A fault injected by the `sim` node ([`Config::faults`]), from frame `from_frame` on for
+/// `frames` frames. (Unknown keys are refused by [`FaultKind`], which gets every key but
+/// these two: serde's `flatten` rules out `deny_unknown_fields` here.)
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+pub struct Fault {
+    /// The first frame it affects.
+    pub from_frame: u64,
+    /// How many frames it lasts (1).
+    #[serde(default = "one")]
+    pub frames: u64,
+    /// What happens.
+    #[serde(flatten)]
+    pub kind: FaultKind,
+}
+
+fn one() -> u64 {
+    1
+}
+
+/// What a [`Fault`] does to a frame.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum FaultKind {
+    /// Something textureless covers the lens at `distance_m` (a wall right in front, a hand):
+    /// uniform grey, every depth reading at that distance, nothing of the map in view.
+    Cover {
+        /// The covering surface's distance, metres (within the depth range: readings stay
+        /// valid).
+        distance_m: f64,
+    },
+    /// The camera delivers black frames without depth.
+    Blackout,
+    /// The robot turns by `degrees` (counter-clockwise) about its vertical axis before each
+    /// affected frame, on top of the commanded action: a spin the tracker is not told of.
+    Spin {
+        /// The extra turn per affected frame, degrees.
+        degrees: f64,
+    },
+}
+
+impl Fault {
+    /// Whether the fault affects frame `frame_id`.
+    pub fn affects(&self, frame_id: u64) -> bool {
+        frame_id >= self.from_frame && frame_id - self.from_frame < self.frames
+    }
+
+    fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.frames >= 1, "sim: a fault's `frames` must be ≥ 1");
+        match self.kind {
+            FaultKind::Cover { distance_m } => anyhow::ensure!(
+                distance_m.is_finite() && distance_m > 0.0,
+                "sim: a cover fault's distance_m must be positive, got {distance_m}"
+            ),
+            FaultKind::Spin { degrees } => anyhow::ensure!(
+                degrees.is_finite() && degrees.abs() < 360.0,
+                "sim: a spin fault's degrees must be in (−360, 360), got {degrees}"
+            ),
+            FaultKind::Blackout => {}
+        }
+        Ok(())
+    }
 }
 
 impl Config {
@@ -185,6 +254,8 @@ pub struct Sim {
     published: u64,
     pending: Option<ActionKind>,
     finished: bool,
+    /// The faults to inject ([`Config::faults`]).
+    faults: Vec<Fault>,
 }
 
 impl Sim {
@@ -200,11 +271,37 @@ impl Sim {
         let k = self.sim.config().intrinsics;
         let header =
             RgbdFrameHeader::new(frame_id, stamp, [k.fx, k.fy, k.cx, k.cy], k.width, k.height);
+        let faults: Vec<FaultKind> = self
+            .faults
+            .iter()
+            .filter(|f| f.affects(frame_id))
+            .map(|f| f.kind)
+            .collect();
+        for fault in &faults {
+            if let FaultKind::Spin { degrees } = fault {
+                let mut pose = self.sim.true_planar_pose();
+                pose.yaw = activemap_geometry::robot::wrap_angle(pose.yaw + degrees.to_radians());
+                self.sim.set_planar_pose(pose)?;
+            }
+        }
         let sim = &mut self.sim;
         // Rendered straight into the loaned shared-memory sample: no intermediate frame.
         ctx.loan(outputs::RGBD, header.payload_len()?, |buf| {
             let out = RgbdFrameMut::init(buf, header)?;
             sim.render_into(out.rgb, out.depth)?;
+            for fault in &faults {
+                match fault {
+                    FaultKind::Cover { distance_m } => {
+                        out.rgb.fill(128);
+                        out.depth.fill(*distance_m as f32);
+                    }
+                    FaultKind::Blackout => {
+                        out.rgb.fill(0);
+                        out.depth.fill(0.0);
+                    }
+                    FaultKind::Spin { .. } => {}
+                }
+            }
             Ok(())
         })?;
         let truth: Isometry3<f64> = self.sim.true_pose();
@@ -286,6 +383,9 @@ impl Operator for Sim {
                 .ok_or_else(|| anyhow::anyhow!("sim: the scene's start is not navigable"))?;
             sim.set_planar_pose(start)?;
         }
+        for fault in &config.faults {
+            fault.validate()?;
+        }
         let max_steps = ctx.max_steps().unwrap_or(config.max_steps);
         anyhow::ensure!(max_steps >= 1, "sim: max_steps must be ≥ 1");
         Ok(Self {
@@ -295,6 +395,7 @@ impl Operator for Sim {
             published: 0,
             pending: None,
             finished: false,
+            faults: config.faults,
         })
     }
 
@@ -381,6 +482,56 @@ mod tests {
 
     fn check(config: serde_json::Value) -> Result<(), String> {
         check_config_as::<Config>(&config)
+    }
+
+    /// The fault list of issue 34's reaction test: each kind parses with its keys, `frames`
+    /// defaults to 1, a misspelt key or an unknown kind is refused with its name, and a fault
+    /// affects exactly its frames.
+    #[test]
+    fn faults_parse_refuse_typos_and_cover_their_frames() {
+        let config: Config = serde_json::from_value(serde_json::json!({ "faults": [
+            { "kind": "cover", "distance_m": 0.3, "from_frame": 40, "frames": 4 },
+            { "kind": "blackout", "from_frame": 7 },
+            { "kind": "spin", "degrees": 30.0, "from_frame": 9, "frames": 2 },
+        ] }))
+        .unwrap();
+        assert_eq!(
+            config.faults,
+            [
+                Fault {
+                    from_frame: 40,
+                    frames: 4,
+                    kind: FaultKind::Cover { distance_m: 0.3 }
+                },
+                Fault {
+                    from_frame: 7,
+                    frames: 1,
+                    kind: FaultKind::Blackout
+                },
+                Fault {
+                    from_frame: 9,
+                    frames: 2,
+                    kind: FaultKind::Spin { degrees: 30.0 }
+                },
+            ]
+        );
+        let cover = config.faults[0];
+        assert!(!cover.affects(39) && cover.affects(40) && cover.affects(43));
+        assert!(!cover.affects(44));
+        let e = check(serde_json::json!({ "faults": [
+            { "kind": "cover", "distance": 0.3, "from_frame": 4 }
+        ] }))
+        .unwrap_err();
+        assert!(e.contains("distance"), "{e}");
+        let e = check(serde_json::json!({ "faults": [{ "kind": "smoke", "from_frame": 4 }] }))
+            .unwrap_err();
+        assert!(e.contains("smoke"), "{e}");
+        let bad = Fault {
+            from_frame: 1,
+            frames: 0,
+            kind: FaultKind::Blackout,
+        };
+        assert!(bad.validate().unwrap_err().to_string().contains("frames"));
     }
 
     #[test]

@@ -16,8 +16,8 @@ use activemap_schemas::{
     Action, ActionKind, MessageKind as K, PoseEstimate, RgbdFrameView, TrackingStatus,
 };
 use activemap_slam::{
-    Frame, KeyframeGraphConfig, MotionPrior, TrackedFrame, TrackingConfig, TrackingSession,
-    TrackingStatus as SlamStatus,
+    Frame, KeyframeGraphConfig, LostReason, MotionCheck, MotionPrior, TrackedFrame, TrackingConfig,
+    TrackingSession, TrackingStatus as SlamStatus,
 };
 use activemap_splat::Gaussians;
 
@@ -68,35 +68,41 @@ pub struct Config {
     /// keyframes and their Gaussians with them.
     #[serde(default)]
     pub pose_graph: bool,
-    /// A tracked frame whose estimate lies farther than this (metres) from where the
-    /// commanded action should have taken the previous estimate is logged as a suspect
-    /// tracking event (`tracker: frame K: …`): a jump the actuation cannot explain. A blocked
-    /// forward move disagrees by one forward step (5 cm); realistic actuation by about 1 cm.
-    #[serde(default = "default_suspect_m")]
-    pub suspect_jump_m: f64,
-    /// The same for the rotation, degrees.
-    #[serde(default = "default_suspect_deg")]
-    pub suspect_turn_deg: f64,
+    /// The check of each solution against the commanded action (`activemap_slam::MotionCheck`,
+    /// with `motion_prior: action` only): a solution farther than `max_translation_m` or
+    /// `max_rotation_deg` from every motion the action could have made (a blocked step moves
+    /// less) is a tracking failure (`Lost`, reason `MotionMismatch`) and the frame keeps the
+    /// prediction; `confirm_frames` consecutive agreeing solutions are taken (a
+    /// relocalisation). `null` turns the check off.
+    #[serde(default = "default_motion_check")]
+    pub motion_check: Option<MotionCheckConfig>,
 }
 
-fn default_suspect_m() -> f64 {
-    0.08
+/// The `tracker` node's `motion_check` (defaults: [`MotionCheck::default`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionCheckConfig {
+    /// Largest distance from the feasible motions, metres (0.04).
+    pub max_translation_m: f64,
+    /// Largest angle from the commanded rotation, degrees (3).
+    pub max_rotation_deg: f64,
+    /// Agreeing rejected solutions after which one is taken (3).
+    pub confirm_frames: u32,
 }
 
-fn default_suspect_deg() -> f64 {
-    10.0
+impl Default for MotionCheckConfig {
+    fn default() -> Self {
+        let c = MotionCheck::default();
+        Self {
+            max_translation_m: c.max_translation_m,
+            max_rotation_deg: c.max_rotation_rad.to_degrees(),
+            confirm_frames: c.confirm_frames,
+        }
+    }
 }
 
-/// How far the estimate `current` lies from where the commanded camera motion `commanded`
-/// (`T_prev_current`, [`action_motion`]) takes the previous estimate `previous`: the
-/// translation (metres) and rotation angle (radians) of `(T_prev · M)⁻¹ · T_current`.
-pub fn motion_disagreement(
-    previous: &Isometry3<f64>,
-    current: &Isometry3<f64>,
-    commanded: &Isometry3<f64>,
-) -> (f64, f64) {
-    let d = (previous * commanded).inverse() * current;
-    (d.translation.vector.norm(), d.rotation.angle())
+fn default_motion_check() -> Option<MotionCheckConfig> {
+    Some(MotionCheckConfig::default())
 }
 
 fn default_rereference() -> f64 {
@@ -126,6 +132,14 @@ impl Config {
             map_lag: self.map_lag,
             initial_pose: start_anchor(&self.robot),
             pose_graph: self.pose_graph.then(KeyframeGraphConfig::default),
+            motion_check: self
+                .motion_check
+                .filter(|_| self.motion_prior == Prior::Action)
+                .map(|c| MotionCheck {
+                    max_translation_m: c.max_translation_m,
+                    max_rotation_rad: c.max_rotation_deg.to_radians(),
+                    confirm_frames: c.confirm_frames,
+                }),
             ..TrackingConfig::default()
         };
         if let Some(d) = self.downscale {
@@ -154,29 +168,32 @@ impl Config {
 pub struct Tracker {
     config: Config,
     session: TrackingSession,
-    /// Commanded camera motion from frame `step` to `step + 1`, until that frame is tracked.
-    commanded: std::collections::BTreeMap<u64, Isometry3<f64>>,
-    /// The last estimate (frame, pose), for the suspect-jump check.
-    last: Option<(u64, Isometry3<f64>)>,
-    /// Frames logged as suspect tracking events so far.
-    suspect_frames: u64,
+    /// Tracking failures and relocalisations so far.
+    events: TrackingEvents,
+}
+
+/// What the tracker reported of its own failures over an episode: the log's tally.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TrackingEvents {
+    /// Frames reported `Lost`.
+    pub lost_frames: u64,
+    /// Runs of consecutive lost frames (each logged when it begins).
+    pub lost_runs: u64,
+    /// Frames whose estimate jumped to a solution the motion check had rejected.
+    pub relocalisations: u64,
+    /// The current run of lost frames (0 while tracking).
+    lost_in_row: u64,
+    /// The reason of the last lost frame of the current run.
+    last_reason: Option<LostReason>,
 }
 
 impl Tracker {
     /// A tracker at the start anchor with an empty map.
     pub fn from_config(config: Config) -> anyhow::Result<Self> {
-        anyhow::ensure!(
-            config.suspect_jump_m > 0.0 && config.suspect_turn_deg > 0.0,
-            "tracker: suspect_jump_m and suspect_turn_deg must be positive, got {} and {}",
-            config.suspect_jump_m,
-            config.suspect_turn_deg
-        );
         Ok(Self {
             session: TrackingSession::new(config.tracking_config()?)?,
             config,
-            commanded: Default::default(),
-            last: None,
-            suspect_frames: 0,
+            events: TrackingEvents::default(),
         })
     }
 
@@ -202,44 +219,55 @@ impl Tracker {
     pub fn add_action(&mut self, step: u64, action: ActionKind) {
         let motion = self.config.motion(action);
         self.session.add_motion(step, motion);
-        self.commanded
-            .insert(step, action_motion(action, &self.config.robot));
     }
 
-    /// Frames logged as suspect tracking events so far ([`Tracker::suspect_event`]).
-    pub fn suspect_frames(&self) -> u64 {
-        self.suspect_frames
+    /// The tracking failures and relocalisations reported so far.
+    pub fn events(&self) -> &TrackingEvents {
+        &self.events
     }
 
-    /// The log line of a suspect tracking event for `frame`, or `None`: a frame tracked `Ok`,
-    /// not closing a loop, whose estimate disagrees with the commanded motion from the
-    /// previous estimate by more than `suspect_jump_m` or `suspect_turn_deg`.
-    pub fn suspect_event(
-        &self,
-        frame: &TrackedFrame,
-        commanded: &Isometry3<f64>,
-    ) -> Option<String> {
-        let (prev_id, prev) = self.last?;
-        if prev_id + 1 != frame.frame_id
-            || frame.status != SlamStatus::Ok
-            || frame.loop_closure.is_some()
-        {
-            return None;
+    /// The log lines of `frame`'s tracking events (issue 34: tracking never fails silently):
+    /// the first frame of a run of lost frames, with the reason; a lost frame whose reason
+    /// differs in kind from the previous frame's; the first frame tracked again after a run,
+    /// with its length; a relocalisation. Counts the events; call it once per frame, in order
+    /// (a skipped frame neither starts nor ends a run).
+    pub fn event_lines(&mut self, frame: &TrackedFrame) -> Vec<String> {
+        let id = frame.frame_id;
+        let mut lines = Vec::new();
+        let events = &mut self.events;
+        match frame.status {
+            SlamStatus::Lost(reason) => {
+                events.lost_frames += 1;
+                events.lost_in_row += 1;
+                let same_kind = matches!(events.last_reason, Some(p)
+                    if std::mem::discriminant(&p) == std::mem::discriminant(&reason));
+                if events.lost_in_row == 1 {
+                    events.lost_runs += 1;
+                    lines.push(format!("tracker: frame {id}: tracking lost: {reason}"));
+                } else if !same_kind {
+                    lines.push(format!(
+                        "tracker: frame {id}: still lost ({} frames): {reason}",
+                        events.lost_in_row
+                    ));
+                }
+                events.last_reason = Some(reason);
+            }
+            SlamStatus::Ok => {
+                let run = std::mem::take(&mut events.lost_in_row);
+                events.last_reason = None;
+                if run > 0 {
+                    lines.push(format!(
+                        "tracker: frame {id}: tracking regained after {run} lost frame(s)"
+                    ));
+                }
+            }
+            SlamStatus::Skipped(_) => {}
         }
-        let (metres, radians) = motion_disagreement(&prev, &frame.pose, commanded);
-        (metres > self.config.suspect_jump_m || radians.to_degrees() > self.config.suspect_turn_deg)
-            .then(|| {
-                format!(
-                    "tracker: frame {}: suspect tracking event: the estimate lies {:.1} cm and \
-                     {:.1}° from where the commanded motion takes frame {prev_id}'s \
-                     (thresholds {:.1} cm, {:.1}°)",
-                    frame.frame_id,
-                    100.0 * metres,
-                    radians.to_degrees(),
-                    100.0 * self.config.suspect_jump_m,
-                    self.config.suspect_turn_deg
-                )
-            })
+        if let Some(r) = &frame.relocalised {
+            events.relocalisations += 1;
+            lines.push(format!("tracker: frame {id}: relocalised: {r}"));
+        }
+        lines
     }
 
     /// Tracks every frame whose inputs are complete, in order; returns their estimates. Logs
@@ -247,17 +275,9 @@ impl Tracker {
     pub fn process_ready(&mut self) -> anyhow::Result<Vec<PoseEstimate>> {
         let tracked = self.session.process_ready()?;
         for t in &tracked {
-            if let Some(commanded) = t
-                .frame_id
-                .checked_sub(1)
-                .and_then(|k| self.commanded.get(&k).copied())
-                && let Some(line) = self.suspect_event(t, &commanded)
-            {
-                self.suspect_frames += 1;
+            for line in self.event_lines(t) {
                 eprintln!("{line}");
             }
-            self.commanded = self.commanded.split_off(&t.frame_id);
-            self.last = Some((t.frame_id, t.pose));
             if let Some(c) = t
                 .loop_closure
                 .as_ref()
@@ -285,9 +305,14 @@ pub fn estimate(t: &TrackedFrame) -> PoseEstimate {
         t_world_camera: pose_to_wire(&t.pose),
         status: match t.status {
             SlamStatus::Ok => TrackingStatus::Ok,
-            SlamStatus::Lost => TrackingStatus::Lost,
+            SlamStatus::Lost(_) => TrackingStatus::Lost,
             SlamStatus::Skipped(_) => TrackingStatus::Skipped,
         },
+        lost_reason: match t.status {
+            SlamStatus::Lost(r) => Some(r),
+            _ => None,
+        },
+        relocalised: t.relocalised,
         residual_rgb: t.residuals.photometric,
         residual_depth: t.residuals.depth_median,
         iterations: t.iterations as u32,
@@ -418,71 +443,108 @@ mod tests {
             rereference_below: default_rereference(),
             map_lag: 0,
             pose_graph: false,
-            suspect_jump_m: default_suspect_m(),
-            suspect_turn_deg: default_suspect_deg(),
+            motion_check: default_motion_check(),
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);
     }
 
-    /// Issue 34: a jump the commanded motion cannot explain is a suspect tracking event; a
-    /// step as commanded, a blocked step (5 cm short) and a loop closure's correction are not.
+    /// Issue 34: tracking never fails silently. A run of lost frames is logged when it begins
+    /// (with its reason), when the reason changes kind and when it ends; a relocalisation is
+    /// logged; the wire estimate carries the reason. The motion check is on by default and
+    /// off with `motion_check: null` or another motion prior.
     #[test]
-    fn an_estimate_far_from_the_commanded_motion_is_a_suspect_tracking_event() {
-        let robot = RobotModel::default();
+    fn lost_runs_regains_and_relocalisations_are_logged_and_carried_on_the_wire() {
         let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
-        assert_eq!(
-            (config.suspect_jump_m, config.suspect_turn_deg),
-            (0.08, 10.0)
-        );
+        let check = config.tracking_config().unwrap().motion_check.unwrap();
+        let default = MotionCheck::default();
+        assert_eq!(check.max_translation_m, default.max_translation_m);
+        assert!((check.max_rotation_rad - default.max_rotation_rad).abs() < 1e-12);
+        assert_eq!(check.confirm_frames, default.confirm_frames);
+        let off: Config =
+            serde_json::from_value(serde_json::json!({ "motion_check": null })).unwrap();
+        assert_eq!(off.tracking_config().unwrap().motion_check, None);
+        let cv: Config =
+            serde_json::from_value(serde_json::json!({ "motion_prior": "constant_velocity" }))
+                .unwrap();
+        assert_eq!(cv.tracking_config().unwrap().motion_check, None);
+        let bad = serde_json::json!({ "motion_check": { "max_translation_m": 0.0 } });
+        let e = Tracker::from_config(serde_json::from_value(bad).unwrap())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("max_translation_m"), "{e}");
+
         let mut tracker = Tracker::from_config(config).unwrap();
-        let start = start_anchor(&robot);
-        let forward = action_motion(ActionKind::Forward, &robot);
-        let frame = |id: u64, pose: Isometry3<f64>| TrackedFrame {
+        let frame = |id: u64, status: SlamStatus| TrackedFrame {
             frame_id: id,
             stamp: id as f64,
-            pose,
-            status: SlamStatus::Ok,
+            pose: Isometry3::identity(),
+            status,
             residuals: Default::default(),
             iterations: 10,
             seconds: 0.0,
             loop_closure: None,
             graph_anchor: None,
+            relocalised: None,
         };
-        // No previous estimate yet: nothing to compare with.
-        assert!(tracker.suspect_event(&frame(1, start), &forward).is_none());
-        tracker.last = Some((0, start));
-        let (d, a) = motion_disagreement(&start, &(start * forward), &forward);
-        assert!(d < 1e-12 && a < 1e-12);
-        assert!(
-            tracker
-                .suspect_event(&frame(1, start * forward), &forward)
-                .is_none()
+        let overlap = SlamStatus::Lost(LostReason::LowOverlap { fraction: 0.12 });
+        let jump = SlamStatus::Lost(LostReason::MotionMismatch {
+            translation_m: 0.32,
+            rotation_deg: 1.0,
+        });
+        let statuses = [
+            SlamStatus::Ok,
+            overlap,
+            SlamStatus::Lost(LostReason::LowOverlap { fraction: 0.05 }),
+            SlamStatus::Skipped(activemap_slam::SkipReason::NoDepth),
+            jump,
+            SlamStatus::Ok,
+            SlamStatus::Ok,
+        ];
+        let lines: Vec<Vec<String>> = statuses
+            .iter()
+            .enumerate()
+            .map(|(k, s)| tracker.event_lines(&frame(k as u64, *s)))
+            .collect();
+        assert!(lines[0].is_empty() && lines[2].is_empty() && lines[3].is_empty());
+        assert!(lines[6].is_empty());
+        assert_eq!(
+            lines[1],
+            ["tracker: frame 1: tracking lost: only 12 % of the depth pixels overlap the map"]
         );
-        // Blocked: the robot stayed, 5 cm short of the command.
-        let (d, _) = motion_disagreement(&start, &start, &forward);
-        assert!((d - 0.05).abs() < 1e-12);
-        assert!(tracker.suspect_event(&frame(1, start), &forward).is_none());
-        // A 32 cm jump sideways (the house-3 episode of the issue), and a 15° twist.
-        let jump = start * forward * Isometry3::translation(0.32, 0.0, 0.0);
-        let line = tracker.suspect_event(&frame(1, jump), &forward).unwrap();
         assert!(
-            line.starts_with("tracker: frame 1: suspect tracking event"),
-            "{line}"
+            lines[4][0]
+                .starts_with("tracker: frame 4: still lost (3 frames): the solution lies 32.0 cm"),
+            "{:?}",
+            lines[4]
         );
-        assert!(line.contains("32.0 cm"), "{line}");
-        let twist =
-            start * forward * Isometry3::rotation(nalgebra::Vector3::y() * 15f64.to_radians());
-        assert!(tracker.suspect_event(&frame(1, twist), &forward).is_some());
-        // Not for a frame that is not the next one, a lost frame or a loop closure's.
-        assert!(tracker.suspect_event(&frame(2, jump), &forward).is_none());
-        let mut lost = frame(1, jump);
-        lost.status = SlamStatus::Lost;
-        assert!(tracker.suspect_event(&lost, &forward).is_none());
-        let bad = serde_json::json!({ "suspect_jump_m": 0.0 });
-        let e = Tracker::from_config(serde_json::from_value(bad).unwrap())
-            .err()
-            .unwrap();
-        assert!(e.to_string().contains("suspect_jump_m"), "{e}");
+        assert_eq!(
+            lines[5],
+            ["tracker: frame 5: tracking regained after 3 lost frame(s)"]
+        );
+        let mut relocated = frame(7, SlamStatus::Ok);
+        relocated.relocalised = Some(activemap_slam::Relocalisation {
+            translation_m: 0.3,
+            rotation_deg: 0.0,
+            frames: 3,
+        });
+        let line = tracker.event_lines(&relocated);
+        assert!(line[0].starts_with("tracker: frame 7: relocalised: took a solution 30.0 cm"));
+        assert_eq!(
+            (tracker.events().lost_frames, tracker.events().lost_runs),
+            (3, 1)
+        );
+        assert_eq!(tracker.events().relocalisations, 1);
+        let wire = estimate(&frame(4, jump));
+        assert_eq!(wire.status, TrackingStatus::Lost);
+        assert_eq!(
+            wire.lost_reason,
+            Some(LostReason::MotionMismatch {
+                translation_m: 0.32,
+                rotation_deg: 1.0
+            })
+        );
+        assert_eq!(estimate(&relocated).relocalised.unwrap().frames, 3);
+        assert_eq!(estimate(&frame(5, SlamStatus::Ok)).lost_reason, None);
     }
 }

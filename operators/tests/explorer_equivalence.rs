@@ -424,6 +424,8 @@ fn estimate(k: u64, stamp: f64, sim: &activemap_sim::Simulator) -> PoseEstimate 
         iterations: 0,
         graph_anchor: None,
         keyframe_corrections: Vec::new(),
+        lost_reason: None,
+        relocalised: None,
     }
 }
 

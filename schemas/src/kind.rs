@@ -66,7 +66,7 @@ kinds! {
     Action: Small, false, <Action as SmallMessage>::VERSION as u32,
         "Action { step: u64, action: Forward|TurnLeft|TurnRight|Stop } (u16 version + postcard)";
     PoseEstimate: Small, false, <PoseEstimate as SmallMessage>::VERSION as u32,
-        "PoseEstimate { frame_id, stamp, t_world_camera, status: Ok|Lost|Skipped, residuals, iterations, graph_anchor: Option<frame_id>, keyframe_corrections: [(frame_id, T_after·T_before⁻¹)] } (u16 version + postcard)";
+        "PoseEstimate { frame_id, stamp, t_world_camera, status: Ok|Lost|Skipped, residuals, iterations, graph_anchor: Option<frame_id>, keyframe_corrections: [(frame_id, T_after·T_before⁻¹)], lost_reason: Option<LowOverlap|DepthResidual|ColourResidual|MotionMismatch|NonFinite>, relocalised: Option<(metres, degrees, frames)> } (u16 version + postcard)";
     TruePose: Small, true, <TruePose as SmallMessage>::VERSION as u32,
         "TruePose { frame_id, stamp, t_world_camera } ground truth, evaluation only (u16 version + postcard)";
     Frontiers: Small, false, <Frontiers as SmallMessage>::VERSION as u32,

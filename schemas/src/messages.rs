@@ -101,6 +101,102 @@ pub enum TrackingStatus {
     Skipped,
 }
 
+/// Why the tracker reported a frame [`TrackingStatus::Lost`]: the check that failed and what it
+/// measured (`activemap_slam` decides it).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum LostReason {
+    /// Too few valid-depth pixels overlap the references or the map: the fraction that does.
+    LowOverlap {
+        /// The overlapping fraction.
+        fraction: f64,
+    },
+    /// The depth residual of the solution, metres, beyond its limit.
+    DepthResidual {
+        /// The residual, metres.
+        metres: f64,
+    },
+    /// The colour residual of the map's render beyond its limit.
+    ColourResidual {
+        /// The mean absolute colour residual.
+        residual: f64,
+    },
+    /// The solution lies beyond what the commanded action and the actuation noise allow; the
+    /// estimate is the prediction.
+    MotionMismatch {
+        /// Distance from the feasible motions, metres.
+        translation_m: f64,
+        /// Angle from the commanded rotation, degrees.
+        rotation_deg: f64,
+    },
+    /// The optimiser returned a non-finite pose.
+    NonFinite,
+}
+
+impl LostReason {
+    /// The reason's name in reports and tallies: `low_overlap`, `depth_residual`,
+    /// `colour_residual`, `motion_mismatch`, `non_finite`.
+    pub fn key(&self) -> &'static str {
+        match self {
+            Self::LowOverlap { .. } => "low_overlap",
+            Self::DepthResidual { .. } => "depth_residual",
+            Self::ColourResidual { .. } => "colour_residual",
+            Self::MotionMismatch { .. } => "motion_mismatch",
+            Self::NonFinite => "non_finite",
+        }
+    }
+}
+
+impl std::fmt::Display for LostReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::LowOverlap { fraction } => write!(
+                f,
+                "only {:.0} % of the depth pixels overlap the map",
+                100.0 * fraction
+            ),
+            Self::DepthResidual { metres } => {
+                write!(f, "depth residual {:.1} cm", 100.0 * metres)
+            }
+            Self::ColourResidual { residual } => write!(f, "colour residual {residual:.3}"),
+            Self::MotionMismatch {
+                translation_m,
+                rotation_deg,
+            } => write!(
+                f,
+                "the solution lies {:.1} cm and {rotation_deg:.1}° from any motion the commanded \
+                 action could have made",
+                100.0 * translation_m
+            ),
+            Self::NonFinite => write!(f, "the optimiser returned a non-finite pose"),
+        }
+    }
+}
+
+impl std::fmt::Display for Relocalisation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "took a solution {:.1} cm and {:.1}° from the commanded motion, after {} consecutive \
+             solutions agreed with each other",
+            100.0 * self.translation_m,
+            self.rotation_deg,
+            self.frames
+        )
+    }
+}
+
+/// A solution the tracker's motion check had rejected and then took, once consecutive
+/// solutions agreed with each other: the jump of the estimate it made.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Relocalisation {
+    /// Distance of the taken solution from the motions the commanded action allows, metres.
+    pub translation_m: f64,
+    /// Angle from the commanded rotation, degrees.
+    pub rotation_deg: f64,
+    /// The agreeing consecutive solutions that confirmed it.
+    pub frames: u32,
+}
+
 /// How the tracker's keyframe pose graph moved the keyframe made from frame `frame_id` when it
 /// was re-optimised: the world-frame rigid motion `T_after · T_before⁻¹`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -112,7 +208,7 @@ pub struct KeyframeCorrection {
 }
 
 /// The tracker's pose estimate for one frame (SPEC §4). Version 2 added `graph_anchor` and
-/// `keyframe_corrections`.
+/// `keyframe_corrections`, version 3 `lost_reason` and `relocalised`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseEstimate {
     /// Frame the estimate belongs to.
@@ -137,8 +233,12 @@ pub struct PoseEstimate {
     /// mapper moves its keyframes hung on them, and their Gaussians, before mapping this frame.
     /// Empty otherwise, and always without the graph.
     pub keyframe_corrections: Vec<KeyframeCorrection>,
+    /// Why the frame is `Lost` (`None` for every other status).
+    pub lost_reason: Option<LostReason>,
+    /// When this frame's estimate jumped to a solution the motion check had rejected before.
+    pub relocalised: Option<Relocalisation>,
 }
-small_message!(PoseEstimate, 2);
+small_message!(PoseEstimate, 3);
 
 /// Ground-truth camera pose from the simulator. Evaluation-only: no operator of the loop may read it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

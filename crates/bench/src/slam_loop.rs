@@ -26,7 +26,7 @@ use activemap_geometry::tum::Trajectory;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, NoiseConfig, SimConfig, Simulator};
-use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig, TrackingStatus};
+use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig};
 use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use anyhow::Context as _;
 
@@ -309,7 +309,7 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
             track_seconds += out.seconds;
             tracked += 1;
         }
-        if out.status == TrackingStatus::Lost {
+        if out.status.is_lost() {
             lost += 1;
             lost_in_row += 1;
         } else {

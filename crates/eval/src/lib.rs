@@ -72,7 +72,7 @@ pub use lpips::LpipsAlex;
 pub use offset::{OffsetStats, SurfaceOffsets, orient_towards, surface_offsets};
 pub use psnr::{mean_squared_error, psnr};
 pub use report::MetricsReport;
-pub use run_folder::{RunError, RunFolder, Summary};
+pub use run_folder::{RunError, RunFolder, Summary, TrackingSummary};
 pub use ssim::ssim;
 pub use test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 pub use validity::RunWarning;

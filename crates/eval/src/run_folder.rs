@@ -519,10 +519,40 @@ pub struct Summary {
     pub robot: Option<RobotModel>,
     /// The LLM planner's totals over the recorded exchanges; `None`: the run made none.
     pub llm: Option<LlmSummary>,
+    /// The tracker's reported failures and the jumps of its estimate against the truth
+    /// ([`crate::step_metrics::tracking_summary`]); `None` in older summaries.
+    pub tracking: Option<TrackingSummary>,
     /// Why the run is invalid ([`crate::validity`]: a start that sees nothing, a robot that
     /// cannot move, an empty map, no reachable floor); empty = valid. Absent in older summaries
     /// (read as empty). `summary.json` also says `"valid": true|false`.
     pub warnings: Vec<RunWarning>,
+}
+
+/// What the tracker reported of its own failures over a run, and what the true poses say of
+/// its estimate's jumps (issue 34: tracking never fails silently). A jump is the change, from
+/// one frame to the next, of the estimate's position error against the true pose (the
+/// estimate taken to the true frame by the first frame's pair); it is *explained* when either
+/// frame was reported lost, relocalised or moved by a loop closure.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrackingSummary {
+    /// Frames the tracker reported `Lost`.
+    pub lost_frames: u64,
+    /// Runs of consecutive lost frames (skipped frames neither start nor end one).
+    pub lost_runs: u64,
+    /// Lost frames by reason (`low_overlap`, `depth_residual`, `colour_residual`,
+    /// `motion_mismatch`, `non_finite`), only the reasons that occurred.
+    pub lost_by_reason: std::collections::BTreeMap<String, u64>,
+    /// Frames whose estimate took a solution the motion check had rejected before.
+    pub relocalisations: u64,
+    /// Frames whose estimate moved with a loop closure of the pose graph.
+    pub loop_closures: u64,
+    /// The largest jump of the error between consecutive frames, metres.
+    pub max_error_jump_m: f64,
+    /// Jumps above [`crate::step_metrics::JUMP_LIMIT_M`] that no reported event explains.
+    pub unexplained_jumps: u64,
+    /// The largest of those, metres (0 without any).
+    pub max_unexplained_jump_m: f64,
 }
 
 /// Whether a record's decision differs from the fallback's choice: `None` when it does not say
@@ -1349,6 +1379,16 @@ mod tests {
                     same: 1,
                     same_gain_pp: Some(1.5),
                 }),
+            }),
+            tracking: Some(TrackingSummary {
+                lost_frames: 4,
+                lost_runs: 2,
+                lost_by_reason: [("motion_mismatch".to_string(), 4)].into(),
+                relocalisations: 1,
+                loop_closures: 0,
+                max_error_jump_m: 0.031,
+                unexplained_jumps: 0,
+                max_unexplained_jump_m: 0.0,
             }),
             warnings: Vec::new(),
         }

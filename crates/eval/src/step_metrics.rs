@@ -11,7 +11,7 @@
 
 use crate::bev::{Bev, BevCell};
 use crate::error::EvalError;
-use crate::run_folder::Summary;
+use crate::run_folder::{Summary, TrackingSummary};
 use crate::validity::{self, RunWarning};
 use crate::{AteOptions, ate, coverage_2d};
 use activemap_geometry::tum::Trajectory;
@@ -102,6 +102,83 @@ pub fn ate_rmse(truth: &Trajectory, estimated: &Trajectory) -> Result<Option<f64
     } else {
         None
     })
+}
+
+/// A jump of the estimate's error between consecutive frames above this (metres) must come
+/// with a reported tracking event (issue 34's goal: no jump above 5 cm without one).
+pub const JUMP_LIMIT_M: f64 = 0.05;
+
+/// What the tracker said of one frame, for [`tracking_summary`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameReport {
+    /// The estimate's stamp (the same as its true pose's).
+    pub stamp: f64,
+    /// Why the frame was reported lost (`None`: it was not).
+    pub lost: Option<&'static str>,
+    /// The estimate took a solution the motion check had rejected before.
+    pub relocalised: bool,
+    /// The estimate moved with a loop closure of the pose graph.
+    pub loop_closure: bool,
+}
+
+impl FrameReport {
+    fn explains_a_jump(&self) -> bool {
+        self.lost.is_some() || self.relocalised || self.loop_closure
+    }
+}
+
+/// The [`TrackingSummary`] of `reports` (one per estimate of `estimated`, in order) against the
+/// true poses `truth` (paired by stamp; estimates without a true pose are left out of the
+/// jumps).
+pub fn tracking_summary(
+    truth: &Trajectory,
+    estimated: &Trajectory,
+    reports: &[FrameReport],
+) -> TrackingSummary {
+    let mut out = TrackingSummary::default();
+    let mut in_run = false;
+    for r in reports {
+        match r.lost {
+            Some(reason) => {
+                out.lost_frames += 1;
+                *out.lost_by_reason.entry(reason.to_string()).or_default() += 1;
+                if !in_run {
+                    out.lost_runs += 1;
+                }
+                in_run = true;
+            }
+            None => in_run = false,
+        }
+        out.relocalisations += u64::from(r.relocalised);
+        out.loop_closures += u64::from(r.loop_closure);
+    }
+    let true_at: std::collections::HashMap<u64, &Isometry3<f64>> = truth
+        .stamps
+        .iter()
+        .zip(&truth.poses)
+        .map(|(s, p)| (s.to_bits(), p))
+        .collect();
+    let mut align = None;
+    let mut previous: Option<(nalgebra::Vector3<f64>, &FrameReport)> = None;
+    for ((stamp, pose), report) in estimated.stamps.iter().zip(&estimated.poses).zip(reports) {
+        let Some(truth) = true_at.get(&stamp.to_bits()) else {
+            previous = None;
+            continue;
+        };
+        let align = *align.get_or_insert_with(|| *truth * pose.inverse());
+        let error = (align * pose).translation.vector - truth.translation.vector;
+        if let Some((before, report_before)) = previous {
+            let jump = (error - before).norm();
+            out.max_error_jump_m = out.max_error_jump_m.max(jump);
+            if jump > JUMP_LIMIT_M && !report.explains_a_jump() && !report_before.explains_a_jump()
+            {
+                out.unexplained_jumps += 1;
+                out.max_unexplained_jump_m = out.max_unexplained_jump_m.max(jump);
+            }
+        }
+        previous = Some((error, report));
+    }
+    out
 }
 
 /// Why the run is invalid ([`validity`]), from what the evaluator saw: the first frame's id and
@@ -217,6 +294,48 @@ mod tests {
         assert_eq!(blocked_forwards(&[0, 1], &positions, 0.05), (2, 0));
         // With a 2 cm step the 2 cm slide is a full move.
         assert_eq!(blocked_forwards(&[3], &positions, 0.02), (1, 0));
+    }
+
+    /// Issue 34's jump count: the error's change between frames, in the true frame whatever
+    /// the estimate's world anchor; a jump beside a lost, relocalised or loop-closing frame is
+    /// explained, any other above 5 cm is not.
+    #[test]
+    fn error_jumps_above_5_cm_count_unless_a_reported_event_explains_them() {
+        // The estimate lives in a world rotated 90° about z and shifted from the truth's.
+        let anchor = Isometry3::new(
+            nalgebra::Vector3::new(3.0, -1.0, 0.0),
+            nalgebra::Vector3::z() * std::f64::consts::FRAC_PI_2,
+        );
+        let xs = [0.0, 0.05, 0.10, 0.15, 0.20, 0.25, 0.30];
+        // Error along x (true frame) per frame: 0, 0, 8 cm (a jump), 8, 1 cm (jump back beside
+        // a lost frame), 1, 1 cm with a relocalised frame.
+        let errors = [0.0, 0.0, 0.08, 0.08, 0.01, 0.01, 0.01];
+        let (mut truth, mut estimated) = (Trajectory::default(), Trajectory::default());
+        let mut reports = Vec::new();
+        for (k, (x, e)) in xs.iter().zip(errors).enumerate() {
+            let true_pose = Isometry3::translation(*x, 2.0, 0.9);
+            truth.push(k as f64, true_pose);
+            let off = Isometry3::translation(e, 0.0, 0.0) * true_pose;
+            estimated.push(k as f64, anchor.inverse() * off);
+            reports.push(FrameReport {
+                stamp: k as f64,
+                lost: (k == 3).then_some("motion_mismatch"),
+                relocalised: k == 6,
+                loop_closure: false,
+            });
+        }
+        let s = tracking_summary(&truth, &estimated, &reports);
+        assert_eq!((s.lost_frames, s.lost_runs, s.relocalisations), (1, 1, 1));
+        assert_eq!(s.lost_by_reason.get("motion_mismatch"), Some(&1));
+        assert!((s.max_error_jump_m - 0.08).abs() < 1e-9, "{s:?}");
+        // Frame 2's jump is unexplained; frame 4's follows the lost frame 3.
+        assert_eq!(s.unexplained_jumps, 1);
+        assert!((s.max_unexplained_jump_m - 0.08).abs() < 1e-9);
+        // A loop closure at frame 2 explains its jump.
+        reports[2].loop_closure = true;
+        let s = tracking_summary(&truth, &estimated, &reports);
+        assert_eq!((s.unexplained_jumps, s.loop_closures), (0, 1));
+        assert_eq!(s.max_unexplained_jump_m, 0.0);
     }
 
     #[test]

@@ -62,6 +62,11 @@ pub struct ExecutorConfig {
     /// Forward moves in a row that leave the position within half of the robot's forward
     /// step before the executor asks for a new path ([`ReplanReason::Blocked`]); 0 disables it.
     pub bumps_to_replan: usize,
+    /// While tracking is lost the robot turns on the spot; once it is back after fewer lost
+    /// frames in a row than this, the robot resumes its path (a frame the tracker rejected and
+    /// kept at the prediction does not cost a new plan), after as many or more it asks for a
+    /// new one ([`ReplanReason::TrackingLost`]). 1 always asks.
+    pub lost_replan_after: usize,
 }
 
 impl Default for ExecutorConfig {
@@ -78,6 +83,7 @@ impl Default for ExecutorConfig {
             initial_spin_steps: 72,
             look_skip_half_angle_rad: 25f64.to_radians(),
             bumps_to_replan: 2,
+            lost_replan_after: 3,
         }
     }
 }
@@ -97,6 +103,11 @@ impl ExecutorConfig {
                 && (0.0..=std::f64::consts::PI).contains(&self.look_skip_half_angle_rad),
             "ExecutorConfig::look_skip_half_angle_rad",
             "must be in [0, π]",
+        )?;
+        require(
+            self.lost_replan_after >= 1,
+            "ExecutorConfig::lost_replan_after",
+            "must be ≥ 1 (1 always asks for a new path)",
         )?;
         ProgressMonitor::new(self.stuck_window, self.stuck_min_improvement_m).map(|_| ())
     }
@@ -136,8 +147,13 @@ pub struct ExecutorCounters {
 enum Phase {
     /// Turning left on the spot for this many more steps, then asking for a plan.
     Spin(usize),
-    /// Tracking is lost: turn on the spot until it recovers, then ask for a new plan.
-    Lost,
+    /// Tracking is lost (for `steps` frames so far): turn on the spot until it recovers; then
+    /// resume the `interrupted` phase after a short run, or ask for a new plan after a long
+    /// one ([`ExecutorConfig::lost_replan_after`]).
+    Lost {
+        interrupted: Box<Phase>,
+        steps: usize,
+    },
     /// Waiting for a path.
     Idle(ReplanReason),
     Follow {
@@ -147,6 +163,16 @@ enum Phase {
     },
     /// At the end of the path, turning to face `yaw`.
     Look { yaw: f64 },
+}
+
+impl Phase {
+    /// The phase itself, or while tracking is lost the phase it will resume.
+    fn resumable(&self) -> &Phase {
+        match self {
+            Phase::Lost { interrupted, .. } => interrupted,
+            phase => phase,
+        }
+    }
 }
 
 /// The executor's state (see the module doc).
@@ -228,7 +254,7 @@ impl PathExecutor {
     /// The waypoints of the path being followed not reached yet; `None` when no path is
     /// being followed.
     pub fn remaining(&self) -> Option<&[Point2<f64>]> {
-        match &self.phase {
+        match self.phase.resumable() {
             Phase::Follow { follower, .. } => Some(follower.remaining()),
             _ => None,
         }
@@ -237,7 +263,7 @@ impl PathExecutor {
     /// The end of the path being followed and the yaw to face there; `None` when no path is
     /// being followed.
     pub fn goal(&self) -> Option<(Point2<f64>, f64)> {
-        match &self.phase {
+        match self.phase.resumable() {
             Phase::Follow { goal, look_yaw, .. } => Some((*goal, *look_yaw)),
             _ => None,
         }
@@ -291,11 +317,27 @@ impl PathExecutor {
         let threshold = self.config.follower.turn_threshold_rad;
         if tracking_lost {
             self.counters.lost_steps += 1;
-            if !matches!(self.phase, Phase::Spin(_)) {
-                self.phase = Phase::Lost;
+            match &mut self.phase {
+                Phase::Spin(_) => {}
+                Phase::Lost { steps, .. } => *steps += 1,
+                phase => {
+                    let interrupted =
+                        std::mem::replace(phase, Phase::Idle(ReplanReason::TrackingLost));
+                    self.phase = Phase::Lost {
+                        interrupted: Box::new(interrupted),
+                        steps: 1,
+                    };
+                }
             }
-        } else if matches!(self.phase, Phase::Lost) {
-            self.phase = Phase::Idle(ReplanReason::TrackingLost);
+        } else if let Phase::Lost { interrupted, steps } = &mut self.phase {
+            self.phase = if *steps < self.config.lost_replan_after {
+                std::mem::replace(
+                    interrupted.as_mut(),
+                    Phase::Idle(ReplanReason::TrackingLost),
+                )
+            } else {
+                Phase::Idle(ReplanReason::TrackingLost)
+            };
         }
         // Up to a few phase changes per step (a finished path hands over to the look turn).
         for _ in 0..4 {
@@ -307,7 +349,7 @@ impl PathExecutor {
                     }
                     self.phase = Phase::Idle(ReplanReason::Startup);
                 }
-                Phase::Lost => return Ok(Decision::Act(Action::TurnLeft)),
+                Phase::Lost { .. } => return Ok(Decision::Act(Action::TurnLeft)),
                 Phase::Idle(reason) => return Ok(Decision::Replan(*reason)),
                 Phase::Look { yaw } => {
                     let target = here + Vector2::new(yaw.cos(), yaw.sin());
@@ -522,7 +564,8 @@ mod tests {
 
     /// The start-up look-around is `initial_spin_steps` left turns, then a start-up request
     /// that repeats until a path comes; an empty path asks again (no path); while tracking is
-    /// lost the robot only turns, and asks once tracking is back.
+    /// lost the robot only turns; once tracking is back it resumes its path after a short run
+    /// of lost frames and asks for a new one after a long run.
     #[test]
     fn spin_then_startup_request_no_path_and_lost_tracking() {
         let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
@@ -558,6 +601,20 @@ mod tests {
             core.decide(&pose, &grid, false).unwrap(),
             Decision::Act(Action::Forward)
         );
+        // Two lost frames (fewer than `lost_replan_after`): turns, then the path goes on.
+        for _ in 0..2 {
+            assert_eq!(
+                core.decide(&pose, &grid, true).unwrap(),
+                Decision::Act(Action::TurnLeft)
+            );
+        }
+        assert_eq!(core.remaining().map(|r| r.len()), Some(1));
+        let turned = PlanarPose::new(0.0, 0.0, 10f64.to_radians());
+        assert_eq!(
+            core.decide(&turned, &grid, false).unwrap(),
+            Decision::Act(Action::TurnRight)
+        );
+        // Three: turns, then a new plan.
         for _ in 0..3 {
             assert_eq!(
                 core.decide(&pose, &grid, true).unwrap(),
@@ -568,13 +625,14 @@ mod tests {
             core.decide(&pose, &grid, false).unwrap(),
             Decision::Replan(ReplanReason::TrackingLost)
         );
+        assert_eq!(core.remaining(), None);
         assert_eq!(
             (
                 core.counters.paths,
                 core.counters.no_path,
                 core.counters.lost_steps
             ),
-            (2, 1, 3)
+            (2, 1, 5)
         );
     }
 

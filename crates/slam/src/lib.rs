@@ -69,5 +69,8 @@ pub use mapping::{
 };
 pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
-pub use session::{MotionPrior, TrackedFrame, TrackingConfig, TrackingSession, required_snapshot};
-pub use tracker::{TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};
+pub use session::{
+    MotionCheck, MotionGate, MotionPrior, MotionVerdict, Relocalisation, TrackedFrame,
+    TrackingConfig, TrackingSession, required_snapshot,
+};
+pub use tracker::{LostReason, TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

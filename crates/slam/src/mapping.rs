@@ -113,7 +113,7 @@ impl From<TrackingStatus> for PoseQuality {
     fn from(s: TrackingStatus) -> Self {
         match s {
             TrackingStatus::Ok => Self::Ok,
-            TrackingStatus::Lost => Self::Lost,
+            TrackingStatus::Lost(_) => Self::Lost,
             TrackingStatus::Skipped(_) => Self::Skipped,
         }
     }

@@ -139,11 +139,22 @@ impl TrackerConfig {
 pub enum TrackingStatus {
     /// The map explains the frame at the estimated pose.
     Ok,
-    /// The residuals show the map no longer explains the frame (the pose is a guess).
-    Lost,
+    /// Tracking failed for the reason given (the pose is a guess).
+    Lost(LostReason),
     /// The frame was unusable and not tracked (the pose is the prediction).
     Skipped(SkipReason),
 }
+
+impl TrackingStatus {
+    /// Whether tracking failed ([`TrackingStatus::Lost`], whatever the reason).
+    pub fn is_lost(&self) -> bool {
+        matches!(self, Self::Lost(_))
+    }
+}
+
+/// Why a frame is [`TrackingStatus::Lost`]: the wire type itself, so that the reason a log
+/// line, a report and a recording show is the one the session decided.
+pub use activemap_schemas::LostReason;
 
 /// The result of tracking one frame.
 #[derive(Debug, Clone)]
@@ -169,17 +180,24 @@ pub struct TrackOutput {
     pub reference_overlap: f64,
 }
 
-/// Decides the status from residuals (see the module doc).
+/// Decides the status from residuals (see the module doc); a lost frame names the first check
+/// that failed.
 pub fn classify(config: &TrackerConfig, r: &Residuals, median_depth: f64) -> TrackingStatus {
     let depth_limit = config.lost_max_depth_residual * median_depth.max(0.1);
-    let explained = r.coverage >= config.lost_min_coverage
-        && r.depth_median.is_finite()
-        && r.depth_median <= depth_limit
-        && r.photometric <= config.lost_max_photometric;
-    if explained {
-        TrackingStatus::Ok
+    if r.coverage < config.lost_min_coverage {
+        TrackingStatus::Lost(LostReason::LowOverlap {
+            fraction: r.coverage,
+        })
+    } else if !(r.depth_median.is_finite() && r.depth_median <= depth_limit) {
+        TrackingStatus::Lost(LostReason::DepthResidual {
+            metres: r.depth_median,
+        })
+    } else if r.photometric > config.lost_max_photometric {
+        TrackingStatus::Lost(LostReason::ColourResidual {
+            residual: r.photometric,
+        })
     } else {
-        TrackingStatus::Lost
+        TrackingStatus::Ok
     }
 }
 
@@ -234,15 +252,17 @@ pub fn track(
         TrackerMethod::Dense if !references.is_empty() => {
             let a = align_many(&config.dense, references, frame, predicted_pose)?;
             inlier_fraction = a.inlier_fraction;
-            dense_status = Some(
-                if a.inlier_fraction >= config.lost_min_coverage
-                    && a.rms_distance <= config.dense.lost_max_rms
-                {
-                    TrackingStatus::Ok
-                } else {
-                    TrackingStatus::Lost
-                },
-            );
+            dense_status = Some(if a.inlier_fraction < config.lost_min_coverage {
+                TrackingStatus::Lost(LostReason::LowOverlap {
+                    fraction: a.inlier_fraction,
+                })
+            } else if !(a.rms_distance.is_finite() && a.rms_distance <= config.dense.lost_max_rms) {
+                TrackingStatus::Lost(LostReason::DepthResidual {
+                    metres: a.rms_distance,
+                })
+            } else {
+                TrackingStatus::Ok
+            });
             (
                 a.pose.inverse(),
                 predicted_exposure,
@@ -299,7 +319,7 @@ pub fn track(
         let status = dense_status.unwrap_or_else(|| classify(config, &res, median_depth));
         (pose, status)
     } else {
-        (*predicted_pose, TrackingStatus::Lost)
+        (*predicted_pose, TrackingStatus::Lost(LostReason::NonFinite))
     };
     Ok(TrackOutput {
         pose,

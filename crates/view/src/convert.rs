@@ -169,10 +169,19 @@ impl ViewConverter {
                             TrackingStatus::Lost => log::Level::Warning,
                             _ => log::Level::Info,
                         };
-                        let text = format!("frame {}: tracking {:?}", pose.frame_id, pose.status);
+                        let text = match &pose.lost_reason {
+                            Some(reason) => {
+                                format!("frame {}: tracking Lost: {reason}", pose.frame_id)
+                            }
+                            None => format!("frame {}: tracking {:?}", pose.frame_id, pose.status),
+                        };
                         out.push(log_message(node, level, text, t, now_ns)?);
                     }
                     self.last_tracking = Some(pose.status);
+                }
+                if let Some(r) = &pose.relocalised {
+                    let text = format!("frame {}: relocalised: {r}", pose.frame_id);
+                    out.push(log_message(node, log::Level::Warning, text, t, now_ns)?);
                 }
             }
             MessageKind::TruePose => {

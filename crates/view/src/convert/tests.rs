@@ -39,6 +39,9 @@ fn pose(frame_id: u64, status: TrackingStatus) -> Vec<u8> {
         iterations: 3,
         graph_anchor: None,
         keyframe_corrections: Vec::new(),
+        lost_reason: (status == TrackingStatus::Lost)
+            .then_some(activemap_schemas::LostReason::LowOverlap { fraction: 0.1 }),
+        relocalised: None,
     }
     .encode()
 }
@@ -147,7 +150,10 @@ fn a_frame_gives_its_images_and_calibration_and_its_pose_shares_the_frame_time()
     assert_eq!(log.level, log::Level::Warning as i32);
     assert_eq!(log.name, "tracker");
     assert!(
-        log.message.contains("frame 8") && log.message.contains("Lost"),
+        log.message.contains("frame 8")
+            && log
+                .message
+                .contains("Lost: only 10 % of the depth pixels overlap the map"),
         "{}",
         log.message
     );
