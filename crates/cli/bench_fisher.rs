@@ -108,6 +108,86 @@ pub struct EigPsnrArgs {
     out: PathBuf,
 }
 
+/// Options of `activemap bench clocal-error`.
+#[derive(clap::Args)]
+pub struct ClocalErrorArgs {
+    #[command(flatten)]
+    house: HouseArgs,
+    /// Exploration steps before the measurement (a partly mapped house).
+    #[arg(long, default_value_t = 300)]
+    steps: usize,
+    /// Goal poses drawn in the estimated free space, one driven path each.
+    #[arg(long, default_value_t = 40)]
+    paths: usize,
+    /// Frames per error window, and the spacing of the sampled poses along a path.
+    #[arg(long, default_value_t = 5)]
+    window: usize,
+    /// Most steps driven along one path.
+    #[arg(long, default_value_t = 150)]
+    max_steps_per_path: usize,
+    /// Seed of the goal draw and of the simulator's noise streams.
+    #[arg(long, default_value_t = 2025)]
+    seed: u64,
+    /// The simulator's noise: `none`, `realistic`, or a JSON map as the `sim` node's `noise`
+    /// takes (`{"preset": "realistic", "actuation": "none"}`).
+    #[arg(long, default_value = "none")]
+    noise: String,
+    /// The scatter plot (x = C_local, y = the window's translation error in cm), PNG.
+    #[arg(long, default_value = "runs/clocal_error.png")]
+    out: PathBuf,
+}
+
+/// Runs `activemap bench clocal-error`: the tracking session of the flow's `tracker` node moved
+/// along paths of a partly mapped house, its error against `C_local` and other candidates.
+pub fn clocal_error(args: &ClocalErrorArgs) -> anyhow::Result<()> {
+    let (mapping, fisher, source) = flow_settings(&args.house.flow, &args.house.overrides)?;
+    let loaded = Dataflow::load(&args.house.flow, &activemap_operators::catalog())
+        .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let (tracker, _) = activemap_operators::mapper::slam_nodes(&loaded)
+        .with_context(|| format!("{}", args.house.flow.display()))?;
+    let tracking = tracker
+        .tracking_config()
+        .with_context(|| format!("{}: tracker node", args.house.flow.display()))?;
+    let value = if args.noise.trim_start().starts_with('{') {
+        serde_json::from_str(&args.noise)
+            .with_context(|| format!("bench clocal-error: --noise {}: not JSON", args.noise))?
+    } else {
+        serde_json::Value::String(args.noise.clone())
+    };
+    let noise: activemap_sim::NoiseConfig = serde_json::from_value(value)
+        .with_context(|| format!("bench clocal-error: --noise {}", args.noise))?;
+    let config = HouseMapConfig {
+        progress_every: 100,
+        noise,
+        seed: args.seed,
+        tracking: Some(tracking),
+        ..HouseMapConfig::new(args.house.house, args.house.resolution, args.steps, mapping)
+    };
+    let house = house_map::build(&config).context("bench clocal-error: building the house map")?;
+    println!("# bench clocal-error: {}", house.describe(&config));
+    println!(
+        "# tracking: the `tracker` node of {} beside the build and along each path; noise {}",
+        args.house.flow.display(),
+        args.noise
+    );
+    println!("# fisher settings: {source}");
+    let result = activemap_bench::clocal_error::run(
+        &house,
+        &fisher,
+        &activemap_bench::clocal_error::ClocalConfig {
+            paths: args.paths,
+            seed: args.seed,
+            window: args.window,
+            max_steps_per_path: args.max_steps_per_path,
+        },
+    )?;
+    print!("{}", result.table());
+    result.write_plot(&args.out)?;
+    println!("# scatter plot: {}", args.out.display());
+    println!("{}", result.summary());
+    Ok(())
+}
+
 /// The flow's mapping session settings and the scorer's Fisher settings (with where they came
 /// from).
 fn flow_settings(

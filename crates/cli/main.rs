@@ -286,6 +286,9 @@ enum BenchCommand {
     /// The paper's Figure 2: view EIG against the map's PSNR at poses in the free space of a
     /// partly mapped house (Spearman ρ, scatter PNG).
     EigPsnr(bench_fisher::EigPsnrArgs),
+    /// Issue 34: the localisation cost C_local against the tracking error of the tracking
+    /// session moved along paths of a partly mapped house (Spearman ρ, scatter PNG).
+    ClocalError(bench_fisher::ClocalErrorArgs),
 }
 
 #[derive(clap::Args)]
@@ -587,6 +590,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
             BenchCommand::Scorer(args) => bench_fisher::scorer(&args)?,
             BenchCommand::Planner(args) => bench_fisher::planner(&args)?,
             BenchCommand::EigPsnr(args) => bench_fisher::eig_psnr(&args)?,
+            BenchCommand::ClocalError(args) => bench_fisher::clocal_error(&args)?,
         },
     }
     Ok(ExitCode::SUCCESS)

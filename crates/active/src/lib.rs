@@ -27,7 +27,7 @@ pub mod scorer;
 pub mod unknown;
 
 pub use config::{FisherConfig, ModelFisherSource, PathObjective, RefineCluster};
-pub use scorer::{FisherScorer, GoalRequest, ReplanInput, ReplanOutcome};
+pub use scorer::{FisherScorer, GoalRequest, PoseLocalisation, ReplanInput, ReplanOutcome};
 
 /// Errors of the Fisher scorer: bad input named by what and where.
 #[derive(Debug, thiserror::Error)]

@@ -25,7 +25,8 @@ use crate::ActiveError;
 use crate::candidates::{sample_candidates, sample_free_space_poses};
 use crate::config::{FisherConfig, ModelFisherSource, PathObjective};
 use crate::information::{
-    ScoringScene, ViewInformation, ViewParts, ViewSettings, eig, view_information,
+    ScoringScene, ViewInformation, ViewParts, ViewSettings, eig, localisation_cost,
+    view_information,
 };
 use crate::model::{ModelFisher, ModelSample};
 use crate::paths::{FuturePath, future_path, objective, scored_steps, shared_path_terms};
@@ -147,6 +148,20 @@ pub struct StageTimings {
     pub path_scores_ms: f64,
     /// The whole replan.
     pub total_ms: f64,
+}
+
+/// The localisation terms of one pose ([`FisherScorer::pose_localisation`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseLocalisation {
+    /// `C_local = −log det` of the pose information (SPEC §5); +∞ for a degenerate view.
+    pub c_local: f64,
+    /// The pose information's smallest eigenvalue (0 for a view that sees nothing): the
+    /// worst-constrained direction.
+    pub smallest_eigenvalue: f64,
+    /// Gaussians the view sees.
+    pub visible_gaussians: usize,
+    /// Pixels of the scoring render the map leaves uncovered (opacity below 0.5).
+    pub low_opacity_pixels: u32,
 }
 
 /// What one replan decided, with every intermediate.
@@ -441,6 +456,45 @@ impl FisherScorer {
         Ok(views
             .iter()
             .map(|v| eig(v, prepared.prior.as_slice()))
+            .collect())
+    }
+
+    /// What the map says of localisation at each of `poses` (planar, the camera at the robot's
+    /// height above the estimated floor), as a replan's path scoring sees it: the views' pose
+    /// information against the map's Gaussians (unknown space included, as in a replan), its
+    /// `C_local` and the candidates `activemap bench clocal-error` compares it with.
+    pub fn pose_localisation(
+        &mut self,
+        input: &ReplanInput<'_>,
+        poses: &[PlanarPose],
+    ) -> Result<Vec<PoseLocalisation>, ActiveError> {
+        let mut rng = self.rng(input.frame_id);
+        let prepared = self.prepare(input, &mut rng)?;
+        let views = self.views(
+            &prepared.scoring,
+            poses,
+            prepared.floor_z,
+            ViewParts::DiagonalAndPose,
+        )?;
+        let ratio = self.config.degenerate_ratio;
+        Ok(views
+            .iter()
+            .map(|v| {
+                let (c_local, smallest) = match (&v.pose, v.is_empty()) {
+                    (Some(pose), false) => {
+                        let symmetric = (pose + pose.transpose()) * 0.5;
+                        let smallest = nalgebra::SymmetricEigen::new(symmetric).eigenvalues.min();
+                        (localisation_cost(pose, ratio), smallest)
+                    }
+                    _ => (f64::INFINITY, 0.0),
+                };
+                PoseLocalisation {
+                    c_local,
+                    smallest_eigenvalue: smallest,
+                    visible_gaussians: v.diagonal.len(),
+                    low_opacity_pixels: v.low_opacity_pixels,
+                }
+            })
             .collect())
     }
 

@@ -13,8 +13,10 @@
 //!   runs): each frame's depth rays plus the map's Gaussian means, reloaded after every
 //!   keyframe as the operator reloads each new map snapshot.
 //!
-//! Poses are the simulator's TRUE ones (no SLAM tracking): these benchmarks measure the
-//! scorer, not localisation. The build stops when the map holds
+//! Poses are the simulator's TRUE ones: these benchmarks measure the scorer, not localisation.
+//! With [`HouseMapConfig::tracking`] a tracking session also tracks every frame (the commanded
+//! action as its motion prior, the map of the frame before as its snapshot), without steering
+//! anything: `activemap bench clocal-error` moves it on from the last frame. The build stops when the map holds
 //! [`HouseMapConfig::target_gaussians`], after [`HouseMapConfig::max_steps`], or when no
 //! frontier is left.
 
@@ -25,8 +27,11 @@ use activemap_geometry::Isometry3;
 use activemap_planning::OccupancyGrid;
 use activemap_planning::dynamics::Action;
 use activemap_policy::explorer::{Decision, Explorer, ExplorerConfig};
+use activemap_sim::NoiseConfig;
 use activemap_sim::{Action as SimAction, SceneSpec, SimConfig, Simulator};
-use activemap_slam::{Frame, KeyframeMapper, MappingConfig, PoseQuality};
+use activemap_slam::{
+    Frame, KeyframeMapper, MappingConfig, MotionPrior, PoseQuality, TrackingConfig, TrackingSession,
+};
 use activemap_splat::Gaussians;
 use anyhow::Context as _;
 use nalgebra::Point2;
@@ -52,6 +57,13 @@ pub struct HouseMapConfig {
     pub explorer: ExplorerConfig,
     /// Print progress to stderr every this many steps (0: never).
     pub progress_every: usize,
+    /// Sensor and actuation noise of the simulator (none by default), seeded by `seed`.
+    pub noise: NoiseConfig,
+    /// The simulator's noise seed.
+    pub seed: u64,
+    /// A tracking session to run beside the build (its `initial_pose` is replaced by the
+    /// simulator's first true pose, so estimates and truth share a frame); `None`: none.
+    pub tracking: Option<TrackingConfig>,
 }
 
 impl HouseMapConfig {
@@ -67,6 +79,9 @@ impl HouseMapConfig {
             insert_fraction: None,
             explorer: ExplorerConfig::default(),
             progress_every: 0,
+            noise: NoiseConfig::default(),
+            seed: 0,
+            tracking: None,
         }
     }
 
@@ -119,6 +134,12 @@ pub struct HouseMap {
     pub mapping_seconds: f64,
     /// The settings it was built with (insertion density applied).
     pub mapping: MappingConfig,
+    /// The tracking session after the last frame ([`HouseMapConfig::tracking`]).
+    pub tracking: Option<TrackingSession>,
+    /// The scene and simulator settings of the build, for simulators of the same house.
+    pub scene: SceneSpec,
+    /// The simulator settings of the build.
+    pub sim_config: SimConfig,
 }
 
 impl HouseMap {
@@ -132,10 +153,13 @@ impl HouseMap {
                 insert.target_samples
             ),
         };
+        let tracked = match &self.tracking {
+            Some(_) => "; a tracking session tracked every frame beside it",
+            None => " (no SLAM tracking: the benchmark times the planning, not localisation)",
+        };
         format!(
-            "house:{} at {res}×{res}: FBE exploration with the simulator's TRUE poses (no SLAM \
-             tracking: the benchmark times the planning, not localisation), {} frames, {} keyframes, {} Gaussians, {density}; \
-             built in {:.1} s ({:.1} s mapping){}",
+            "house:{} at {res}×{res}: FBE exploration with the simulator's TRUE poses{tracked}, \
+             {} frames, {} keyframes, {} Gaussians, {density}; built in {:.1} s ({:.1} s mapping){}",
             config.house,
             self.frames,
             self.keyframes,
@@ -172,12 +196,22 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
     let started = Instant::now();
     let mapping = config.effective_mapping()?;
     let scene = format!("house:{}", config.house);
-    let mut sim = SceneSpec::new(scene.clone())
-        .simulator(SimConfig::with_resolution(
-            config.resolution,
-            config.resolution,
-        ))
+    let spec = SceneSpec::new(scene.clone());
+    let mut sim_config = SimConfig::with_resolution(config.resolution, config.resolution);
+    sim_config.noise = config.noise;
+    sim_config.seed = config.seed;
+    let mut sim = spec
+        .simulator(sim_config.clone())
         .with_context(|| format!("house map: scene {scene}"))?;
+    let mut tracking = match &config.tracking {
+        Some(t) => Some(TrackingSession::new(TrackingConfig {
+            initial_pose: sim.true_pose(),
+            ..t.clone()
+        })?),
+        None => None,
+    };
+    let robot = sim_config.robot;
+    let mut snapshot = Arc::new(Gaussians::new());
     let k = sim.config().intrinsics;
     let start = sim.true_planar_pose();
     // The occupancy operator's initial extent, ±2 m around the start.
@@ -198,9 +232,19 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         frames += 1;
         let decision = explorer.step(&rgbd.depth, &k, &pose)?;
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, step as f64 * 0.1)?;
+        if let Some(session) = &mut tracking {
+            session.add_frame(step as u64, frame.clone());
+            if step > 0 {
+                session.add_map(step as u64 - 1, snapshot.clone());
+            }
+            session.process_ready()?;
+        }
         let t = Instant::now();
         let report = mapper.process(None, frame, &pose, PoseQuality::Ok)?;
         mapping_seconds += t.elapsed().as_secs_f64();
+        if report.is_some() && tracking.is_some() {
+            snapshot = Arc::new(mapper.map().clone());
+        }
         if report.is_some() {
             keyframe_poses.push((step as u64, pose));
             let (means, opacities) = map_points(mapper.map());
@@ -231,6 +275,12 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         if step + 1 == config.max_steps {
             break;
         }
+        if let Some(session) = &mut tracking {
+            session.add_motion(
+                step as u64,
+                MotionPrior::Relative(robot.camera_motion(action)),
+            );
+        }
         sim.step(match action {
             Action::Forward => SimAction::Forward,
             Action::TurnLeft => SimAction::TurnLeft,
@@ -256,5 +306,8 @@ pub fn build(config: &HouseMapConfig) -> anyhow::Result<HouseMap> {
         build_seconds: started.elapsed().as_secs_f64(),
         mapping_seconds,
         mapping,
+        tracking,
+        scene: spec,
+        sim_config,
     })
 }

@@ -19,6 +19,7 @@
 //!   PSNR at poses in the free space);
 //! - [`stats`], [`scatter`]: medians, quantiles and Spearman ρ; the PNG scatter plot.
 
+pub mod clocal_error;
 pub mod eig_psnr;
 pub mod house_episode;
 pub mod house_map;
