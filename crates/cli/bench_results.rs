@@ -1004,17 +1004,17 @@ mod tests {
 
     /// `--suite` runs through the same grid runner: both methods run the suite's whole budget
     /// with the suite's settings, and the tables carry the paired comparison. In this
-    /// two-room house FBE alone ends its episode when no frontier is left (at step 336 with
+    /// one-room house FBE alone ends its episode when no frontier is left (at step 222 with
     /// seed 0 at 64×64, `when_no_frontier: end`); under the suite it refines instead and runs
-    /// all 360 steps. Grid options beside `--suite` are refused.
+    /// all 240 steps. Grid options beside `--suite` are refused.
     #[test]
     fn a_suite_runs_every_method_for_the_whole_budget() {
         let tmp = tempfile::tempdir().unwrap();
         let suite = tmp.path().join("tiny.yaml");
         std::fs::write(
             &suite,
-            "methods: [fbe, fisher]\nscenes: [house:3]\nhouses: { max_rooms: 2, max_area: 30 }\n\
-             seeds: [0]\nsteps: 360\ncamera: { resolution: 64 }\neval_views: 4\n",
+            "methods: [fbe, fisher]\nscenes: [house:3]\nhouses: { max_rooms: 1, max_area: 12 }\n\
+             seeds: [0]\nsteps: 240\ncamera: { resolution: 64 }\neval_views: 4\n",
         )
         .unwrap();
         let out = tmp.path().join("out");
@@ -1039,7 +1039,7 @@ mod tests {
                 serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap())
                     .unwrap();
             assert_eq!(
-                summary["episode"], "Finished at step 360: max_steps reached",
+                summary["episode"], "Finished at step 240: max_steps reached",
                 "{method}: {summary}"
             );
             let flow = std::fs::read_to_string(dir.join(CELL_FLOW)).unwrap();
