@@ -271,6 +271,7 @@ fn view_information_impl<'py, T: Element + Real>(
         intrinsics: intrinsics(k),
         far_m: far,
         depth_weight,
+        localisation: Default::default(),
     };
     let n = map.len();
     let view = py

@@ -143,6 +143,7 @@ fn fixture() -> Value {
         intrinsics: intrinsics(),
         far_m: defaults.far_m,
         depth_weight: defaults.depth_weight,
+        localisation: defaults.localisation,
     };
     let view: ViewInformation = information::view_information(
         &ScoringScene::new(map.clone()),

@@ -68,6 +68,20 @@ pub enum RefineCluster {
     Best,
 }
 
+/// Which pose information the localisation cost `C_local = −log det` is taken of (SPEC §5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LocalisationInformation {
+    /// The paper: the photometric and depth Jacobians of the map's render for the pose.
+    #[default]
+    Paper,
+    /// The dense depth alignment's: point-to-plane Jacobians of the map's rendered depth,
+    /// weighted by the sensor's depth noise at each range
+    /// ([`crate::information::depth_pose_information`]); what `activemap bench clocal-error`
+    /// found to predict the tracker's error under the realistic sensor.
+    Depth,
+}
+
 /// The whole Fisher scorer configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -137,6 +151,8 @@ pub struct FisherConfig {
     /// A 6×6 pose information whose smallest eigenvalue is at most this fraction of its
     /// largest counts as degenerate (C_local = +∞).
     pub degenerate_ratio: f64,
+    /// Which pose information `C_local` is taken of: `paper` (default) or `depth`.
+    pub localisation: LocalisationInformation,
     /// Unknown-space Gaussians per frontier cell (200).
     pub unknown_per_cell: usize,
     /// Height band of the unknown-space Gaussians above the floor, as offsets from the camera
@@ -188,6 +204,7 @@ impl Default for FisherConfig {
             end_weight: 0.0,
             low_opacity_weight: 0.0,
             degenerate_ratio: 1e-9,
+            localisation: LocalisationInformation::Paper,
             unknown_per_cell: 200,
             unknown_band_below_camera_m: 1.0,
             unknown_max_scale_fraction: 0.05,

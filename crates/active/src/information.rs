@@ -10,10 +10,13 @@
 //! the far plane, which the render would cull too.
 
 use activemap_geometry::{Intrinsics, Isometry3, Point3};
-use activemap_splat::{Camera, FisherMode, Gaussians, Real, RenderOptions, fisher_sparse, render};
+use activemap_splat::{
+    Camera, FLAG_UNKNOWN_SPACE, FisherMode, Gaussians, Real, RenderOptions, fisher_sparse, render,
+};
 use nalgebra::{Matrix6, SymmetricEigen};
 
 use crate::ActiveError;
+use crate::config::LocalisationInformation;
 
 /// Parameters per Gaussian in a diagonal (SPEC §3: 14).
 pub const PARAMS: usize = 14;
@@ -31,6 +34,8 @@ pub struct ViewSettings {
     pub far_m: f64,
     /// Weight of depth against the colour channels.
     pub depth_weight: f64,
+    /// Which pose information a view with [`ViewParts::DiagonalAndPose`] carries.
+    pub localisation: LocalisationInformation,
 }
 
 impl ViewSettings {
@@ -42,6 +47,7 @@ impl ViewSettings {
             intrinsics: camera.scaled(width, height),
             far_m,
             depth_weight,
+            localisation: LocalisationInformation::Paper,
         }
     }
 }
@@ -333,9 +339,44 @@ pub fn view_information<T: Real>(
         .iter()
         .filter(|o| o.to_f64() < LOW_OPACITY)
         .count() as u32;
+    let pose = match (with_pose, settings.localisation) {
+        (false, _) => None,
+        (true, LocalisationInformation::Paper) => {
+            info.pose(settings.depth_weight).map(|p| p * scale)
+        }
+        (true, LocalisationInformation::Depth) => {
+            // The map's own surfaces only: unknown-space Gaussians are no geometry to align to.
+            let surfaces = render(
+                &part,
+                &camera,
+                &RenderOptions {
+                    exclude_flags: FLAG_UNKNOWN_SPACE,
+                    ..RenderOptions::default()
+                },
+            )?;
+            let depth: Vec<f32> = surfaces
+                .depth
+                .iter()
+                .zip(&surfaces.opacity)
+                .map(|(d, o)| {
+                    let o = o.to_f64();
+                    if o >= LOW_OPACITY {
+                        (d.to_f64() / o) as f32
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            Some(depth_pose_information(
+                &depth,
+                &settings.intrinsics,
+                &DepthNoiseModel::default(),
+            ))
+        }
+    };
     Ok(ViewInformation {
         diagonal,
-        pose: info.pose(settings.depth_weight).map(|p| p * scale),
+        pose,
         low_opacity_pixels,
     })
 }
@@ -387,10 +428,221 @@ pub fn localisation_cost(pose: &Matrix6<f64>, degenerate_ratio: f64) -> f64 {
     if cost.is_nan() { f64::INFINITY } else { cost }
 }
 
+/// The depth noise model the [`depth_pose_information`] weights by: σ(z) = σ0 + c2·z² metres
+/// (`activemap_sim::noise`'s realistic preset, a RealSense D435: σ0 = 1 mm, c2 = 0.0036 m⁻¹).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthNoiseModel {
+    /// σ0, metres.
+    pub sigma_0: f64,
+    /// c2, per metre.
+    pub sigma_z2: f64,
+}
+
+impl Default for DepthNoiseModel {
+    fn default() -> Self {
+        Self {
+            sigma_0: 0.001,
+            sigma_z2: 0.0036,
+        }
+    }
+}
+
+/// The point-to-plane information `(1/P)·Σ_px J Jᵀ / σ(z)²` of a depth image for the camera
+/// pose: what a dense depth alignment (the tracker's ICP term) can tell about the six pose
+/// directions at this view. Each pixel with a finite positive depth whose four neighbours have
+/// one too gives a camera-frame point `p` and a normal `n` (the cross product of the central
+/// differences, turned toward the camera); its residual `n·(δT·p − q)` has the Jacobian
+/// `J = [n, p × n]` for a small camera motion `δT = Exp([ρ, θ])` (translation first, as the
+/// tracker's τ), weighted by the inverse depth noise variance at that range. A flat wall
+/// leaves the two in-plane translations and the rotation about its normal unconstrained
+/// (those eigenvalues are 0), a corner constrains all six.
+pub fn depth_pose_information(
+    depth: &[f32],
+    intrinsics: &Intrinsics,
+    noise: &DepthNoiseModel,
+) -> Matrix6<f64> {
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    let mut info = Matrix6::zeros();
+    if depth.len() != w * h || w < 3 || h < 3 {
+        return info;
+    }
+    let point = |x: usize, y: usize| -> Option<Point3<f64>> {
+        let d = depth[y * w + x];
+        (d.is_finite() && d > 0.0).then(|| intrinsics.unproject(x as f64, y as f64, d as f64))
+    };
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let (Some(p), Some(l), Some(r), Some(u), Some(d)) = (
+                point(x, y),
+                point(x - 1, y),
+                point(x + 1, y),
+                point(x, y - 1),
+                point(x, y + 1),
+            ) else {
+                continue;
+            };
+            let mut n = (r - l).cross(&(d - u));
+            let norm = n.norm();
+            if norm.is_nan() || norm <= 0.0 {
+                continue;
+            }
+            n /= norm;
+            if n.dot(&p.coords) > 0.0 {
+                n = -n;
+            }
+            let sigma = noise.sigma_0 + noise.sigma_z2 * p.z * p.z;
+            let weight = 1.0 / (sigma * sigma);
+            let rotation = p.coords.cross(&n);
+            let j = nalgebra::Vector6::new(n.x, n.y, n.z, rotation.x, rotation.y, rotation.z);
+            info += j * j.transpose() * weight;
+        }
+    }
+    info / (w * h) as f64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The depth pose information against the analytic truth: a wall facing the camera
+    /// constrains only the translation along its normal and the two tilts (the in-plane
+    /// translations and the roll about the normal have no information), a corner of three
+    /// walls constrains all six directions, and the same wall farther away (noisier depth,
+    /// smaller lever arms per pixel) carries less.
+    #[test]
+    fn depth_pose_information_sees_what_a_wall_and_a_corner_constrain() {
+        let k = Intrinsics::from_hfov(32, 32, std::f64::consts::FRAC_PI_2);
+        let noise = DepthNoiseModel::default();
+        let eigen = |m: &Matrix6<f64>| {
+            let mut v: Vec<f64> = SymmetricEigen::new(*m)
+                .eigenvalues
+                .iter()
+                .copied()
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v
+        };
+        let wall = depth_pose_information(&[2.0; 32 * 32], &k, &noise);
+        for (i, j) in [(0, 0), (1, 1), (5, 5), (0, 1), (0, 5), (1, 5)] {
+            assert!(
+                wall[(i, j)].abs() < 1e-9 * wall[(2, 2)],
+                "({i},{j}): {wall}"
+            );
+        }
+        let values = eigen(&wall);
+        assert!(
+            values[2] < 1e-9 * values[5] && values[3] > 1e-3 * values[5],
+            "{values:?}"
+        );
+        // A corner: the walls x = 1 and y = 1 and the back wall z = 3 (camera frame).
+        let mut depth = vec![0f32; 32 * 32];
+        for y in 0..32 {
+            for x in 0..32 {
+                let ray = k.unproject(x as f64, y as f64, 1.0);
+                let mut t = 3.0f64;
+                if ray.x > 0.0 {
+                    t = t.min(1.0 / ray.x);
+                }
+                if ray.y > 0.0 {
+                    t = t.min(1.0 / ray.y);
+                }
+                depth[y * 32 + x] = t as f32;
+            }
+        }
+        let corner = eigen(&depth_pose_information(&depth, &k, &noise));
+        assert!(corner[0] > 1e-3 * corner[5], "{corner:?}");
+        let far = depth_pose_information(&[4.0; 32 * 32], &k, &noise);
+        assert!(
+            far[(2, 2)] < wall[(2, 2)] / 4.0,
+            "{} against {}",
+            far[(2, 2)],
+            wall[(2, 2)]
+        );
+        // No depth, no information; a size mismatch is no information either.
+        assert_eq!(
+            depth_pose_information(&[0.0; 32 * 32], &k, &noise),
+            Matrix6::zeros()
+        );
+        assert_eq!(
+            depth_pose_information(&[2.0; 10], &k, &noise),
+            Matrix6::zeros()
+        );
+    }
     use nalgebra::{UnitQuaternion, Vector3};
+
+    /// `localisation: depth`: a view of a textured wall carries the paper's pose information
+    /// in every direction (the colours constrain the slides along the wall), while the depth
+    /// alignment's has (nearly) nothing along the wall's plane; it is taken of the map's own
+    /// surfaces, so an unknown-space cloud in front of the wall changes it not at all.
+    #[test]
+    fn the_depth_localisation_information_sees_a_wall_as_a_wall() {
+        let mut map = Gaussians::<f64>::new();
+        for j in 0..60 {
+            for h in 0..40 {
+                let shade = if (j / 4 + h / 4) % 2 == 0 { 0.9 } else { 0.1 };
+                map.push(
+                    [2.0, -1.5 + 0.05 * j as f64, 0.05 + 0.05 * h as f64],
+                    [shade, shade, shade],
+                    [1.0, 0.0, 0.0, 0.0],
+                    0.98,
+                    [0.01, 0.04, 0.04],
+                );
+            }
+        }
+        let k = Intrinsics::from_hfov(32, 24, 70f64.to_radians());
+        let robot = activemap_geometry::RobotModel::default();
+        let pose = robot.camera_pose(&activemap_geometry::PlanarPose::new(0.0, 0.0, 0.0), 0.0);
+        let settings = |localisation| ViewSettings {
+            intrinsics: k,
+            far_m: 6.0,
+            depth_weight: 0.5,
+            localisation,
+        };
+        let sorted = |m: Matrix6<f64>| {
+            let mut v: Vec<f64> = SymmetricEigen::new(m).eigenvalues.iter().copied().collect();
+            v.sort_by(f64::total_cmp);
+            v
+        };
+        let info = |map: &Gaussians<f64>, localisation| {
+            view_information(
+                &ScoringScene::new(map.clone()),
+                &pose,
+                &settings(localisation),
+                ViewParts::DiagonalAndPose,
+            )
+            .unwrap()
+        };
+        let paper = sorted(info(&map, LocalisationInformation::Paper).pose.unwrap());
+        let depth_view = info(&map, LocalisationInformation::Depth);
+        let depth = sorted(depth_view.pose.unwrap());
+        assert!(paper[0] > 1e-6 * paper[5], "paper: {paper:?}");
+        assert!(depth[2] < 1e-3 * depth[5], "depth: {depth:?}");
+        assert!(depth[3] > 1e-3 * depth[5], "depth: {depth:?}");
+        let cost = localisation_cost(&depth_view.pose.unwrap(), 1e-9);
+        assert!(
+            cost > localisation_cost(
+                &info(&map, LocalisationInformation::Paper).pose.unwrap(),
+                1e-9
+            )
+        );
+        // An unknown-space cloud between the camera and the wall.
+        let mut with_cloud = map.clone();
+        for j in 0..20 {
+            with_cloud.push(
+                [1.0, -0.5 + 0.05 * j as f64, 0.9],
+                [0.5; 3],
+                [1.0, 0.0, 0.0, 0.0],
+                0.6,
+                [0.05; 3],
+            );
+            let last = with_cloud.len() - 1;
+            with_cloud.flags[last] = activemap_splat::FLAG_UNKNOWN_SPACE;
+        }
+        assert_eq!(
+            info(&with_cloud, LocalisationInformation::Depth).pose,
+            depth_view.pose
+        );
+    }
 
     /// The pre-cull keeps what the render sees: over a house-sized spread of Gaussians and
     /// several poses, every Gaussian the full render shows passes the cull, and the Fisher
@@ -437,6 +689,7 @@ mod tests {
             intrinsics: k,
             far_m: 4.0,
             depth_weight: 0.5,
+            localisation: Default::default(),
         };
         let p = k.pixel_count() as f64;
         for (x, y, yaw) in [(0.1, -0.2, 0.0), (2.0, 1.0, 2.0), (-3.0, 4.0, -1.0)] {

@@ -26,7 +26,9 @@ pub mod report;
 pub mod scorer;
 pub mod unknown;
 
-pub use config::{FisherConfig, ModelFisherSource, PathObjective, RefineCluster};
+pub use config::{
+    FisherConfig, LocalisationInformation, ModelFisherSource, PathObjective, RefineCluster,
+};
 pub use scorer::{FisherScorer, GoalRequest, PoseLocalisation, ReplanInput, ReplanOutcome};
 
 /// Errors of the Fisher scorer: bad input named by what and where.

@@ -232,12 +232,15 @@ impl FisherScorer {
             )));
         }
         Ok(Self {
-            view: ViewSettings::scaled(
-                &camera,
-                config.scoring_width,
-                config.far_m,
-                config.depth_weight,
-            ),
+            view: ViewSettings {
+                localisation: config.localisation,
+                ..ViewSettings::scaled(
+                    &camera,
+                    config.scoring_width,
+                    config.far_m,
+                    config.depth_weight,
+                )
+            },
             model: ModelFisher::new(&config),
             keyframe_model: (config.model_fisher == ModelFisherSource::Both)
                 .then(|| ModelFisher::with_source(&config, ModelFisherSource::Keyframes)),

@@ -97,6 +97,7 @@ fn view_eig_matches_finite_differences() {
         intrinsics: k,
         far_m: 50.0,
         depth_weight: DEPTH_WEIGHT,
+        localisation: Default::default(),
     };
     let view = view_information(
         &ScoringScene::new(map.clone()),
@@ -156,6 +157,7 @@ fn localisation_cost_matches_finite_differences() {
         intrinsics: k,
         far_m: 50.0,
         depth_weight: DEPTH_WEIGHT,
+        localisation: Default::default(),
     };
     let view = view_information(
         &ScoringScene::new(map.clone()),
@@ -185,6 +187,7 @@ fn localisation_cost_is_infinite_for_empty_and_degenerate_views() {
         intrinsics: k,
         far_m: 50.0,
         depth_weight: DEPTH_WEIGHT,
+        localisation: Default::default(),
     };
     let mut map = Gaussians::<f64>::new();
     map.push(

@@ -14,7 +14,9 @@
 //! translation in cm, rotation in degrees): what the frames near the pose cost, not the drift
 //! accumulated before them. At the same (true) pose the scorer's view of the map gives `C_local`
 //! ([`FisherScorer::pose_localisation`]) and the other candidates: the smallest eigenvalue of
-//! the pose information, the Gaussians in view, the uncovered pixels. Spearman ρ of each with
+//! the pose information, the Gaussians in view, the uncovered pixels, and the information a dense
+//! depth alignment gets from the map's rendered depth there
+//! ([`depth_pose_information`]: point-to-plane Jacobians weighted by the sensor's depth noise). Spearman ρ of each with
 //! the error says which one predicts it; a useful cost is positively correlated (high cost,
 //! high error).
 
@@ -22,6 +24,7 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 
 use activemap_active::candidates::sample_free_space_poses;
+use activemap_active::information::{DepthNoiseModel, depth_pose_information};
 use activemap_active::scorer::ScoringMap;
 use activemap_active::{FisherConfig, FisherScorer, GoalRequest, PoseLocalisation, ReplanInput};
 use activemap_geometry::frames::planar_from_camera_pose;
@@ -33,7 +36,9 @@ use activemap_planning::executor::{Decision, ExecutorConfig, PathExecutor};
 use activemap_planning::path::shortest_path_on;
 use activemap_sim::Action as SimAction;
 use activemap_slam::{Frame, MotionPrior};
+use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, RenderOptions, render};
 use anyhow::Context as _;
+use nalgebra::Matrix6;
 use nalgebra::{Point2, Vector2};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -76,7 +81,7 @@ pub struct Sample {
     pub step: usize,
     /// The true planar pose.
     pub pose: PlanarPose,
-    /// The map's localisation terms there.
+    /// The map's localisation terms there (the scorer's view).
     pub localisation: PoseLocalisation,
     /// Translation error of the estimated motion over the window ending here, metres.
     pub error_m: f64,
@@ -84,6 +89,11 @@ pub struct Sample {
     pub error_deg: f64,
     /// Frames of the window the tracker reported lost.
     pub lost: usize,
+    /// log det of the depth alignment's pose information at the pose
+    /// ([`depth_pose_information`] of the map's rendered depth).
+    pub depth_log_det: f64,
+    /// Its smallest eigenvalue.
+    pub depth_smallest_eigenvalue: f64,
 }
 
 /// One candidate predictor of the error and how it ranks with it.
@@ -269,6 +279,8 @@ pub fn run(
                 error_m: metres,
                 error_deg: radians.to_degrees(),
                 lost: d.lost[i + 1 - w..=i].iter().filter(|l| **l).count(),
+                depth_log_det: f64::NAN,
+                depth_smallest_eigenvalue: f64::NAN,
             });
             i += w;
         }
@@ -299,6 +311,38 @@ pub fn run(
     for (s, t) in samples.iter_mut().zip(terms) {
         s.localisation = t;
     }
+    // The depth alignment's information at each pose, from the map's rendered depth (the
+    // composited depth over the opacity where the map covers the pixel).
+    let floor_z = house.pose.translation.z - robot.camera_height_m;
+    let options = RenderOptions {
+        exclude_flags: FLAG_UNKNOWN_SPACE,
+        ..RenderOptions::default()
+    };
+    let noise = DepthNoiseModel::default();
+    let depth_info: Vec<Matrix6<f64>> = samples
+        .par_iter()
+        .map(|s| {
+            let pose = robot.camera_pose(&s.pose, floor_z);
+            let out = render(
+                &house.gaussians,
+                &Camera::from_world_pose(camera, &pose),
+                &options,
+            )?;
+            let depth: Vec<f32> = out
+                .depth
+                .iter()
+                .zip(&out.opacity)
+                .map(|(d, o)| if *o >= 0.5 { d / o } else { 0.0 })
+                .collect();
+            Ok(depth_pose_information(&depth, &camera, &noise))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    for (s, info) in samples.iter_mut().zip(&depth_info) {
+        let symmetric = (info + info.transpose()) * 0.5;
+        let values = nalgebra::SymmetricEigen::new(symmetric).eigenvalues;
+        s.depth_log_det = values.iter().map(|v| v.max(1e-300).ln()).sum();
+        s.depth_smallest_eigenvalue = values.min();
+    }
     let predictor = |name, value: &dyn Fn(&Sample) -> f64| {
         let (x, y): (Vec<f64>, Vec<f64>) = samples
             .iter()
@@ -321,6 +365,10 @@ pub fn run(
         }),
         predictor("low_opacity_pixels", &|s| {
             f64::from(s.localisation.low_opacity_pixels)
+        }),
+        predictor("-log_det_depth_information", &|s| -s.depth_log_det),
+        predictor("-log_smallest_depth_eigenvalue", &|s| {
+            -s.depth_smallest_eigenvalue.ln()
         }),
     ];
     Ok(ClocalError {
@@ -517,7 +565,9 @@ mod tests {
                 "c_local",
                 "-log_smallest_eigenvalue",
                 "-visible_gaussians",
-                "low_opacity_pixels"
+                "low_opacity_pixels",
+                "-log_det_depth_information",
+                "-log_smallest_depth_eigenvalue"
             ]
         );
         let summary = result.summary();
