@@ -170,6 +170,8 @@ pub struct Tracker {
     session: TrackingSession,
     /// Tracking failures and relocalisations so far.
     events: TrackingEvents,
+    /// The input ports closed so far.
+    closed: std::collections::BTreeSet<String>,
 }
 
 /// What the tracker reported of its own failures over an episode: the log's tally.
@@ -194,6 +196,7 @@ impl Tracker {
             session: TrackingSession::new(config.tracking_config()?)?,
             config,
             events: TrackingEvents::default(),
+            closed: Default::default(),
         })
     }
 
@@ -219,6 +222,17 @@ impl Tracker {
     pub fn add_action(&mut self, step: u64, action: ActionKind) {
         let motion = self.config.motion(action);
         self.session.add_motion(step, motion);
+    }
+
+    /// Whether the node is done: no frame will come any more (`rgbd` closed) and every frame
+    /// received has its estimate, or the snapshots or motions a waiting frame needs will not
+    /// come either (`map` or `action` closed). Stopping as soon as `rgbd` closed lost the last
+    /// frame's estimate whenever its map snapshot was still on its way.
+    pub fn done(&self) -> bool {
+        self.closed.contains(inputs::RGBD)
+            && (self.session.pending_frames() == 0
+                || self.closed.contains(inputs::MAP)
+                || self.closed.contains(inputs::ACTION))
     }
 
     /// The tracking failures and relocalisations reported so far.
@@ -348,13 +362,19 @@ impl Operator for Tracker {
                 }
                 other => anyhow::bail!("tracker: unexpected input `{other}`"),
             },
-            Event::InputClosed { port: inputs::RGBD } => return Ok(Flow::Stop),
+            Event::InputClosed { port } => {
+                self.closed.insert(port.to_string());
+            }
             _ => return Ok(Flow::Continue),
         }
         for e in self.process_ready()? {
             ctx.send(outputs::POSE, &e)?;
         }
-        Ok(Flow::Continue)
+        Ok(if self.done() {
+            Flow::Stop
+        } else {
+            Flow::Continue
+        })
     }
 }
 
@@ -447,6 +467,51 @@ mod tests {
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);
+    }
+
+    /// The node stops once no frame will come and every frame received has its estimate: a
+    /// frame still waiting for its map snapshot when `rgbd` closes is tracked when the
+    /// snapshot comes (the last frame's estimate used to be lost in that race), and a frame
+    /// whose snapshot will never come (`map` closed) does not keep the node alive.
+    #[test]
+    fn the_node_stops_only_when_every_received_frame_is_tracked_or_cannot_be() {
+        let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
+        let mut tracker = Tracker::from_config(config).unwrap();
+        let k = activemap_geometry::Intrinsics::from_hfov(16, 16, std::f64::consts::FRAC_PI_2);
+        let frame = |stamp| {
+            let rgb = (0..256)
+                .map(|i| [0.2 + 0.002 * i as f32, 0.5, 0.3])
+                .collect();
+            Frame::new(k, rgb, vec![2.0; 256], stamp).unwrap()
+        };
+        tracker.add_frame(0, frame(0.0));
+        assert_eq!(
+            tracker.process_ready().unwrap().len(),
+            1,
+            "frame 0 needs no map"
+        );
+        tracker.add_frame(1, frame(0.1));
+        tracker.add_action(0, ActionKind::TurnLeft);
+        assert!(
+            tracker.process_ready().unwrap().is_empty(),
+            "frame 1 waits for map 0"
+        );
+        tracker.closed.insert(inputs::RGBD.to_string());
+        assert!(!tracker.done(), "frame 1 is still to be tracked");
+        tracker.set_map(0, Gaussians::new());
+        assert_eq!(tracker.process_ready().unwrap().len(), 1);
+        assert!(tracker.done());
+        // A frame whose snapshot will never come.
+        let mut tracker =
+            Tracker::from_config(serde_json::from_value(serde_json::json!({})).unwrap()).unwrap();
+        tracker.add_frame(0, frame(0.0));
+        tracker.add_frame(1, frame(0.1));
+        tracker.add_action(0, ActionKind::Forward);
+        tracker.process_ready().unwrap();
+        tracker.closed.insert(inputs::RGBD.to_string());
+        assert!(!tracker.done());
+        tracker.closed.insert(inputs::MAP.to_string());
+        assert!(tracker.done());
     }
 
     /// Issue 34: tracking never fails silently. A run of lost frames is logged when it begins

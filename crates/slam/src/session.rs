@@ -365,6 +365,11 @@ impl TrackingSession {
         self.next
     }
 
+    /// Frames received and not tracked yet (waiting for their snapshot or motion).
+    pub fn pending_frames(&self) -> usize {
+        self.frames.range(self.next..).count()
+    }
+
     /// The reference keyframes kept so far.
     pub fn references(&self) -> &References {
         &self.references
