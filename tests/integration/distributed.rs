@@ -890,7 +890,8 @@ fn bench_results_over_tls_daemons_equals_a_local_run_and_survives_a_killed_daemo
             }
         }
     }
-    // The scene file reached each daemon that ran one of its cells, once, by content.
+    // The scene file reached the daemons that ran its cells, each once, by content (which
+    // daemons those are depends on which slot was free first).
     let stored: Vec<usize> = runs
         .iter()
         .map(|r| {
@@ -901,7 +902,7 @@ fn bench_results_over_tls_daemons_equals_a_local_run_and_survives_a_killed_daemo
         })
         .collect();
     assert!(
-        stored[0] == 1 && stored.iter().all(|&n| n <= 1),
+        stored.contains(&1) && stored.iter().all(|&n| n <= 1),
         "{stored:?}"
     );
 

@@ -448,18 +448,26 @@ impl FisherScorer {
         input: &ReplanInput<'_>,
         poses: &[PlanarPose],
     ) -> Result<Vec<f64>, ActiveError> {
-        let mut rng = self.rng(input.frame_id);
-        let prepared = self.prepare(input, &mut rng)?;
-        let views = self.views(
-            &prepared.scoring,
-            poses,
-            prepared.floor_z,
-            ViewParts::Diagonal,
-        )?;
+        let (prepared, views) = self.prepared_views(input, poses, ViewParts::Diagonal)?;
         Ok(views
             .iter()
             .map(|v| eig(v, prepared.prior.as_slice()))
             .collect())
+    }
+
+    /// Stages 1–2 of a replan for `input`, then the views of `poses` (planar, on the floor
+    /// under the estimated camera) with `parts`: what [`Self::pose_eigs`] and
+    /// [`Self::pose_localisation`] evaluate at any poses.
+    fn prepared_views(
+        &mut self,
+        input: &ReplanInput<'_>,
+        poses: &[PlanarPose],
+        parts: ViewParts,
+    ) -> Result<(Prepared, Vec<ViewInformation>), ActiveError> {
+        let mut rng = self.rng(input.frame_id);
+        let prepared = self.prepare(input, &mut rng)?;
+        let views = self.views(&prepared.scoring, poses, prepared.floor_z, parts)?;
+        Ok((prepared, views))
     }
 
     /// What the map says of localisation at each of `poses` (planar, the camera at the robot's
@@ -471,14 +479,7 @@ impl FisherScorer {
         input: &ReplanInput<'_>,
         poses: &[PlanarPose],
     ) -> Result<Vec<PoseLocalisation>, ActiveError> {
-        let mut rng = self.rng(input.frame_id);
-        let prepared = self.prepare(input, &mut rng)?;
-        let views = self.views(
-            &prepared.scoring,
-            poses,
-            prepared.floor_z,
-            ViewParts::DiagonalAndPose,
-        )?;
+        let (_, views) = self.prepared_views(input, poses, ViewParts::DiagonalAndPose)?;
         let ratio = self.config.degenerate_ratio;
         Ok(views
             .iter()

@@ -25,8 +25,7 @@ use std::sync::Arc;
 
 use activemap_active::candidates::sample_free_space_poses;
 use activemap_active::information::{DepthNoiseModel, depth_pose_information};
-use activemap_active::scorer::ScoringMap;
-use activemap_active::{FisherConfig, FisherScorer, GoalRequest, PoseLocalisation, ReplanInput};
+use activemap_active::{FisherConfig, FisherScorer, GoalRequest, PoseLocalisation};
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::se3::pose_error;
 use activemap_geometry::{Isometry3, PlanarPose};
@@ -290,18 +289,8 @@ pub fn run(
         "bench clocal-error: the paths are shorter than one window of {} frames",
         config.window
     );
-    let map = ScoringMap {
-        gaussians: house.gaussians.clone(),
-        ids: house.ids.clone(),
-        frame_id: house.frame_id,
-    };
-    let input = ReplanInput {
-        frame_id: house.frame_id,
-        grid,
-        pose: house.pose,
-        map: &map,
-        goal: GoalRequest::Refine,
-    };
+    let map = house.scoring_map();
+    let input = house.replan_input(&map, GoalRequest::Refine);
     let camera = house.sim_config.intrinsics;
     let mut scorer =
         FisherScorer::new(fisher.clone(), robot, camera).context("bench clocal-error")?;

@@ -13,8 +13,7 @@
 use std::fmt::Write as _;
 
 use activemap_active::candidates::sample_free_space_poses;
-use activemap_active::scorer::ScoringMap;
-use activemap_active::{FisherConfig, FisherScorer, GoalRequest, ReplanInput};
+use activemap_active::{FisherConfig, FisherScorer, GoalRequest};
 use activemap_eval::ImageView;
 use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_planning::clearance::{ClearanceConfig, ClearanceMap};
@@ -77,18 +76,8 @@ pub fn run(
         !planar.is_empty(),
         "bench eig-psnr: the house grid has no clear free cell to sample poses in"
     );
-    let map = ScoringMap {
-        gaussians: house.gaussians.clone(),
-        ids: house.ids.clone(),
-        frame_id: house.frame_id,
-    };
-    let input = ReplanInput {
-        frame_id: house.frame_id,
-        grid,
-        pose: house.pose,
-        map: &map,
-        goal: GoalRequest::Refine,
-    };
+    let map = house.scoring_map();
+    let input = house.replan_input(&map, GoalRequest::Refine);
     let mut scorer = FisherScorer::new(fisher.clone(), robot, camera).context("bench eig-psnr")?;
     let eigs = scorer
         .pose_eigs(&input, &planar)

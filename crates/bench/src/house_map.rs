@@ -23,6 +23,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use activemap_active::scorer::ScoringMap;
+use activemap_active::{GoalRequest, ReplanInput};
 use activemap_geometry::Isometry3;
 use activemap_planning::OccupancyGrid;
 use activemap_planning::dynamics::Action;
@@ -143,6 +145,27 @@ pub struct HouseMap {
 }
 
 impl HouseMap {
+    /// The map as the scorer takes it (the Gaussians with their ids, at the last frame).
+    pub fn scoring_map(&self) -> ScoringMap {
+        ScoringMap {
+            gaussians: self.gaussians.clone(),
+            ids: self.ids.clone(),
+            frame_id: self.frame_id,
+        }
+    }
+
+    /// A replan of the last frame on this house's grid and pose, with `map` (from
+    /// [`Self::scoring_map`]) and `goal`.
+    pub fn replan_input<'a>(&'a self, map: &'a ScoringMap, goal: GoalRequest) -> ReplanInput<'a> {
+        ReplanInput {
+            frame_id: self.frame_id,
+            grid: &self.grid,
+            pose: self.pose,
+            map,
+            goal,
+        }
+    }
+
     /// One line saying how the map was built (for the benchmarks' headers).
     pub fn describe(&self, config: &HouseMapConfig) -> String {
         let insert = &self.mapping.mapper.insert;

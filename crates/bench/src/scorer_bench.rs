@@ -192,18 +192,8 @@ pub fn model_tau(
     top: &[PlanarPose],
     pairs: usize,
 ) -> anyhow::Result<Vec<f64>> {
-    let map = ScoringMap {
-        gaussians: house.gaussians.clone(),
-        ids: house.ids.clone(),
-        frame_id: house.frame_id,
-    };
-    let input = ReplanInput {
-        frame_id: house.frame_id,
-        grid: &house.grid,
-        pose: house.pose,
-        map: &map,
-        goal,
-    };
+    let map = house.scoring_map();
+    let input = house.replan_input(&map, goal);
     let mut taus = Vec::with_capacity(pairs);
     for p in 0..pairs as u64 {
         let eigs = |model_seed: u64| -> anyhow::Result<Vec<f64>> {
