@@ -465,7 +465,7 @@ impl Operator for Evaluator {
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);
                     self.reports.push(FrameReport {
-                        stamp: e.stamp,
+                        skipped: e.status == activemap_schemas::TrackingStatus::Skipped,
                         lost: e
                             .lost_reason
                             .map(|r| r.key())

@@ -11,7 +11,8 @@
 
 use activemap_geometry::{Intrinsics, Isometry3, Point3};
 use activemap_splat::{
-    Camera, FLAG_UNKNOWN_SPACE, FisherMode, Gaussians, Real, RenderOptions, fisher_sparse, render,
+    Camera, FLAG_UNKNOWN_SPACE, FisherMode, Gaussians, Real, Render, RenderOptions, fisher_sparse,
+    render,
 };
 use nalgebra::{Matrix6, SymmetricEigen};
 
@@ -354,21 +355,8 @@ pub fn view_information<T: Real>(
                     ..RenderOptions::default()
                 },
             )?;
-            let depth: Vec<f32> = surfaces
-                .depth
-                .iter()
-                .zip(&surfaces.opacity)
-                .map(|(d, o)| {
-                    let o = o.to_f64();
-                    if o >= LOW_OPACITY {
-                        (d.to_f64() / o) as f32
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
             Some(depth_pose_information(
-                &depth,
+                &surface_depth(&surfaces),
                 &settings.intrinsics,
                 &DepthNoiseModel::default(),
             ))
@@ -445,6 +433,25 @@ impl Default for DepthNoiseModel {
             sigma_z2: 0.0036,
         }
     }
+}
+
+/// The depth of the surfaces a render shows: the composited depth over the rendered opacity
+/// where the opacity reaches [`LOW_OPACITY`], 0 (no reading) elsewhere; the input of
+/// [`depth_pose_information`].
+pub fn surface_depth<T: Real>(render: &Render<T>) -> Vec<f32> {
+    render
+        .depth
+        .iter()
+        .zip(&render.opacity)
+        .map(|(d, o)| {
+            let o = o.to_f64();
+            if o >= LOW_OPACITY {
+                (d.to_f64() / o) as f32
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 /// The point-to-plane information `(1/P)·Σ_px J Jᵀ / σ(z)²` of a depth image for the camera

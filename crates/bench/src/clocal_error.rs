@@ -24,7 +24,7 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 
 use activemap_active::candidates::sample_free_space_poses;
-use activemap_active::information::{DepthNoiseModel, depth_pose_information};
+use activemap_active::information::{DepthNoiseModel, depth_pose_information, surface_depth};
 use activemap_active::{FisherConfig, FisherScorer, GoalRequest, PoseLocalisation};
 use activemap_geometry::frames::planar_from_camera_pose;
 use activemap_geometry::se3::pose_error;
@@ -45,7 +45,7 @@ use rayon::prelude::*;
 
 use crate::house_map::HouseMap;
 use crate::scatter::{self, Scatter};
-use crate::stats::{quantile, spearman};
+use crate::stats::{quantile, quantile_table, quartiles_by, spearman};
 
 /// How the benchmark samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -317,13 +317,11 @@ pub fn run(
                 &Camera::from_world_pose(camera, &pose),
                 &options,
             )?;
-            let depth: Vec<f32> = out
-                .depth
-                .iter()
-                .zip(&out.opacity)
-                .map(|(d, o)| if *o >= 0.5 { d / o } else { 0.0 })
-                .collect();
-            Ok(depth_pose_information(&depth, &camera, &noise))
+            Ok(depth_pose_information(
+                &surface_depth(&out),
+                &camera,
+                &noise,
+            ))
         })
         .collect::<anyhow::Result<_>>()?;
     for (s, info) in samples.iter_mut().zip(&depth_info) {
@@ -406,34 +404,21 @@ impl ClocalError {
             self.gaussians,
             self.samples.len() - finite.len()
         );
-        let qs = [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0];
-        let _ = write!(s, "{:<14}", "quantile");
-        for q in qs {
-            let _ = write!(s, " {:>10}", format!("q{:.0}", q * 100.0));
-        }
-        s.push('\n');
-        for (name, values) in [
-            ("error_cm", &error_cm),
-            ("error_deg", &error_deg),
-            ("c_local", &c_local),
-        ] {
-            let _ = write!(s, "{name:<14}");
-            for q in qs {
-                let v = quantile(values, q).unwrap_or(f64::NAN);
-                let _ = write!(s, " {:>10}", format!("{v:.3}"));
-            }
-            s.push('\n');
-        }
-        let mut order: Vec<usize> = (0..finite.len()).collect();
-        order.sort_by(|&a, &b| c_local[a].total_cmp(&c_local[b]));
+        s.push_str(&quantile_table(
+            &[
+                ("error_cm", &error_cm),
+                ("error_deg", &error_deg),
+                ("c_local", &c_local),
+            ],
+            14,
+            3,
+        ));
         let _ = writeln!(
             s,
             "{:<18} {:>5} {:>12} {:>14} {:>12}",
             "c_local_quartile", "poses", "c_local_med", "error_cm_med", "error_cm_q90"
         );
-        let n = order.len();
-        for k in 0..4 {
-            let part = &order[k * n / 4..(k + 1) * n / 4];
+        for (k, part) in quartiles_by(&c_local).iter().enumerate() {
             let c: Vec<f64> = part.iter().map(|&i| c_local[i]).collect();
             let e: Vec<f64> = part.iter().map(|&i| 100.0 * finite[i].error_m).collect();
             let _ = writeln!(

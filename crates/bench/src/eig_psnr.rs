@@ -26,7 +26,7 @@ use rayon::prelude::*;
 
 use crate::house_map::HouseMap;
 use crate::scatter::{self, Scatter};
-use crate::stats::{quantile, spearman};
+use crate::stats::{quantile, quantile_table, quartiles_by, spearman};
 
 /// One sampled pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -164,31 +164,14 @@ impl EigPsnr {
             self.render_size.0,
             self.render_size.1
         );
-        let qs = [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0];
-        let _ = write!(s, "{:<10}", "quantile");
-        for q in qs {
-            let _ = write!(s, " {:>10}", format!("q{:.0}", q * 100.0));
-        }
-        s.push('\n');
-        for (name, values) in [("eig", &eig), ("psnr_db", &psnr)] {
-            let _ = write!(s, "{name:<10}");
-            for q in qs {
-                let v = quantile(values, q).unwrap_or(f64::NAN);
-                let _ = write!(s, " {:>10}", format!("{v:.4}"));
-            }
-            s.push('\n');
-        }
+        s.push_str(&quantile_table(&[("eig", &eig), ("psnr_db", &psnr)], 10, 4));
         // PSNR per EIG quartile (by rank, so each holds a quarter of the poses).
-        let mut order: Vec<usize> = (0..eig.len()).collect();
-        order.sort_by(|&a, &b| eig[a].total_cmp(&eig[b]));
         let _ = writeln!(
             s,
             "{:<18} {:>5} {:>12} {:>12} {:>12}",
             "eig_quartile", "poses", "eig_median", "psnr_median", "psnr_mean"
         );
-        let n = order.len();
-        for k in 0..4 {
-            let part = &order[k * n / 4..(k + 1) * n / 4];
+        for (k, part) in quartiles_by(&eig).iter().enumerate() {
             let e: Vec<f64> = part.iter().map(|&i| eig[i]).collect();
             let p: Vec<f64> = part.iter().map(|&i| psnr[i]).collect();
             let mean = if p.is_empty() {

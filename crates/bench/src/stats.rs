@@ -21,6 +21,38 @@ pub fn quantile(values: &[f64], q: f64) -> Option<f64> {
     })
 }
 
+/// The quantiles the benchmarks' tables print: min, 10 %, quartiles, 90 %, max.
+pub const TABLE_QUANTILES: [f64; 7] = [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0];
+
+/// A table of [`TABLE_QUANTILES`] of each named row of values: a header `quantile q0 q10 …`,
+/// then one line per row, the name left in `label_width` columns and each quantile with
+/// `decimals` decimals (NaN for an empty row).
+pub fn quantile_table(rows: &[(&str, &[f64])], label_width: usize, decimals: usize) -> String {
+    let mut s = format!("{:<label_width$}", "quantile");
+    for q in TABLE_QUANTILES {
+        s.push_str(&format!(" {:>10}", format!("q{:.0}", q * 100.0)));
+    }
+    s.push('\n');
+    for (name, values) in rows {
+        s.push_str(&format!("{name:<label_width$}"));
+        for q in TABLE_QUANTILES {
+            let v = quantile(values, q).unwrap_or(f64::NAN);
+            s.push_str(&format!(" {:>10}", format!("{v:.decimals$}")));
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// The indices of `key` in four groups by rank (lowest quarter first), each about a quarter of
+/// them: the quartile rows of the benchmarks' tables.
+pub fn quartiles_by(key: &[f64]) -> [Vec<usize>; 4] {
+    let mut order: Vec<usize> = (0..key.len()).collect();
+    order.sort_by(|&a, &b| key[a].total_cmp(&key[b]));
+    let n = order.len();
+    std::array::from_fn(|k| order[k * n / 4..(k + 1) * n / 4].to_vec())
+}
+
 /// The median of `values` (the mean of the middle two for an even count); `None` when empty.
 pub fn median(values: &[f64]) -> Option<f64> {
     quantile(values, 0.5)

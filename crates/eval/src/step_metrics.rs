@@ -111,8 +111,8 @@ pub const JUMP_LIMIT_M: f64 = 0.05;
 /// What the tracker said of one frame, for [`tracking_summary`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameReport {
-    /// The estimate's stamp (the same as its true pose's).
-    pub stamp: f64,
+    /// The frame was skipped (unusable): it neither starts nor ends a run of lost frames.
+    pub skipped: bool,
     /// Why the frame was reported lost (`None`: it was not).
     pub lost: Option<&'static str>,
     /// The estimate took a solution the motion check had rejected before.
@@ -147,6 +147,7 @@ pub fn tracking_summary(
                 }
                 in_run = true;
             }
+            None if r.skipped => {}
             None => in_run = false,
         }
         out.relocalisations += u64::from(r.relocalised);
@@ -318,7 +319,7 @@ mod tests {
             let off = Isometry3::translation(e, 0.0, 0.0) * true_pose;
             estimated.push(k as f64, anchor.inverse() * off);
             reports.push(FrameReport {
-                stamp: k as f64,
+                skipped: false,
                 lost: (k == 3).then_some("motion_mismatch"),
                 relocalised: k == 6,
                 loop_closure: false,
