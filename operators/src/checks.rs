@@ -20,6 +20,10 @@
 //!   floor, the ground-truth renders), so its scene keys (`scene`, `max_rooms`, `max_area`,
 //!   `up_axis`, `transform`, `floor`) must equal the `sim` node's: `--set sim.scene=house:3`
 //!   alone would have the evaluator judge house 3's episode against house 7.
+//! - **Depth model.** The mapper fits its map under one depth model (`tuning.depth_model`,
+//!   `activemap_splat::DepthModel`); the tracker's renders and the evaluator's must use the
+//!   same (`depth_model`; a node that leaves it out has the default), else the tracker
+//!   compares frames with depths the map was not fitted to and the evaluator misjudges it.
 //! - **LLM planner.** A planner with policy `llm` draws its BEV from the mapper's lagged map
 //!   snapshot: its `map_lag` is checked like the tracker's, and it must read the map with
 //!   `drop: block`.
@@ -162,6 +166,34 @@ fn robot(node: &NodeSpec) -> Option<RobotModel> {
     }
 }
 
+/// The depth model a tracker, mapper or evaluator node renders the map with (`None` for any
+/// other node, or a config its own check refuses).
+fn depth_model(node: &NodeSpec) -> Option<activemap_splat::DepthModel> {
+    let NodeImpl::Operator(op) = &node.implementation else {
+        return None;
+    };
+    let set = match op.as_str() {
+        "tracker" => {
+            config_from_value::<crate::tracker::Config>(&node.config)
+                .ok()?
+                .depth_model
+        }
+        "mapper" => {
+            config_from_value::<crate::mapper::Config>(&node.config)
+                .ok()?
+                .tuning
+                .depth_model
+        }
+        "evaluator" => {
+            config_from_value::<crate::evaluator::Config>(&node.config)
+                .ok()?
+                .depth_model
+        }
+        _ => return None,
+    };
+    Some(set.unwrap_or_default())
+}
+
 /// Every cross-node problem of a validated flow, one diagnostic each, at the consumer node.
 pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
     let mut diags = Vec::new();
@@ -178,6 +210,25 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
                     loc: node.loc,
                     message: format!(
                         "robot mismatch: node `{}` has robot {r:?} but node `{}` has {reference:?}; every node that takes a `robot` config must describe the same robot (a node without one has the default)",
+                        node.id, first.id
+                    ),
+                });
+            }
+        }
+    }
+    let models: Vec<(&NodeSpec, activemap_splat::DepthModel)> = flow
+        .nodes
+        .iter()
+        .filter_map(|n| depth_model(n).map(|m| (n, m)))
+        .collect();
+    if let Some((first, reference)) = models.first() {
+        for (node, m) in &models[1..] {
+            if m != reference {
+                diags.push(Diagnostic {
+                    file: flow.file.clone(),
+                    loc: node.loc,
+                    message: format!(
+                        "depth model mismatch: node `{}` renders the map with depth_model {m:?} but node `{}` with {reference:?}; the mapper's `tuning.depth_model`, the tracker's and the evaluator's `depth_model` must agree (a node without one has the default, plane)",
                         node.id, first.id
                     ),
                 });
@@ -380,6 +431,36 @@ mod tests {
             .replace("  - id: frontier\n    operator: frontier\n", "  - id: frontier\n    operator: frontier\n    config: { robot: { radius_m: 0.2 } }\n")
             .replace("  - id: follower\n    operator: follower\n", "  - id: follower\n    operator: follower\n    config: { robot: { radius_m: 0.2 } }\n");
         parse("robots.yaml", &all, Path::new(".")).unwrap();
+    }
+
+    /// A tracker that renders the map under another depth model than the mapper fitted it
+    /// with is refused; the same model on the mapper, tracker and evaluator is accepted.
+    #[test]
+    fn a_depth_model_that_differs_between_nodes_is_refused() {
+        let tracker = reference().replace(
+            "config: { motion_prior: action,",
+            "config: { depth_model: centre, motion_prior: action,",
+        );
+        assert_ne!(tracker, reference());
+        let msg = parse("depth.yaml", &tracker, Path::new("."))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("depth model mismatch")
+                && msg.contains("`tracker`")
+                && msg.contains("`mapper`"),
+            "{msg}"
+        );
+        let all = tracker
+            .replace(
+                "config: { map_lag: 10, keyframe_min_interval: 5 }",
+                "config: { map_lag: 10, keyframe_min_interval: 5, tuning: { depth_model: centre } }",
+            )
+            .replace(
+                "config: { scene: \"house:7\" }",
+                "config: { scene: \"house:7\", depth_model: centre }",
+            );
+        parse("depths.yaml", &all, Path::new(".")).unwrap();
     }
 
     /// `--set sim.scene=…` without the evaluator's is refused, naming both nodes and the fix.

@@ -97,6 +97,11 @@ pub struct Config {
     /// each ≥ 1; a step the episode never reaches writes nothing.
     #[serde(default)]
     pub checkpoints: Vec<u64>,
+    /// The depth model of the mapper's map (`centre` or `plane`; the library default when
+    /// absent), written to `summary.json` so the evaluation renders the map as it was fitted.
+    /// The flow check ties it to the mapper's `tuning.depth_model`.
+    #[serde(default)]
+    pub depth_model: Option<activemap_splat::DepthModel>,
 }
 
 impl Config {
@@ -151,6 +156,8 @@ pub struct Evaluator {
     forward_steps: Vec<u64>,
     /// The robot (forward step of the blocked count; recorded in `summary.json`).
     robot: RobotModel,
+    /// The map's depth model (recorded in `summary.json`).
+    depth_model: activemap_splat::DepthModel,
     /// One row per `FisherReport` received, in arrival order (`fisher.csv`).
     fisher: Vec<FisherRow>,
     /// One record per `LlmExchange` received (appended to `llm.jsonl` as it arrives).
@@ -359,6 +366,7 @@ impl Evaluator {
                 &self.estimated,
                 &self.reports,
             )),
+            map_depth_model: Some(self.depth_model),
             warnings: Vec::new(),
         };
         summary.warnings = self.warnings(&summary);
@@ -380,19 +388,7 @@ impl Evaluator {
             out.dir().display()
         );
         if let Some(t) = &summary.tracking {
-            eprintln!(
-                "evaluator: tracking: {} lost frame(s) in {} run(s) {:?}, {} relocalisation(s), \
-                 {} loop closure(s), largest error jump {:.1} cm, {} jump(s) above {:.0} cm that \
-                 no tracking event explains",
-                t.lost_frames,
-                t.lost_runs,
-                t.lost_by_reason,
-                t.relocalisations,
-                t.loop_closures,
-                100.0 * t.max_error_jump_m,
-                t.unexplained_jumps,
-                100.0 * activemap_eval::step_metrics::JUMP_LIMIT_M
-            );
+            eprintln!("evaluator: tracking: {}", t.line());
         }
         for w in &summary.warnings {
             eprintln!("{}", w.log_line(out.dir()));
@@ -444,6 +440,7 @@ impl Operator for Evaluator {
             true_positions: Default::default(),
             forward_steps: Vec::new(),
             robot: config.robot,
+            depth_model: config.depth_model.unwrap_or_default(),
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: None,
@@ -641,6 +638,7 @@ mod tests {
             true_positions: Default::default(),
             forward_steps: Vec::new(),
             robot: RobotModel::default(),
+            depth_model: Default::default(),
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: None,
@@ -788,6 +786,7 @@ mod tests {
             true_positions,
             forward_steps: (0..30).collect(),
             robot: RobotModel::default(),
+            depth_model: Default::default(),
             fisher: Vec::new(),
             llm: Vec::new(),
             start_depth: Some((0, 0.8)),

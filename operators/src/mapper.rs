@@ -93,6 +93,10 @@ pub struct MapperTuning {
     /// Densification threshold on the mean NDC-space gradient of the projected mean.
     #[serde(default)]
     pub densify_grad: Option<f64>,
+    /// The per-pixel depth of a Gaussian in the mapping renders (`centre` or `plane`,
+    /// `activemap_splat::DepthModel`); the tracker's `depth_model` must match.
+    #[serde(default)]
+    pub depth_model: Option<activemap_splat::DepthModel>,
 }
 
 impl MapperTuning {
@@ -114,6 +118,7 @@ impl MapperTuning {
         set(self.snap_behind_m, &mut mapper.snap_behind_m);
         set(self.snap_in_front, &mut mapper.snap_in_front);
         set(self.densify_grad, &mut mapper.densify_grad);
+        set(self.depth_model, &mut mapper.depth_model);
     }
 }
 

@@ -76,6 +76,10 @@ pub struct Config {
     /// relocalisation). `null` turns the check off.
     #[serde(default = "default_motion_check")]
     pub motion_check: Option<MotionCheckConfig>,
+    /// The per-pixel depth of a Gaussian in the tracker's renders (`centre` or `plane`); must
+    /// match the mapper's `tuning.depth_model` (library default when absent).
+    #[serde(default)]
+    pub depth_model: Option<activemap_splat::DepthModel>,
 }
 
 /// The `tracker` node's `motion_check` (defaults: [`MotionCheck::default`]).
@@ -144,6 +148,9 @@ impl Config {
         };
         if let Some(d) = self.downscale {
             config.tracker.downscale = d;
+        }
+        if let Some(d) = self.depth_model {
+            config.tracker.depth_model = d;
         }
         if let Some(n) = self.max_iterations {
             config.tracker.max_iterations = n;
@@ -464,6 +471,7 @@ mod tests {
             map_lag: 0,
             pose_graph: false,
             motion_check: default_motion_check(),
+            depth_model: None,
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);

@@ -157,6 +157,7 @@ fn options(exposure: (f64, f64), exclude_flags: u8) -> RenderOptions {
     RenderOptions {
         exposure: [exposure.0, exposure.1],
         exclude_flags,
+        ..Default::default()
     }
 }
 
@@ -220,7 +221,11 @@ fn fisher_impl<'py, T: Element + Real>(
         }
     };
     let camera = camera(k, &pose(&world_from_camera)?, near, far);
-    let options = options(exposure, exclude_flags);
+    // The Fisher pass differentiates the centre depth model.
+    let options = RenderOptions {
+        depth: activemap_splat::DepthModel::Centre,
+        ..options(exposure, exclude_flags)
+    };
     let info = py
         .detach(|| {
             let image = activemap_splat::render(&map, &camera, &options)?;
@@ -306,7 +311,8 @@ fn view_information_impl<'py, T: Element + Real>(
 
 macro_rules! splat_functions {
     ($t:ty, $render:ident, $fisher:ident, $info:ident) => {
-        /// Renders colour (H, W, 3), depth (H, W) and opacity (H, W) (`activemap_splat::render`).
+        /// Renders colour (H, W, 3), depth (H, W) and opacity (H, W) (`activemap_splat::render`,
+        /// with the maps' plane depth model).
         #[pyfunction]
         #[pyo3(signature = (means, sh_dc, rotations, opacity_logits, log_scales, flags,
             world_from_camera, intrinsics, exposure=(0.0, 0.0), near=0.01, far=f64::INFINITY,
@@ -338,8 +344,9 @@ macro_rules! splat_functions {
             render_impl(py, map, world_from_camera, intrinsics, exposure, near, far, exclude_flags)
         }
 
-        /// The Fisher information of the rendered view (`activemap_splat::fisher`): per-Gaussian
-        /// colour and depth diagonals (N, 14) and the 6×6 pose information of each.
+        /// The Fisher information of the rendered view (`activemap_splat::fisher`, of a render
+        /// with the centre depth model): per-Gaussian colour and depth diagonals (N, 14) and the
+        /// 6×6 pose information of each.
         #[pyfunction]
         #[pyo3(signature = (means, sh_dc, rotations, opacity_logits, log_scales, flags,
             world_from_camera, intrinsics, mode="per_channel", exposure=(0.0, 0.0), near=0.01,

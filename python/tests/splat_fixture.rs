@@ -10,7 +10,9 @@ use activemap_active::information::{
     self, ScoringScene, ViewInformation, ViewParts, ViewSettings, localisation_cost,
 };
 use activemap_geometry::{Intrinsics, Isometry3, UnitQuaternion, Vector3};
-use activemap_splat::{Camera, FisherMode, Gaussians, Real, RenderOptions, fisher, render};
+use activemap_splat::{
+    Camera, DepthModel, FisherMode, Gaussians, Real, RenderOptions, fisher, render,
+};
 use serde_json::{Value, json};
 use std::path::PathBuf;
 
@@ -123,7 +125,16 @@ fn splat_values<T: Real>() -> Value {
     let map = scene::<T>();
     let camera = Camera::from_world_pose(intrinsics(), &pose());
     let image = render(&map, &camera, &RenderOptions::default()).unwrap();
-    let info = fisher(&map, &image, FisherMode::PerChannel).unwrap();
+    let centre = RenderOptions {
+        depth: DepthModel::Centre,
+        ..RenderOptions::default()
+    };
+    let info = fisher(
+        &map,
+        &render(&map, &camera, &centre).unwrap(),
+        FisherMode::PerChannel,
+    )
+    .unwrap();
     json!({
         "colour": flat(&image.colour),
         "depth": image.depth.iter().map(|v| v.to_f64()).collect::<Vec<_>>(),

@@ -11,8 +11,8 @@
 
 use activemap_geometry::{Intrinsics, Isometry3, Point3};
 use activemap_splat::{
-    Camera, FLAG_UNKNOWN_SPACE, FisherMode, Gaussians, Real, Render, RenderOptions, fisher_sparse,
-    render,
+    Camera, DepthModel, FLAG_UNKNOWN_SPACE, FisherMode, Gaussians, Real, Render, RenderOptions,
+    fisher_sparse, render,
 };
 use nalgebra::{Matrix6, SymmetricEigen};
 
@@ -322,7 +322,16 @@ pub fn view_information<T: Real>(
     let part = subset(map, &indices);
     let camera =
         Camera::from_world_pose(settings.intrinsics, world_from_camera).with_far(settings.far_m);
-    let image = render(&part, &camera, &RenderOptions::default())?;
+    // The Fisher pass differentiates the centre depth model (SPEC §3): the map's plane model
+    // adds the slope's dependence on the shape, which the information leaves out.
+    let image = render(
+        &part,
+        &camera,
+        &RenderOptions {
+            depth: DepthModel::Centre,
+            ..RenderOptions::default()
+        },
+    )?;
     // Only the Gaussians the pixels composite carry information; the sparse pass prepares
     // and returns those alone (behind a wall or in the depth of an unknown-space cloud most
     // of the culled set is hidden).
@@ -709,7 +718,15 @@ mod tests {
             assert_eq!(diagonal_only.diagonal, culled.diagonal);
             assert_eq!(diagonal_only.pose, None);
             let camera = Camera::from_world_pose(k, &pose).with_far(4.0);
-            let image = render(&map, &camera, &RenderOptions::default()).unwrap();
+            let image = render(
+                &map,
+                &camera,
+                &RenderOptions {
+                    depth: DepthModel::Centre,
+                    ..RenderOptions::default()
+                },
+            )
+            .unwrap();
             let passed = scene.visible(&k, &pose, 4.0);
             for (i, v) in image.context.visible.iter().enumerate() {
                 if *v {

@@ -7,7 +7,7 @@ use activemap_active::information::{
     view_information,
 };
 use activemap_geometry::{Intrinsics, Isometry3, Vector6, se3};
-use activemap_splat::{Camera, Gaussians, RenderOptions, render};
+use activemap_splat::{Camera, DepthModel, Gaussians, RenderOptions, render};
 use nalgebra::{DMatrix, Translation3, UnitQuaternion, Vector3};
 
 /// Large, overlapping Gaussians: every pixel lies well inside every footprint (no 1/255 cut
@@ -49,9 +49,17 @@ fn camera_pose() -> Isometry3<f64> {
     )
 }
 
+/// Render options with the centre depth model, which the Fisher pass differentiates.
+fn centre_depth() -> RenderOptions {
+    RenderOptions {
+        depth: DepthModel::Centre,
+        ..RenderOptions::default()
+    }
+}
+
 /// Per pixel: R, G, B, D of a render of `map` from `camera`.
 fn outputs(map: &Gaussians<f64>, camera: &Camera) -> Vec<[f64; 4]> {
-    let r = render(map, camera, &RenderOptions::default()).unwrap();
+    let r = render(map, camera, &centre_depth()).unwrap();
     (0..r.width * r.height)
         .map(|p| [r.colour[p][0], r.colour[p][1], r.colour[p][2], r.depth[p]])
         .collect()

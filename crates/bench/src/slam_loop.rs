@@ -27,7 +27,7 @@ use activemap_geometry::{Isometry3, PlanarPose};
 use activemap_sim::house::{HouseConfig, generate};
 use activemap_sim::{Action, NoiseConfig, SimConfig, Simulator};
 use activemap_slam::{Frame, LockstepSlam, MotionPrior, SlamConfig};
-use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
+use activemap_splat::{Camera, DepthModel, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use anyhow::Context as _;
 
 /// Settings of one scripted loop.
@@ -165,6 +165,7 @@ pub fn rectangle_loop(
 /// (un-normalised, as the evaluator reads it) in metres.
 fn view_errors(
     map: &Gaussians<f32>,
+    depth: DepthModel,
     frame: &Frame,
     pose: &Isometry3<f64>,
 ) -> anyhow::Result<(f64, f64)> {
@@ -175,6 +176,7 @@ fn view_errors(
         &RenderOptions {
             exposure: [0.0, 0.0],
             exclude_flags: FLAG_UNKNOWN_SPACE,
+            depth,
         },
     )?;
     let rendered: Vec<f32> = out
@@ -345,15 +347,16 @@ pub fn run_loop_traced(config: &LoopConfig) -> anyhow::Result<(LoopResult, LoopT
     let ate_rmse = activemap_eval::ate(&truth, &estimate, AteOptions::default())?.rmse;
     let map = mapping.map();
     let keyframes = mapping.mapper().keyframes();
+    let depth_model = mapping.mapper().config().depth_model;
     let mut train = Vec::new();
     for kf in keyframes {
-        train.push(view_errors(map, &kf.frame, &kf.pose)?.0);
+        train.push(view_errors(map, depth_model, &kf.frame, &kf.pose)?.0);
     }
     let (mut test, mut test_depth) = (Vec::new(), Vec::new());
     for pose in &held_out {
         let rgbd = sim.render_at(pose);
         let frame = Frame::from_rgb8(rgbd.intrinsics, &rgbd.rgb, rgbd.depth, 0.0)?;
-        let (psnr, depth) = view_errors(map, &frame, &(slam_from_true * pose))?;
+        let (psnr, depth) = view_errors(map, depth_model, &frame, &(slam_from_true * pose))?;
         test.push(psnr);
         test_depth.push(depth);
     }

@@ -57,6 +57,7 @@ fn render_clean(map: &Gaussians<f32>, frame: &Frame, pose: &Isometry3<f64>) -> R
         &RenderOptions {
             exposure: [0.0, 0.0],
             exclude_flags: FLAG_UNKNOWN_SPACE,
+            ..Default::default()
         },
     )
     .expect("render")

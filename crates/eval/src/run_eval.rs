@@ -58,7 +58,7 @@ use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
 };
 use activemap_sim::{Floor, Placement, Renderer, SimConfig, Simulator, Transform, UpAxis};
-use activemap_splat::{Camera, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
+use activemap_splat::{Camera, DepthModel, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
 use nalgebra::Point3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -338,6 +338,7 @@ pub fn start_from_world(true_start: &Isometry3<f64>, floor_z: f64) -> Isometry3<
 pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, RunError> {
     let run = RunFolder::new(dir);
     let summary = run.read_summary()?;
+    let depth_model = summary.map_depth_model.unwrap_or(DepthModel::Centre);
     let truth = run.read_trajectory(RunFolder::TRAJECTORY_TRUE)?;
     let estimate = run.read_trajectory(RunFolder::TRAJECTORY_EST)?;
     let map = run.read_map()?;
@@ -403,7 +404,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             let Some(t_world_camera) = poses.get(job) else {
                 let t_map_camera = track_views[job - poses.len()];
                 let render_started = Instant::now();
-                let out = render_map(&map, &k, &t_map_camera)?;
+                let out = render_map(&map, depth_model, &k, &t_map_camera)?;
                 track_render_ns.fetch_add(
                     render_started.elapsed().as_nanos() as u64,
                     Ordering::Relaxed,
@@ -415,7 +416,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             let mut renderer = Renderer::new();
             let frame = renderer.render(sim.scene(), &k, t_world_camera, sim.config().depth_range);
             let truth_rgb: Vec<f32> = frame.rgb.iter().map(|&v| v as f32 / 255.0).collect();
-            let out = render_map(&map, &k, &(to_map * t_world_camera))?;
+            let out = render_map(&map, depth_model, &k, &(to_map * t_world_camera))?;
             let (w, h) = (k.width as usize, k.height as usize);
             let view = evaluate_view(
                 ImageView::rgb(&out.rgb, w, h)?,
@@ -747,11 +748,13 @@ pub fn fusion_track_poses(estimate: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
 /// Renders `map` (without unknown-space Gaussians) at `t_map_camera`.
 fn render_map(
     map: &Gaussians<f32>,
+    depth: DepthModel,
     k: &Intrinsics,
     t_map_camera: &Isometry3<f64>,
 ) -> Result<MapRender, RunError> {
     let options = RenderOptions {
         exclude_flags: FLAG_UNKNOWN_SPACE,
+        depth,
         ..RenderOptions::default()
     };
     let out = render(map, &Camera::from_world_pose(*k, t_map_camera), &options)

@@ -26,6 +26,7 @@ use crate::bev::Bev;
 use crate::validity::RunWarning;
 use activemap_geometry::RobotModel;
 use activemap_geometry::tum::Trajectory;
+use activemap_splat::DepthModel;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize, Serializer};
 use std::path::{Path, PathBuf};
@@ -522,6 +523,11 @@ pub struct Summary {
     /// The tracker's reported failures and the jumps of its estimate against the truth
     /// ([`crate::step_metrics::tracking_summary`]); `None` in older summaries.
     pub tracking: Option<TrackingSummary>,
+    /// The depth model the run's map was fitted under, so that the evaluation renders it the
+    /// same way (the `evaluator` node's `depth_model`, which the flow check ties to the
+    /// mapper's and the tracker's); `None` (older runs): [`DepthModel::Centre`], the only one
+    /// then.
+    pub map_depth_model: Option<DepthModel>,
     /// Why the run is invalid ([`crate::validity`]: a start that sees nothing, a robot that
     /// cannot move, an empty map, no reachable floor); empty = valid. Absent in older summaries
     /// (read as empty). `summary.json` also says `"valid": true|false`.
@@ -553,6 +559,33 @@ pub struct TrackingSummary {
     pub unexplained_jumps: u64,
     /// The largest of those, metres (0 without any).
     pub max_unexplained_jump_m: f64,
+}
+
+impl TrackingSummary {
+    /// One line for logs and the report.
+    pub fn line(&self) -> String {
+        let reasons: Vec<String> = self
+            .lost_by_reason
+            .iter()
+            .map(|(reason, n)| format!("{reason} {n}"))
+            .collect();
+        format!(
+            "{} lost frame(s) in {} run(s){}, {} relocalisation(s), {} loop closure(s), largest \
+             error jump {:.1} cm, {} jump(s) above {:.0} cm that no tracking event explains",
+            self.lost_frames,
+            self.lost_runs,
+            if reasons.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", reasons.join(", "))
+            },
+            self.relocalisations,
+            self.loop_closures,
+            100.0 * self.max_error_jump_m,
+            self.unexplained_jumps,
+            100.0 * crate::step_metrics::JUMP_LIMIT_M
+        )
+    }
 }
 
 /// Whether a record's decision differs from the fallback's choice: `None` when it does not say
@@ -815,6 +848,16 @@ impl Summary {
                 })),
             ),
             ("llm", opt(self.llm.as_ref().map(LlmSummary::line))),
+            (
+                "tracking",
+                opt(self.tracking.as_ref().map(TrackingSummary::line)),
+            ),
+            (
+                "map_depth_model",
+                opt(self
+                    .map_depth_model
+                    .map(|m| format!("{m:?}").to_lowercase())),
+            ),
             (
                 "valid",
                 if self.is_valid() {
@@ -1390,6 +1433,7 @@ mod tests {
                 unexplained_jumps: 0,
                 max_unexplained_jump_m: 0.0,
             }),
+            map_depth_model: Some(DepthModel::Plane),
             warnings: Vec::new(),
         }
     }
@@ -1502,6 +1546,17 @@ mod tests {
         assert!(rows.contains(&("max_area", "—".into())), "{rows:?}");
         assert!(rows.contains(&("floor", "auto".into())), "{rows:?}");
         assert!(rows.contains(&("valid", "yes".into())), "{rows:?}");
+        assert!(
+            rows.contains(&("map_depth_model", "plane".into())),
+            "{rows:?}"
+        );
+        let tracking = &rows.iter().find(|(k, _)| *k == "tracking").unwrap().1;
+        assert!(
+            tracking.starts_with(
+                "4 lost frame(s) in 2 run(s) (motion_mismatch 4), 1 relocalisation(s)"
+            ),
+            "{tracking}"
+        );
     }
 
     /// A summary with warnings says `"valid": false` and lists them (code and message); it reads

@@ -321,6 +321,7 @@ pub fn refine(
     let options = RenderOptions {
         exposure,
         exclude_flags: FLAG_UNKNOWN_SPACE,
+        ..Default::default()
     };
     let mut pose = camera_from_world;
     let predicted = camera_from_world;

@@ -38,8 +38,8 @@ use crate::insert::{InsertConfig, explained_mask, sample_new_gaussians, unobserv
 use crate::loss::{MappingDepth, mapping_loss, rgb_mask};
 use activemap_geometry::Isometry3;
 use activemap_splat::{
-    AdamConfig, Camera, FLAG_UNKNOWN_SPACE, GaussianAdam, Gaussians, Gradients, RenderOptions,
-    backward, render,
+    AdamConfig, Camera, DepthModel, FLAG_UNKNOWN_SPACE, GaussianAdam, Gaussians, Gradients,
+    RenderOptions, backward, render,
 };
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -74,11 +74,14 @@ pub struct MapperConfig {
     /// Weight of the isotropic regulariser `w·mean|s − mean(s)|` (SPEC §4: 10).
     pub isotropic_weight: f32,
     /// Weight `w` of the flat regulariser `w·mean_i min_k s_ik` (issue 33: shrinks each
-    /// Gaussian's thinnest axis, so it can become a disc on the surface); 0 = off. Measured on
-    /// `activemap bench slam --cases 200x500` with `isotropic_weight` 0 and this 10, against
-    /// the defaults, side by side: surface offset −3.24 → −2.85 cm, p90 9.62 → 8.65 cm, within
-    /// 2 cm 29.8 → 33.9 %, held-out PSNR 27.60 → 27.66 dB, but depth MAE 3.46 → 3.96 cm,
-    /// 77k → 92k Gaussians, mapping time per keyframe 1.06×; ATE unchanged. Mixed, so off.
+    /// Gaussian's thinnest axis, so it can become a disc on the surface); 0 = off. With
+    /// `isotropic_weight` 0 and this 10 under the plane depth model, `activemap bench slam
+    /// --cases 200x500` gains against the default (surface offset −2.93 → −2.71 cm, p90 8.88 →
+    /// 7.83 cm, depth MAE 3.58 → 3.24 cm noise-free; −2.96 → −2.41 cm, 9.41 → 8.96 cm, 4.99 →
+    /// 4.74 cm realistic), but in episodes (`benchmarks/depth-model*.yaml`, FBE, houses 1, 3,
+    /// 9, seeds 1–2) its discs render worse from the test views: PSNR −0.3 dB and depth MAE
+    /// +1.8 cm against the default, both in 6 of 6 pairs noise-free, for +0.9 to +1.3 points
+    /// of completeness. So off.
     pub flat_weight: f32,
     /// Adam learning rates per parameter group (MonoGS/3DGS values; mean 0.002 m per step).
     pub learning_rates: AdamConfig,
@@ -113,6 +116,16 @@ pub struct MapperConfig {
     /// reading by less than the band (`D − band < z < D`) onto it: free space the view sees
     /// through. (Measured at 0.15 m on 200x250: −2.18 cm, worse than behind only.)
     pub snap_in_front: bool,
+    /// The per-pixel depth of a Gaussian in the mapping renders, and so the model the map is
+    /// fitted under; every render of the map should use the same (the default,
+    /// [`DepthModel::Plane`]; SPEC §3 is [`DepthModel::Centre`]). Against the centre model,
+    /// side by side: `activemap bench slam --cases 200x500` surface offset −3.24 → −2.93 cm,
+    /// p90 9.62 → 8.88 cm, held-out PSNR 27.60 → 27.67 dB, depth MAE 3.46 → 3.58 cm, mapping
+    /// time per keyframe 0.86× (realistic: −3.01 → −2.96 cm, 10.05 → 9.41 cm, 27.19 → 27.11
+    /// dB, 4.70 → 4.99 cm, 0.93×); in FBE episodes (`benchmarks/depth-model*.yaml`, 6 pairs
+    /// each) completeness +0.9 points (6 of 6 pairs) noise-free and +0.6 realistic, depth MAE
+    /// −0.4 and −0.7 cm, PSNR +0.04 and +0.00 dB.
+    pub depth_model: DepthModel,
     /// Seed of every random choice of the mapper.
     pub seed: u64,
 }
@@ -148,6 +161,7 @@ impl Default for MapperConfig {
             max_gaussians: 150_000,
             snap_behind_m: 0.0,
             snap_in_front: false,
+            depth_model: DepthModel::default(),
             seed: 0,
         }
     }
@@ -436,6 +450,7 @@ impl Mapper {
         let options = RenderOptions {
             exposure: [0.0, 0.0],
             exclude_flags: FLAG_UNKNOWN_SPACE,
+            depth: self.config.depth_model,
         };
         let rendered = render(&self.map, &camera, &options)?;
         let insert = &self.config.insert;
@@ -604,6 +619,7 @@ impl Mapper {
             let options = RenderOptions {
                 exposure: keyframe.exposure,
                 exclude_flags: FLAG_UNKNOWN_SPACE,
+                depth: self.config.depth_model,
             };
             let rendered = render(&self.map, &camera, &options)?;
             let loss = mapping_loss(

@@ -201,6 +201,7 @@ impl KeyframeMapper {
         let options = RenderOptions {
             exposure: [0.0, 0.0],
             exclude_flags: FLAG_UNKNOWN_SPACE,
+            ..Default::default()
         };
         let rendered = render(self.mapper.map(), &camera, &options)?;
         let mut ids: Vec<u64> = self

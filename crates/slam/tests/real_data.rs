@@ -296,6 +296,7 @@ fn tum_real_depth_tracking_converges_and_stays_sane() {
                 &RenderOptions {
                     exposure: [0.0, 0.0],
                     exclude_flags: FLAG_UNKNOWN_SPACE,
+                    ..Default::default()
                 },
             )
             .unwrap(),

@@ -93,8 +93,9 @@ impl<T: Real> Gradients<T> {
     }
 }
 
-/// Values per (tile, Gaussian) pair: ∂L/∂(mean_x, mean_y, Q_xx, Q_xy, Q_yy, z, opacity, r, g, b).
-const SLOT: usize = 10;
+/// Values per (tile, Gaussian) pair: ∂L/∂(mean_x, mean_y, Q_xx, Q_xy, Q_yy, z, opacity, r, g, b)
+/// and ∂L/∂(depth slope) ([`crate::DepthModel::Plane`]).
+const SLOT: usize = 12;
 
 /// Checks that per-pixel images have the right length.
 pub(crate) fn check_pixels(
@@ -128,12 +129,13 @@ struct BackwardSink<'a, T: Real> {
     g_t: [T; PADDED],
     /// The current pair's splat.
     splat: Splat<T>,
-    /// Per-lane row sums of ∂L/∂σ·dx^i, i = 0, 1, 2; the dy factors are applied per row.
-    row: [[T; LANES]; 3],
+    /// Per-lane row sums of ∂L/∂σ·dx^i, i = 0, 1, 2, and of ∂L/∂z_pixel·dx^i, i = 0, 1 (the
+    /// pixel depth `z − s·d` of the plane model); the dy factors are applied per row.
+    row: [[T; LANES]; 5],
     /// Per-lane pair sums of ∂L/∂(r, g, b), ∂L/∂z, ∂L/∂o.
     pair: [[T; LANES]; 5],
-    /// ∂L/∂(mean_x, mean_y, Q_xx, Q_xy, Q_yy) of the current pair.
-    geo: [T; 5],
+    /// ∂L/∂(mean_x, mean_y, Q_xx, Q_xy, Q_yy) and ∂L/∂(depth slope) of the current pair.
+    geo: [T; 7],
     /// This tile's pair slots.
     slots: &'a mut [T],
 }
@@ -153,12 +155,12 @@ impl<T: Real> BackSink<T, LANES> for BackwardSink<'_, T> {
     fn begin_pair(&mut self, _id: usize, splat: &Splat<T>) {
         self.splat = *splat;
         self.pair = [[T::zero(); LANES]; 5];
-        self.geo = [T::zero(); 5];
+        self.geo = [T::zero(); 7];
     }
 
     #[inline(always)]
     fn begin_row(&mut self, _dy: T) {
-        self.row = [[T::zero(); LANES]; 3];
+        self.row = [[T::zero(); LANES]; 5];
     }
 
     #[inline(always)]
@@ -177,13 +179,14 @@ impl<T: Real> BackSink<T, LANES> for BackwardSink<'_, T> {
         for l in 0..LANES {
             let (t_i, inv, weight) = (ln.t_i[l], ln.inv[l], ln.weight[l]);
             let mut d_alpha =
-                g_dep[l].mul_add(s.depth.mul_add(t_i, -(ln.s_dep[l] * inv)), g_t[l] * inv);
+                g_dep[l].mul_add(ln.depth[l].mul_add(t_i, -(ln.s_dep[l] * inv)), g_t[l] * inv);
             for ch in 0..3 {
                 let behind = s.colour[ch].mul_add(t_i, -(ln.s_col[ch][l] * inv));
                 d_alpha = g_col[ch][l].mul_add(behind, d_alpha);
                 pair[ch][l] = g_col[ch][l].mul_add(weight, pair[ch][l]);
             }
             pair[3][l] = g_dep[l].mul_add(weight, pair[3][l]);
+            let d_depth = g_dep[l] * weight;
             let d_alpha = d_alpha * ln.grad[l];
             pair[4][l] = d_alpha.mul_add(ln.gauss[l], pair[4][l]);
             let d_sigma = -d_alpha * ln.alpha[l];
@@ -192,6 +195,8 @@ impl<T: Real> BackSink<T, LANES> for BackwardSink<'_, T> {
             row[0][l] += d_sigma;
             row[1][l] += d_sigma_dx;
             row[2][l] = d_sigma_dx.mul_add(dx, row[2][l]);
+            row[3][l] += d_depth;
+            row[4][l] = d_depth.mul_add(dx, row[4][l]);
         }
         self.pair = pair;
         self.row = row;
@@ -208,14 +213,21 @@ impl<T: Real> BackSink<T, LANES> for BackwardSink<'_, T> {
         self.geo[2] += half * row[2];
         self.geo[3] += dy * row[1];
         self.geo[4] += half * dy * dy * row[0];
+        // z_pixel = z − s·d with d = (dx, dy): ∂z_pixel/∂s = −d.
+        self.geo[5] -= row[4];
+        self.geo[6] -= dy * row[3];
     }
 
     #[inline(always)]
     fn end_pair(&mut self, k: usize) {
         let p = self.pair.map(|v| lane_sum(&v));
         let g = self.geo;
-        self.slots[k * SLOT..(k + 1) * SLOT]
-            .copy_from_slice(&[g[0], g[1], g[2], g[3], g[4], p[3], p[4], p[0], p[1], p[2]]);
+        // z_pixel = z − s·(mean − pixel): ∂z_pixel/∂mean = −s (zero under the centre model).
+        let slope = self.splat.depth_slope;
+        let (mean_x, mean_y) = (g[0] - slope[0] * p[3], g[1] - slope[1] * p[3]);
+        self.slots[k * SLOT..(k + 1) * SLOT].copy_from_slice(&[
+            mean_x, mean_y, g[2], g[3], g[4], p[3], p[4], p[0], p[1], p[2], g[5], g[6],
+        ]);
     }
 }
 
@@ -250,9 +262,9 @@ pub fn backward<T: Real>(
             g_dep: [T::zero(); PADDED],
             g_t: [T::zero(); PADDED],
             splat: Splat::default(),
-            row: [[T::zero(); LANES]; 3],
+            row: [[T::zero(); LANES]; 5],
             pair: [[T::zero(); LANES]; 5],
-            geo: [T::zero(); 5],
+            geo: [T::zero(); 7],
             slots: piece,
         };
         walk_back(ctx, t, &mut sink);
@@ -270,6 +282,7 @@ pub fn backward<T: Real>(
         exposure: [0.0; 2],
     };
     let c0 = T::of(SH_C0);
+    let plane = ctx.options.depth == crate::DepthModel::Plane;
     let pose_parts: Vec<[f64; 6]> = out
         .means
         .par_chunks_mut(CHUNK)
@@ -291,7 +304,14 @@ pub fn backward<T: Real>(
                     continue;
                 };
                 let up = [acc[0], acc[1], acc[2], acc[3], acc[4], acc[5]];
-                let pg = project_vjp(&c, &ctx.cam, &up);
+                // Under the centre model the slope is identically zero, not a function of
+                // the parameters: its gradient goes nowhere.
+                let slope_up = if plane {
+                    [acc[10], acc[11]]
+                } else {
+                    [T::zero(); 2]
+                };
+                let pg = project_vjp(&c, &ctx.cam, &up, slope_up);
                 means[j] = pg.mean;
                 rots[j] = pg.rotation;
                 scales[j] = pg.log_scale;

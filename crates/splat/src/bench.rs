@@ -207,6 +207,14 @@ pub fn run(cfg: &BenchConfig) -> Vec<Row> {
             let Ok(out) = render(&g, &cam, &opts) else {
                 continue;
             };
+            // The Fisher pass takes a centre-depth render.
+            let centre = RenderOptions {
+                depth: crate::DepthModel::Centre,
+                ..opts
+            };
+            let Ok(fisher_out) = render(&g, &cam, &centre) else {
+                continue;
+            };
             let pairs: f64 = (0..g.len())
                 .filter(|&i| out.context.visible[i])
                 .map(|i| {
@@ -233,7 +241,7 @@ pub fn run(cfg: &BenchConfig) -> Vec<Row> {
                 let _ = backward(&g, &out, &dl);
                 let tb = t.elapsed().as_secs_f64() * 1e3;
                 let t = Instant::now();
-                let _ = fisher(&g, &out, FisherMode::PerChannel);
+                let _ = fisher(&g, &fisher_out, FisherMode::PerChannel);
                 let tf = t.elapsed().as_secs_f64() * 1e3;
                 if r > 0 {
                     back_times.push(tb);
@@ -364,6 +372,15 @@ mod tests {
             let cam = camera(size);
             let opts = RenderOptions::default();
             let out = render(&g, &cam, &opts).unwrap();
+            let fisher_out = render(
+                &g,
+                &cam,
+                &RenderOptions {
+                    depth: crate::DepthModel::Centre,
+                    ..opts
+                },
+            )
+            .unwrap();
             let mut dl = PixelGrads::zeros(out.colour.len());
             for (i, c) in dl.colour.iter_mut().enumerate() {
                 *c = [((i % 7) as f32 - 3.0) * 0.01; 3];
@@ -377,7 +394,7 @@ mod tests {
                     let _ = backward(&g, &out, &dl);
                 });
                 let tf = cpu_ms(&mut || {
-                    let _ = fisher(&g, &out, FisherMode::PerChannel);
+                    let _ = fisher(&g, &fisher_out, FisherMode::PerChannel);
                 });
                 if r > 0 {
                     fwd.push(tr);

@@ -656,6 +656,11 @@ pub(crate) fn fisher_with_lanes<T: Real>(
     with_pose: bool,
 ) -> Result<SparseFisher<T>, SplatError> {
     let ctx = &render.context;
+    if ctx.options.depth != crate::DepthModel::Centre {
+        return Err(SplatError::Unsupported(
+            "the Fisher pass needs a render with the centre depth model (DepthModel::Centre)",
+        ));
+    }
     check_pixels(
         "gaussians (vs. the render)",
         gaussians.len(),
@@ -768,7 +773,24 @@ pub(crate) fn fisher_with_lanes<T: Real>(
 mod tests {
     use super::*;
     use crate::bench::{camera, scene};
-    use crate::{RenderOptions, render};
+    use crate::{DepthModel, RenderOptions, render};
+
+    /// Render options with the centre depth model, which the Fisher pass needs.
+    fn centre_depth() -> RenderOptions {
+        RenderOptions {
+            depth: DepthModel::Centre,
+            ..RenderOptions::default()
+        }
+    }
+
+    /// A render with the plane depth model is refused with a message naming the fix.
+    #[test]
+    fn a_plane_depth_render_is_refused() {
+        let g = scene(200);
+        let out = render(&g, &camera(32), &RenderOptions::default()).unwrap();
+        let e = fisher(&g, &out, FisherMode::PerChannel).unwrap_err();
+        assert!(e.to_string().contains("DepthModel::Centre"), "{e}");
+    }
 
     /// The sparse pass holds exactly the walked Gaussians, and its entries are the dense
     /// pass's (the others are zero there); without the pose it computes the same diagonals
@@ -794,7 +816,7 @@ mod tests {
                 }
             }
         }
-        let out = render(&g, &camera(64), &RenderOptions::default()).unwrap();
+        let out = render(&g, &camera(64), &centre_depth()).unwrap();
         let walked = out.context.walked_mask();
         let visible = out.context.visible.iter().filter(|v| **v).count();
         let dense = fisher(&g, &out, FisherMode::PerChannel).unwrap();
@@ -835,7 +857,7 @@ mod tests {
     #[test]
     fn sixteen_and_eight_lane_walks_agree() {
         let g = scene(2000);
-        let out = render(&g, &camera(96), &RenderOptions::default()).unwrap();
+        let out = render(&g, &camera(96), &centre_depth()).unwrap();
         for mode in [FisherMode::PerChannel, FisherMode::ChannelSum] {
             let narrow = fisher_with_lanes(&g, &out, mode, false, true)
                 .unwrap()

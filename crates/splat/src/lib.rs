@@ -41,6 +41,10 @@
 //! - Pose gradients/information are for the left update `T_cw ← Exp(τ)·T_cw`, τ = [ρ, θ]
 //!   (`activemap_geometry::se3`).
 //! - Exposure: output colour `e^a·C + b` with scalar `a`, `b` for all channels (MonoGS).
+//! - Depth ([`DepthModel`]): by default a Gaussian contributes the depth of its densest point
+//!   along each pixel's ray (a plane over the splat, [`DepthModel::Plane`]), which the maps are
+//!   fitted under; SPEC §3's centre depth ([`DepthModel::Centre`]) is an option, and the one
+//!   the Fisher pass differentiates (it refuses a plane render).
 //! - Fisher ([`fisher`]): diagonals per Gaussian for colour and depth separately,
 //!   [`FisherMode::PerChannel`] (default) or [`FisherMode::ChannelSum`] (FisherRF) for the colour
 //!   square; the 6×6 pose information is always summed per channel, colour and depth separate.
@@ -72,7 +76,7 @@ pub use backward::{Gradients, PixelGrads, backward};
 pub use camera::{Camera, DEFAULT_NEAR};
 pub use fisher::{FisherMode, FisherOutput, SparseFisher, fisher, fisher_sparse};
 pub use gaussians::{FLAG_UNKNOWN_SPACE, Gaussians, SH_C0, layout};
-pub use rasterize::{ForwardContext, Render, RenderOptions, render};
+pub use rasterize::{DepthModel, ForwardContext, Render, RenderOptions, render};
 pub use real::Real;
 
 /// Errors of the renderer and its file formats.
@@ -102,6 +106,9 @@ pub enum SplatError {
         /// What is wrong, and where.
         message: String,
     },
+    /// A pass was asked for something it does not compute.
+    #[error("unsupported: {0}")]
+    Unsupported(&'static str),
     /// An I/O error on a file.
     #[error("{path}: {source}")]
     Io {

@@ -292,6 +292,7 @@ fn ortho_splat(g: &Gaussians<f32>, i: usize, w: &OrthoWindow) -> Option<Splat<f3
         conic: [(c / det) as f32, (-b / det) as f32, (a / det) as f32],
         opacity: opacity as f32,
         depth: -m[2],
+        depth_slope: [0.0; 2],
         colour: g.sh_dc[i].map(|v| (0.5 + SH_C0 as f32 * v).clamp(0.0, 1.0)),
         bbox,
     })

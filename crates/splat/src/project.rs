@@ -40,6 +40,9 @@ pub struct Splat<T: Real> {
     pub opacity: T,
     /// Camera-frame depth z, metres.
     pub depth: T,
+    /// Depth slope `s` (metres per pixel) of [`crate::DepthModel::Plane`]: the splat's depth at a
+    /// pixel is `depth + s·(pixel − mean)`; zero under [`crate::DepthModel::Centre`].
+    pub depth_slope: [T; 2],
     /// RGB colour `0.5 + C0·sh_dc`.
     pub colour: [T; 3],
     /// Inclusive pixel box `[x0, x1] × [y0, y1]` of the support, clipped to the image.
@@ -198,11 +201,24 @@ fn culled_early<T: Real>(cam: &CameraT<T>, g: &Gaussians<T>, i: usize) -> bool {
     false
 }
 
-/// Projects Gaussian `i`; `None` when it cannot touch any pixel.
+/// The depth slope of [`crate::DepthModel::Plane`]: in the EWA ray space, linearised at the
+/// mean, the Gaussian is a 3D Gaussian over (pixel, depth) with covariance
+/// `[[Σ', JΣ_c e_z], [e_zᵀΣ_c Jᵀ, Σ_c,zz]]`; the densest point along a pixel's ray is the
+/// conditional mean of the depth given the pixel, `z + (Σ'⁻¹·JΣ_c e_z)·(pixel − mean)` (the
+/// ray–Gaussian intersection depth of RaDe-GS). Returns `Q·c` with `c = JΣ_c e_z`.
+fn depth_slope<T: Real>(c: &Chain<T>) -> [T; 2] {
+    let col = c.j * c.sigma_c.column(2);
+    let slope = c.conic * col;
+    [slope.x, slope.y]
+}
+
+/// Projects Gaussian `i`; `None` when it cannot touch any pixel. `plane_depth` selects
+/// [`crate::DepthModel::Plane`] (the splat gets its [`depth_slope`]).
 pub(crate) fn project_one<T: Real>(
     cam: &CameraT<T>,
     g: &Gaussians<T>,
     i: usize,
+    plane_depth: bool,
 ) -> Option<Splat<T>> {
     let opacity = sigmoid(g.opacity_logits[i]);
     if !opacity.is_finite() || opacity < T::of(ALPHA_MIN) {
@@ -241,6 +257,11 @@ pub(crate) fn project_one<T: Real>(
         conic: [c.conic[(0, 0)], c.conic[(0, 1)], c.conic[(1, 1)]],
         opacity,
         depth: c.p_c.z,
+        depth_slope: if plane_depth {
+            depth_slope(&c)
+        } else {
+            [T::zero(); 2]
+        },
         colour: g.sh_dc[i].map(|v| half_one + c0 * v),
         bbox: [bbox[0], bbox[1], bbox[2], bbox[3]],
     })
@@ -258,13 +279,65 @@ pub(crate) struct ProjectionGrads<T: Real> {
 
 /// Vector-Jacobian product of the projection of Gaussian `i`: `up` holds the gradients on
 /// `(mean_x, mean_y, Q_xx, Q_xy, Q_yy, z)` where `Q_xy` is the single off-diagonal coefficient
-/// of `σ = ½Q_xx dx² + Q_xy dx dy + ½Q_yy dy²`.
+/// of `σ = ½Q_xx dx² + Q_xy dx dy + ½Q_yy dy²`, and `slope_up` those on the
+/// [`Splat::depth_slope`] (zero under the centre-depth model).
 pub(crate) fn project_vjp<T: Real>(
     c: &Chain<T>,
     cam: &CameraT<T>,
     up: &[T; 6],
+    slope_up: [T; 2],
 ) -> ProjectionGrads<T> {
-    project_vjp_with(c, &ConicPrep::new(c), cam, up)
+    let prep = ConicPrep::new(c);
+    if slope_up == [T::zero(); 2] {
+        return project_vjp_with(c, &prep, cam, up);
+    }
+    // The slope s = Q·c with c = J·Σ_c·e_z: ∂L/∂Q = g_s·cᵀ (only its symmetric part acts on the
+    // symmetric conic), ∂L/∂c = Q·g_s.
+    let col = prep.c.column(2);
+    let gs = nalgebra::Vector2::new(slope_up[0], slope_up[1]);
+    let mut up = *up;
+    up[2] += gs.x * col.x;
+    up[3] += gs.x * col.y + gs.y * col.x;
+    up[4] += gs.y * col.y;
+    let mut out = project_vjp_with(c, &prep, cam, &up);
+    let gc = c.conic * gs;
+    // c = J·(Σ_c e_z): ∂L/∂J = g_c·(Σ_c e_z)ᵀ, ∂L/∂Σ_c = sym(Jᵀg_c e_zᵀ).
+    let sz = c.sigma_c.column(2);
+    let mut dp = Vector3::zeros();
+    add_jacobian_grad(c, cam, |r, k| gc[r] * sz[k], &mut dp);
+    let jg = c.j.transpose() * gc;
+    let half = T::of(0.5);
+    let mut g_sigma = Matrix3::zeros();
+    for k in 0..3 {
+        g_sigma[(k, 2)] += half * jg[k];
+        g_sigma[(2, k)] += half * jg[k];
+    }
+    let two = T::of(2.0);
+    // Σ_c = W Σ Wᵀ, Σ = M Mᵀ: ∂L/∂M = 2·Wᵀ(∂L/∂Σ_c)W·M.
+    let dm = c.w.transpose() * g_sigma * c.w * c.m * two;
+    let (rotation, log_scale) = shape_grads(c, |i, j| dm[(i, j)]);
+    let mean_grad = c.w.transpose() * dp;
+    let cross = c.p_c.cross(&dp);
+    let p = c.sigma_c * g_sigma;
+    let pose = [
+        dp.x,
+        dp.y,
+        dp.z,
+        cross.x + two * (p[(1, 2)] - p[(2, 1)]),
+        cross.y + two * (p[(2, 0)] - p[(0, 2)]),
+        cross.z + two * (p[(0, 1)] - p[(1, 0)]),
+    ];
+    for k in 0..3 {
+        out.mean[k] += mean_grad[k];
+        out.log_scale[k] += log_scale[k];
+    }
+    for k in 0..4 {
+        out.rotation[k] += rotation[k];
+    }
+    for k in 0..6 {
+        out.pose[k] += pose[k];
+    }
+    out
 }
 
 /// Products of the projection chain that every vector-Jacobian product through the conic
@@ -601,7 +674,7 @@ mod tests {
         let with_far = CameraT::<f32>::new(&camera.with_far(3.0));
         let seen = |cam: &CameraT<f32>| -> Vec<bool> {
             (0..g.len())
-                .map(|i| project_one(cam, &g, i).is_some())
+                .map(|i| project_one(cam, &g, i, false).is_some())
                 .collect()
         };
         assert_eq!(seen(&near_only), vec![true; 4]);
@@ -658,7 +731,7 @@ mod tests {
             for k in 0..6 {
                 let mut up = [0.0; 6];
                 up[k] = 1.0;
-                let v = project_vjp(&c, &cam, &up);
+                let v = project_vjp(&c, &cam, &up, [0.0; 2]);
                 let want: Vec<f64> = v
                     .mean
                     .iter()
@@ -687,7 +760,7 @@ mod tests {
     fn the_joint_jacobian_matches_finite_differences_of_the_projection() {
         let (cam, g) = jacobian_scene(12);
         let u_of = |g: &Gaussians<f64>, i: usize| -> Option<[f64; 6]> {
-            let s = project_one(&cam, g, i)?;
+            let s = project_one(&cam, g, i, false)?;
             Some([
                 s.mean[0], s.mean[1], s.conic[0], s.conic[1], s.conic[2], s.depth,
             ])

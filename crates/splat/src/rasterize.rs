@@ -13,6 +13,24 @@ use crate::tiles::{TILE, TileBins, bin};
 use crate::walk::{FORWARD_LANES, PADDED, TILE_PIXELS, alpha_at, lane_offsets, lanes_n_mut};
 use rayon::prelude::*;
 
+/// Which depth a Gaussian contributes at a pixel. The default is the model every map of the
+/// pipeline is fitted and rendered under ([`DepthModel::Plane`], issue 33); the Fisher pass
+/// needs [`DepthModel::Centre`] renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthModel {
+    /// The camera-frame depth of its centre at every pixel (SPEC §3, 3DGS, MonoGS).
+    Centre,
+    /// The depth of its densest point along the pixel's ray, linearised at the centre: a plane
+    /// `z + s·(pixel − mean)` over the splat ([`Splat::depth_slope`]). A flat Gaussian on a
+    /// surface seen at a grazing angle then renders the surface's depth at every pixel it
+    /// covers, where the centre model renders its centre's depth over the whole footprint, short
+    /// of the surface on one side, which the depth loss answers by pushing the Gaussian behind
+    /// the surface (not in the SPEC; the ray–Gaussian intersection depth of RaDe-GS).
+    #[default]
+    Plane,
+}
+
 /// Options of one render.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RenderOptions {
@@ -20,6 +38,8 @@ pub struct RenderOptions {
     pub exposure: [f64; 2],
     /// Gaussians whose `flags & exclude_flags != 0` are left out of the render.
     pub exclude_flags: u8,
+    /// The per-pixel depth of a Gaussian (the map's model by default).
+    pub depth: DepthModel,
 }
 
 /// What the backward and Fisher passes reuse from the forward pass.
@@ -93,6 +113,19 @@ pub(crate) fn clip_box<T: Real>(s: &Splat<T>, rect: &[usize; 4]) -> Option<[usiz
     let by0 = (s.bbox[2] as usize).max(rect[2]);
     let by1 = (s.bbox[3] as usize).min(rect[3] - 1);
     (bx0 <= bx1 && by0 <= by1).then_some([bx0, bx1, by0, by1])
+}
+
+/// A splat's depth along the pixel row at vertical offset `dy = mean_y − pixel_y`, at the
+/// row's `dx = 0` (its centre depth under the centre model, whose slope is zero).
+#[inline(always)]
+pub(crate) fn row_depth<T: Real>(s: &Splat<T>, dy: T) -> T {
+    s.depth - s.depth_slope[1] * dy
+}
+
+/// A splat's depth at horizontal offset `dx = mean_x − pixel_x` of the row of [`row_depth`].
+#[inline(always)]
+pub(crate) fn pixel_depth<T: Real>(s: &Splat<T>, row_depth: T, dx: T) -> T {
+    row_depth - s.depth_slope[0] * dx
 }
 
 /// One tile's forward result, tile-local pixel order (`TILE` pixels per row), `TILE_PIXELS`
@@ -173,6 +206,7 @@ fn raster_tile_impl<T: Real>(
         for py in by0..=by1 {
             let dy = s.mean[1] - T::of(py as f64);
             let row = SigmaRow::new(s, dy);
+            let row_depth = row_depth(s, dy);
             let mut x = bx0;
             while x <= bx1 {
                 let base = (py - rect[2]) * TILE + x - rect[0];
@@ -208,7 +242,7 @@ fn raster_tile_impl<T: Real>(
                 }
                 let d = lanes_n_mut::<_, FORWARD_LANES>(&mut depth, base);
                 for l in 0..FORWARD_LANES {
-                    d[l] += s.depth * weight[l];
+                    d[l] += pixel_depth(s, row_depth, dx0 - offsets[l]) * weight[l];
                 }
                 remaining -= stopped as usize;
                 x += FORWARD_LANES;
@@ -244,7 +278,7 @@ pub fn render<T: Real>(
             if gaussians.flags[i] & options.exclude_flags != 0 {
                 None
             } else {
-                project_one(&cam, gaussians, i)
+                project_one(&cam, gaussians, i, options.depth == DepthModel::Plane)
             }
         })
         .collect();

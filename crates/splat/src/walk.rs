@@ -18,7 +18,7 @@
 //! [`BackSink`].
 
 use crate::project::{ALPHA_MAX, ALPHA_MIN, SigmaRow, Splat};
-use crate::rasterize::{ForwardContext, clip_box};
+use crate::rasterize::{ForwardContext, clip_box, pixel_depth, row_depth};
 use crate::real::Real;
 use crate::tiles::{TILE, split_by_offsets};
 use rayon::prelude::*;
@@ -104,6 +104,8 @@ pub(crate) struct Lanes<T: Real, const L: usize> {
     pub t_i: [T; L],
     /// `α_i T_i`.
     pub weight: [T; L],
+    /// The Gaussian's depth at the pixel ([`crate::DepthModel`]).
+    pub depth: [T; L],
     /// Colour composited behind the Gaussian.
     pub s_col: [[T; L]; 3],
     /// Depth composited behind the Gaussian.
@@ -243,6 +245,7 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
         for py in by0..=by1 {
             let dy = s.mean[1] - T::of(py as f64);
             let row = SigmaRow::new(s, dy);
+            let row_z = row_depth(s, dy);
             sink.begin_row(dy);
             let mut x = bx0;
             while x <= bx1 {
@@ -264,6 +267,7 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
                     inv: [T::one(); L],
                     t_i: [T::zero(); L],
                     weight: [T::zero(); L],
+                    depth: [T::zero(); L],
                     s_col: [
                         *lanes_n(&s_col[0], base),
                         *lanes_n(&s_col[1], base),
@@ -289,6 +293,7 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
                     ln.inv[l] = inv;
                     ln.t_i[l] = t_i;
                     ln.weight[l] = alpha * t_i;
+                    ln.depth[l] = pixel_depth(s, row_z, dx);
                 }
                 if !ln
                     .alpha
@@ -310,7 +315,7 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
                 }
                 let sd = lanes_n_mut::<_, L>(&mut s_dep, base);
                 for l in 0..L {
-                    sd[l] += s.depth * ln.weight[l];
+                    sd[l] += ln.depth[l] * ln.weight[l];
                 }
                 x += L;
             }
@@ -442,6 +447,7 @@ fn prefetch<V>(data: &[V]) {
 #[cfg(test)]
 mod tests {
     use super::SimdLevel;
+    use crate::DepthModel;
     use crate::bench::{camera, scene};
     use crate::*;
     use std::sync::atomic::{AtomicU8, Ordering};
@@ -466,6 +472,7 @@ mod tests {
         let opts = RenderOptions {
             exposure: [0.2, 0.01],
             exclude_flags: 0,
+            depth: DepthModel::Centre,
         };
         let run = |cap: u8| {
             SIMD_CAP.store(cap, Ordering::Relaxed);

@@ -16,6 +16,15 @@ fn options() -> RenderOptions {
     RenderOptions {
         exposure: [0.15, 0.03],
         exclude_flags: 0,
+        depth: DepthModel::Centre,
+    }
+}
+
+/// [`options`] with the plane depth model.
+fn plane_options() -> RenderOptions {
+    RenderOptions {
+        depth: DepthModel::Plane,
+        ..options()
     }
 }
 
@@ -26,9 +35,32 @@ fn rel_err(analytic: f64, numeric: f64, floor: f64) -> f64 {
 
 #[test]
 fn parameter_gradients_match_finite_differences() {
+    parameter_gradients_check(options());
+}
+
+#[test]
+fn plane_depth_parameter_gradients_match_finite_differences() {
+    parameter_gradients_check(plane_options());
+}
+
+fn parameter_gradients_check(options: RenderOptions) {
+    let options = || options;
     let cam = camera(40, 36, 60.0, [0.0; 3], [0.0; 3]);
     for seed in 0..3u64 {
         let g: Gaussians<f64> = random_scene(seed, 12, (0.1, 0.85));
+        if options().depth == DepthModel::Plane {
+            // The scene must exercise the slope: its depth differs from the centre model's.
+            let plane = render(&g, &cam, &options()).unwrap().depth;
+            let centre = render(&g, &cam, &crate::options()).unwrap().depth;
+            let most = plane
+                .iter()
+                .zip(&centre)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                most > 0.01,
+                "plane and centre depths differ by {most} m at most"
+            );
+        }
         let w = random_pixel_grads::<f64>(100 + seed, 40 * 36);
         let out = render(&g, &cam, &options()).unwrap();
         let grads = backward(&g, &out, &w).unwrap();
@@ -70,6 +102,16 @@ fn parameter_gradients_match_finite_differences() {
 
 #[test]
 fn pose_and_exposure_gradients_match_finite_differences() {
+    pose_and_exposure_check(options());
+}
+
+#[test]
+fn plane_depth_pose_and_exposure_gradients_match_finite_differences() {
+    pose_and_exposure_check(plane_options());
+}
+
+fn pose_and_exposure_check(options: RenderOptions) {
+    let options = || options;
     for seed in 0..3u64 {
         let cam = camera(48, 40, 70.0, [0.05, -0.02, 0.1], [0.02, -0.03, 0.01]);
         let g: Gaussians<f64> = random_scene(10 + seed, 15, (0.1, 0.85));

@@ -10,6 +10,69 @@ use common::*;
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 
+/// A flat Gaussian lying on a floor seen at a grazing angle: under the plane model every pixel
+/// it covers renders (normalised by its opacity) the depth where that pixel's ray meets the
+/// floor, to within the linearisation at the centre; the centre model renders the centre's
+/// depth over the whole footprint, short of the floor above the centre and long below it.
+#[test]
+fn a_flat_gaussian_on_a_floor_renders_the_floor_depth_under_the_plane_model() {
+    let (w, h) = (128u32, 128u32);
+    let cam = camera(w, h, 90.0, [0.0; 3], [0.0; 3]);
+    let k = cam.intrinsics;
+    // Camera frame (x right, y down, z forward): the floor is the plane y = 1.
+    let (floor, z0) = (1.0, 2.0);
+    let mut g = Gaussians::<f64>::new();
+    g.push(
+        [0.0, floor, z0],
+        [0.5; 3],
+        [1.0, 0.0, 0.0, 0.0],
+        0.9,
+        [0.2, 1e-4, 0.2],
+    );
+    let floor_depth = |v: f64| floor * k.fy / (v - k.cy);
+    let errors = |model: DepthModel| {
+        let out = render(
+            &g,
+            &cam,
+            &RenderOptions {
+                depth: model,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut worst = 0.0f64;
+        let mut count = 0;
+        for v in 0..h as usize {
+            for u in 0..w as usize {
+                let p = v * w as usize + u;
+                // Within about 1.2σ of the centre, where the linearisation holds.
+                if out.opacity[p] < 0.4 || (v as f64) <= k.cy {
+                    continue;
+                }
+                let truth = floor_depth(v as f64);
+                worst = worst.max((out.depth[p] / out.opacity[p] - truth).abs() / truth);
+                count += 1;
+            }
+        }
+        (worst, count)
+    };
+    let (plane, n) = errors(DepthModel::Plane);
+    let (centre, m) = errors(DepthModel::Centre);
+    eprintln!("worst relative depth error over {n} pixels: plane {plane:.4}, centre {centre:.4}");
+    assert_eq!(n, m);
+    assert!(n > 20, "too few covered pixels: {n}");
+    assert!(plane < 0.02, "plane model {plane}");
+    assert!(centre > 0.08, "centre model {centre}");
+}
+
+/// Render options with the centre depth model, which the Fisher pass needs.
+fn centre_depth() -> RenderOptions {
+    RenderOptions {
+        depth: DepthModel::Centre,
+        ..Default::default()
+    }
+}
+
 #[test]
 fn one_gaussian_renders_to_its_closed_form() {
     // Isotropic Gaussian on the optical axis: Σ' = ((f·s/z)² + 0.3)·I exactly, so every pixel
@@ -80,8 +143,8 @@ fn gaussians_behind_or_outside_the_camera_contribute_nothing() {
         0.9,
         [0.1; 3],
     ); // far above
-    let a = render(&base, &cam, &RenderOptions::default()).unwrap();
-    let b = render(&with, &cam, &RenderOptions::default()).unwrap();
+    let a = render(&base, &cam, &centre_depth()).unwrap();
+    let b = render(&with, &cam, &centre_depth()).unwrap();
     assert_eq!(a.colour, b.colour);
     assert_eq!(a.depth, b.depth);
     assert_eq!(a.opacity, b.opacity);
@@ -145,6 +208,7 @@ fn results_do_not_depend_on_the_thread_count() {
                 &RenderOptions {
                     exposure: [0.1, 0.0],
                     exclude_flags: 0,
+                    depth: DepthModel::Centre,
                 },
             )
             .unwrap();
