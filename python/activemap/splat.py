@@ -263,18 +263,22 @@ def render(
     near: float = 0.01,
     far: float = float("inf"),
     exclude_flags: int = 0,
+    depth_model: str = "plane",
 ) -> Render:
     """Render colour, depth and opacity of ``gaussians`` seen from ``pose`` (``T_world_camera``,
     4x4) with ``intrinsics`` (``activemap_splat::render``, SPEC 3).
 
     The images have the dtype of ``means`` (float32 unless it is float64). ``exposure`` ``(a, b)``
     gives colour ``e^a C + b``; Gaussians with ``flags & exclude_flags`` are left out.
+    ``depth_model``: ``"plane"`` (the maps' default: each Gaussian contributes the depth of its
+    densest point along the pixel's ray) or ``"centre"`` (SPEC 3: its centre's depth; the model
+    ``view_fisher`` differentiates).
     Raises ``ValueError`` for bad shapes, a pose that is not rigid or an unusable camera.
     """
     arrays = _arrays(gaussians)
     colour, depth, opacity = _native_for(arrays, "render")(
         *arrays, _pose(pose), _intrinsics(intrinsics), (float(exposure[0]), float(exposure[1])),
-        float(near), float(far), int(exclude_flags),
+        float(near), float(far), int(exclude_flags), str(depth_model),
     )
     return Render(colour, depth, opacity)
 
@@ -293,7 +297,8 @@ def view_fisher(
     """The Fisher information of the view (``activemap_splat::fisher``): per Gaussian the
     diagonals ``sum_px (df/dw)^2`` over the 14 raw parameters of the colour outputs (``mode``
     ``"per_channel"``: every channel an observation; ``"channel_sum"``: FisherRF's square of the
-    channel sum) and of the depth, and the 6x6 pose information of each.
+    channel sum) and of the depth, and the 6x6 pose information of each, of a render with the
+    centre depth model (``render(..., depth_model="centre")``).
     """
     arrays = _arrays(gaussians)
     d = _native_for(arrays, "fisher")(

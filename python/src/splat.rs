@@ -179,9 +179,22 @@ fn render_impl<'py, T: Element + Real>(
     near: f64,
     far: f64,
     exclude_flags: u8,
+    depth_model: &str,
 ) -> PyResult<Images<'py, T>> {
     let camera = camera(k, &pose(&world_from_camera)?, near, far);
-    let options = options(exposure, exclude_flags);
+    let depth = match depth_model {
+        "plane" => activemap_splat::DepthModel::Plane,
+        "centre" => activemap_splat::DepthModel::Centre,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "depth_model must be 'plane' or 'centre', got {other:?}"
+            )));
+        }
+    };
+    let options = RenderOptions {
+        depth,
+        ..options(exposure, exclude_flags)
+    };
     let out = py
         .detach(|| activemap_splat::render(&map, &camera, &options))
         .map_err(splat_err)?;
@@ -311,12 +324,12 @@ fn view_information_impl<'py, T: Element + Real>(
 
 macro_rules! splat_functions {
     ($t:ty, $render:ident, $fisher:ident, $info:ident) => {
-        /// Renders colour (H, W, 3), depth (H, W) and opacity (H, W) (`activemap_splat::render`,
-        /// with the maps' plane depth model).
+        /// Renders colour (H, W, 3), depth (H, W) and opacity (H, W) (`activemap_splat::render`;
+        /// `depth_model` `plane`, the maps' default, or `centre`).
         #[pyfunction]
         #[pyo3(signature = (means, sh_dc, rotations, opacity_logits, log_scales, flags,
             world_from_camera, intrinsics, exposure=(0.0, 0.0), near=0.01, far=f64::INFINITY,
-            exclude_flags=0))]
+            exclude_flags=0, depth_model="plane"))]
         #[allow(clippy::too_many_arguments)]
         fn $render<'py>(
             py: Python<'py>,
@@ -332,6 +345,7 @@ macro_rules! splat_functions {
             near: f64,
             far: f64,
             exclude_flags: u8,
+            depth_model: &str,
         ) -> PyResult<Images<'py, $t>> {
             let map = gaussians(
                 &means,
@@ -341,7 +355,17 @@ macro_rules! splat_functions {
                 &log_scales,
                 flags.as_ref(),
             )?;
-            render_impl(py, map, world_from_camera, intrinsics, exposure, near, far, exclude_flags)
+            render_impl(
+                py,
+                map,
+                world_from_camera,
+                intrinsics,
+                exposure,
+                near,
+                far,
+                exclude_flags,
+                depth_model,
+            )
         }
 
         /// The Fisher information of the rendered view (`activemap_splat::fisher`, of a render

@@ -65,7 +65,8 @@ def test_view_information_eig_and_localisation_cost_equal_the_rust_values(splat_
 
 
 def images(g: activemap.Gaussians, p: np.ndarray, k) -> tuple[np.ndarray, np.ndarray]:
-    out = activemap.render(g, p, k)
+    # The centre depth model: the one the Fisher pass differentiates.
+    out = activemap.render(g, p, k, depth_model="centre")
     return out.colour, out.depth
 
 
@@ -193,6 +194,8 @@ def test_bad_input_raises_errors_naming_what_is_wrong(splat_fixture):
         activemap.render(g, p, (32, 24, 28))
     with pytest.raises(ValueError, match="invalid camera"):
         activemap.render(g, p, (0, 24, 28, 28, 15.5, 11.5))
+    with pytest.raises(ValueError, match="depth_model must be"):
+        activemap.render(g, p, k, depth_model="flat")
     with pytest.raises(ValueError, match="mode must be"):
         activemap.view_fisher(g, p, k, mode="bogus")
     with pytest.raises(ValueError, match="prior must have shape"):
