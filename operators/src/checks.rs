@@ -194,6 +194,28 @@ fn depth_model(node: &NodeSpec) -> Option<activemap_splat::DepthModel> {
     Some(set.unwrap_or_default())
 }
 
+/// One diagnostic per node whose value differs from the first node's, at that node, worded by
+/// `message(node, value, first node, first value)`.
+fn disagreements<V: PartialEq>(
+    flow: &Dataflow,
+    values: &[(&NodeSpec, V)],
+    diags: &mut Vec<Diagnostic>,
+    message: impl Fn(&NodeSpec, &V, &NodeSpec, &V) -> String,
+) {
+    let Some((first, reference)) = values.first() else {
+        return;
+    };
+    for (node, value) in &values[1..] {
+        if value != reference {
+            diags.push(Diagnostic {
+                file: flow.file.clone(),
+                loc: node.loc,
+                message: message(node, value, first, reference),
+            });
+        }
+    }
+}
+
 /// Every cross-node problem of a validated flow, one diagnostic each, at the consumer node.
 pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
     let mut diags = Vec::new();
@@ -202,39 +224,23 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
         .iter()
         .filter_map(|n| robot(n).map(|r| (n, r)))
         .collect();
-    if let Some((first, reference)) = robots.first() {
-        for (node, r) in &robots[1..] {
-            if r != reference {
-                diags.push(Diagnostic {
-                    file: flow.file.clone(),
-                    loc: node.loc,
-                    message: format!(
-                        "robot mismatch: node `{}` has robot {r:?} but node `{}` has {reference:?}; every node that takes a `robot` config must describe the same robot (a node without one has the default)",
-                        node.id, first.id
-                    ),
-                });
-            }
-        }
-    }
+    disagreements(flow, &robots, &mut diags, |node, r, first, reference| {
+        format!(
+            "robot mismatch: node `{}` has robot {r:?} but node `{}` has {reference:?}; every node that takes a `robot` config must describe the same robot (a node without one has the default)",
+            node.id, first.id
+        )
+    });
     let models: Vec<(&NodeSpec, activemap_splat::DepthModel)> = flow
         .nodes
         .iter()
         .filter_map(|n| depth_model(n).map(|m| (n, m)))
         .collect();
-    if let Some((first, reference)) = models.first() {
-        for (node, m) in &models[1..] {
-            if m != reference {
-                diags.push(Diagnostic {
-                    file: flow.file.clone(),
-                    loc: node.loc,
-                    message: format!(
-                        "depth model mismatch: node `{}` renders the map with depth_model {m:?} but node `{}` with {reference:?}; the mapper's `tuning.depth_model`, the tracker's and the evaluator's `depth_model` must agree (a node without one has the default, plane)",
-                        node.id, first.id
-                    ),
-                });
-            }
-        }
-    }
+    disagreements(flow, &models, &mut diags, |node, m, first, reference| {
+        format!(
+            "depth model mismatch: node `{}` renders the map with depth_model {m:?} but node `{}` with {reference:?}; the mapper's `tuning.depth_model`, the tracker's and the evaluator's `depth_model` must agree (a node without one has the default, plane)",
+            node.id, first.id
+        )
+    });
     let scenes: Vec<(&NodeSpec, (&str, activemap_sim::SceneSpec))> = flow
         .nodes
         .iter()

@@ -317,16 +317,7 @@ pub(crate) fn project_vjp<T: Real>(
     let dm = c.w.transpose() * g_sigma * c.w * c.m * two;
     let (rotation, log_scale) = shape_grads(c, |i, j| dm[(i, j)]);
     let mean_grad = c.w.transpose() * dp;
-    let cross = c.p_c.cross(&dp);
-    let p = c.sigma_c * g_sigma;
-    let pose = [
-        dp.x,
-        dp.y,
-        dp.z,
-        cross.x + two * (p[(1, 2)] - p[(2, 1)]),
-        cross.y + two * (p[(2, 0)] - p[(0, 2)]),
-        cross.z + two * (p[(0, 1)] - p[(1, 0)]),
-    ];
+    let pose = pose_grad(c, &dp, &(c.sigma_c * g_sigma));
     for k in 0..3 {
         out.mean[k] += mean_grad[k];
         out.log_scale[k] += log_scale[k];
@@ -403,24 +394,31 @@ pub(crate) fn project_vjp_with<T: Real>(
     // ∂L/∂Σ = Wᵀ(∂L/∂Σ_c)W = Aᵀ·gs·A; ∂L/∂M = 2·(∂L/∂Σ)·M = 2·Aᵀ·gs·B.
     let dm = prep.a.transpose() * (gs * prep.b) * two;
     let (rotation, log_scale) = shape_grads(c, |i, j| dm[(i, j)]);
-    // Pose: ∂p_c/∂ρ = I, ∂p_c/∂θ = −[p_c]×, Σ_c = W Σ Wᵀ with ∂(W v)/∂θ = −[W v]×.
-    let cross = c.p_c.cross(&dp);
     // Σ_c·(∂L/∂Σ_c) = Σ_c·Jᵀ·gs·J = Cᵀ·gs·J.
-    let p = prep.c.transpose() * (gs * c.j);
-    let pose = [
-        dp.x,
-        dp.y,
-        dp.z,
-        cross.x + two * (p[(1, 2)] - p[(2, 1)]),
-        cross.y + two * (p[(2, 0)] - p[(0, 2)]),
-        cross.z + two * (p[(0, 1)] - p[(1, 0)]),
-    ];
+    let pose = pose_grad(c, &dp, &(prep.c.transpose() * (gs * c.j)));
     ProjectionGrads {
         mean: [mean_grad.x, mean_grad.y, mean_grad.z],
         rotation,
         log_scale,
         pose,
     }
+}
+
+/// `[ρ, θ]` gradients of the left pose update (SPEC §3): `∂p_c/∂ρ = I`, `∂p_c/∂θ = −[p_c]×`,
+/// and through `Σ_c = W Σ Wᵀ` with `∂(W v)/∂θ = −[W v]×`, given `dp = ∂L/∂p_c` and
+/// `p = Σ_c·(∂L/∂Σ_c)` for a symmetric `∂L/∂Σ_c` (only its antisymmetric part enters).
+#[inline(always)]
+fn pose_grad<T: Real>(c: &Chain<T>, dp: &Vector3<T>, p: &Matrix3<T>) -> [T; 6] {
+    let two = T::of(2.0);
+    let cross = c.p_c.cross(dp);
+    [
+        dp.x,
+        dp.y,
+        dp.z,
+        cross.x + two * (p[(1, 2)] - p[(2, 1)]),
+        cross.y + two * (p[(2, 0)] - p[(0, 2)]),
+        cross.z + two * (p[(0, 1)] - p[(1, 0)]),
+    ]
 }
 
 /// Adds to `dp = ∂L/∂p_c` what flows through the pinhole Jacobian `J` (evaluated at the
