@@ -333,15 +333,16 @@ pub fn track(
             // decides: where it covers the frame, the frame must agree with it.
             Some(TrackingStatus::Lost(LostReason::LowOverlap { fraction })) => {
                 match classify(config, &res, median_depth) {
-                    TrackingStatus::Lost(
-                        reason @ (LostReason::DepthResidual { .. }
-                        | LostReason::ColourResidual { .. }),
-                    ) => TrackingStatus::Lost(reason),
-                    _ if res.coverage >= config.lost_min_coverage => TrackingStatus::Ok,
                     // Neither the references nor the map cover the frame: new space, unless
                     // the references' overlap says nothing at all.
-                    _ if fraction > 0.0 => TrackingStatus::Ok,
-                    _ => TrackingStatus::Lost(LostReason::LowOverlap { fraction }),
+                    TrackingStatus::Lost(LostReason::LowOverlap { .. }) if fraction > 0.0 => {
+                        TrackingStatus::Ok
+                    }
+                    TrackingStatus::Lost(LostReason::LowOverlap { .. }) => {
+                        TrackingStatus::Lost(LostReason::LowOverlap { fraction })
+                    }
+                    // The map covers the frame: it agrees (tracked) or contradicts it (lost).
+                    map_status => map_status,
                 }
             }
             Some(status) => status,
