@@ -220,7 +220,10 @@ impl Mapper {
         let pose = pose_from_wire(&estimate.t_world_camera)?;
         let quality = match estimate.status {
             TrackingStatus::Ok => PoseQuality::Ok,
-            TrackingStatus::Lost => PoseQuality::Lost,
+            TrackingStatus::Lost => estimate
+                .lost_reason
+                .as_ref()
+                .map_or(PoseQuality::Lost, PoseQuality::of_lost),
             TrackingStatus::Skipped => PoseQuality::Skipped,
         };
         let link = GraphLink {

@@ -17,7 +17,7 @@ use activemap_schemas::{
 };
 use activemap_slam::{
     Frame, KeyframeGraphConfig, LostReason, MotionCheck, MotionPrior, TrackedFrame, TrackingConfig,
-    TrackingSession, TrackingStatus as SlamStatus,
+    TrackingSession, TrackingStatus as SlamStatus, YawSearch,
 };
 use activemap_splat::Gaussians;
 
@@ -76,6 +76,13 @@ pub struct Config {
     /// relocalisation). `null` turns the check off.
     #[serde(default = "default_motion_check")]
     pub motion_check: Option<MotionCheckConfig>,
+    /// The relocaliser of a lost frame (`activemap_slam::YawSearch`): a frame lost for its
+    /// depth or colour residual or its overlap is aligned again from `yaw_hypotheses` evenly
+    /// spaced yaws about the prediction's position; a solution the alignment accepts on its own,
+    /// confirmed by `confirm_frames` consecutive agreeing frames, is taken (a relocalisation:
+    /// the robot spun or slid on a turn without the tracker knowing). `null` turns it off.
+    #[serde(default = "default_yaw_search")]
+    pub yaw_search: Option<YawSearchConfig>,
     /// The per-pixel depth of a Gaussian in the tracker's renders (`centre` or `plane`); must
     /// match the mapper's `tuning.depth_model` (library default when absent).
     #[serde(default)]
@@ -103,6 +110,30 @@ impl Default for MotionCheckConfig {
             confirm_frames: c.confirm_frames,
         }
     }
+}
+
+/// The `tracker` node's `yaw_search` (defaults: [`YawSearch::default`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct YawSearchConfig {
+    /// Evenly spaced yaws tried, the prediction's included (12).
+    pub yaw_hypotheses: u32,
+    /// Agreeing consecutive solutions after which one is taken (3).
+    pub confirm_frames: u32,
+}
+
+impl Default for YawSearchConfig {
+    fn default() -> Self {
+        let y = YawSearch::default();
+        Self {
+            yaw_hypotheses: y.yaw_hypotheses,
+            confirm_frames: y.confirm_frames,
+        }
+    }
+}
+
+fn default_yaw_search() -> Option<YawSearchConfig> {
+    Some(YawSearchConfig::default())
 }
 
 fn default_motion_check() -> Option<MotionCheckConfig> {
@@ -144,6 +175,10 @@ impl Config {
                     max_rotation_rad: c.max_rotation_deg.to_radians(),
                     confirm_frames: c.confirm_frames,
                 }),
+            yaw_search: self.yaw_search.map(|y| YawSearch {
+                yaw_hypotheses: y.yaw_hypotheses,
+                confirm_frames: y.confirm_frames,
+            }),
             ..TrackingConfig::default()
         };
         if let Some(d) = self.downscale {
@@ -471,6 +506,7 @@ mod tests {
             map_lag: 0,
             pose_graph: false,
             motion_check: default_motion_check(),
+            yaw_search: default_yaw_search(),
             depth_model: None,
         })
         .unwrap();
@@ -525,7 +561,7 @@ mod tests {
     /// Issue 34: tracking never fails silently. A run of lost frames is logged when it begins
     /// (with its reason), when the reason changes kind and when it ends; a relocalisation is
     /// logged; the wire estimate carries the reason. The motion check is on by default and
-    /// off with `motion_check: null` or another motion prior.
+    /// off with `motion_check: null` or another motion prior; the yaw search likewise.
     #[test]
     fn lost_runs_regains_and_relocalisations_are_logged_and_carried_on_the_wire() {
         let config: Config = serde_json::from_value(serde_json::json!({})).unwrap();
@@ -546,6 +582,19 @@ mod tests {
             .err()
             .unwrap();
         assert!(e.to_string().contains("max_translation_m"), "{e}");
+        // The yaw search: on by default, off with `null`, checked.
+        assert_eq!(
+            config.tracking_config().unwrap().yaw_search,
+            Some(YawSearch::default())
+        );
+        let off: Config =
+            serde_json::from_value(serde_json::json!({ "yaw_search": null })).unwrap();
+        assert_eq!(off.tracking_config().unwrap().yaw_search, None);
+        let one = serde_json::json!({ "yaw_search": { "yaw_hypotheses": 1 } });
+        let e = Tracker::from_config(serde_json::from_value(one).unwrap())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("yaw_hypotheses"), "{e}");
 
         let mut tracker = Tracker::from_config(config).unwrap();
         let frame = |id: u64, status: SlamStatus| TrackedFrame {

@@ -591,6 +591,7 @@ pub fn align_many(
 pub(crate) mod tests {
     use super::*;
     use activemap_geometry::se3::pose_error;
+    use activemap_splat::Gaussians;
     use nalgebra::{Translation3, UnitQuaternion};
 
     /// A frame of a textured box room seen from `pose` (`T_world_camera`), ray-cast exactly:
@@ -629,6 +630,20 @@ pub(crate) mod tests {
             }
         }
         Frame::new(k, rgb, depth, 0.0).unwrap()
+    }
+
+    /// Gaussians on the surfaces `frame` sees from `pose`: one per 2×2 pixels, 4 cm, nearly
+    /// opaque, with the frame's colour.
+    pub(crate) fn map_of(frame: &Frame, pose: &Isometry3<f64>, map: &mut Gaussians<f32>) {
+        let k = frame.intrinsics;
+        for y in (0..k.height as usize).step_by(2) {
+            for x in (0..k.width as usize).step_by(2) {
+                let i = y * k.width as usize + x;
+                let p = pose * k.unproject(x as f64, y as f64, frame.depth[i] as f64);
+                let c = frame.rgb[i].map(f64::from);
+                map.push([p.x, p.y, p.z], c, [1.0, 0.0, 0.0, 0.0], 0.95, [0.04; 3]);
+            }
+        }
     }
 
     pub(crate) fn camera_at(x: f64, y: f64, yaw: f64) -> Isometry3<f64> {

@@ -71,6 +71,6 @@ pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
 pub use session::{
     MotionCheck, MotionGate, MotionPrior, MotionVerdict, Relocalisation, TrackedFrame,
-    TrackingConfig, TrackingSession, required_snapshot,
+    TrackingConfig, TrackingSession, YawSearch, required_snapshot,
 };
 pub use tracker::{LostReason, TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

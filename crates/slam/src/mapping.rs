@@ -14,7 +14,9 @@
 //!
 //! Lost frames are not mapped (a frame the map cannot explain must not corrupt it), except
 //! that after `remap_after_lost` consecutive lost frames the frame is mapped at the tracker's
-//! pose, so the system cannot stay lost forever where the map has a hole.
+//! pose, so the system cannot stay lost forever where the map has a hole; never a frame the
+//! map contradicts at that pose ([`PoseQuality::Contradicted`]: a covered lens, a spin the
+//! tracker was not told of).
 //!
 //! With the tracker's pose graph, each frame's estimate names the graph keyframe it hangs on
 //! and may bring corrections ([`GraphLink`]); the worker applies them before mapping that
@@ -37,6 +39,7 @@ use crate::keyframe::{KeyframeConfig, decide};
 use crate::keyframe_graph::KeyframeCorrection;
 use crate::mapper::{Mapper, MapperConfig, MappingReport};
 use crate::session::required_snapshot;
+use crate::tracker::LostReason;
 use crate::tracker::{TrackerConfig, TrackingStatus};
 
 /// Settings of the mapping session.
@@ -103,8 +106,13 @@ impl MappingConfig {
 pub enum PoseQuality {
     /// Tracked: the map explains the frame.
     Ok,
-    /// Lost: the map does not explain the frame at the estimate.
+    /// Lost where the map may simply not reach: too little overlap, a solution the motion
+    /// check rejected, a non-finite one. Mapped after `remap_after_lost` in a row.
     Lost,
+    /// Lost because the map or the references contradict the frame at the estimate (its depth
+    /// or colour residual): the estimate is a guess the map disagrees with (a spin the tracker
+    /// was not told of, a covered lens), so the frame is never mapped.
+    Contradicted,
     /// Skipped: the frame was unusable (black, saturated, no depth, NaN colour).
     Skipped,
 }
@@ -113,8 +121,23 @@ impl From<TrackingStatus> for PoseQuality {
     fn from(s: TrackingStatus) -> Self {
         match s {
             TrackingStatus::Ok => Self::Ok,
-            TrackingStatus::Lost(_) => Self::Lost,
+            TrackingStatus::Lost(reason) => Self::of_lost(&reason),
             TrackingStatus::Skipped(_) => Self::Skipped,
+        }
+    }
+}
+
+impl PoseQuality {
+    /// The quality of a frame lost for `reason`: [`PoseQuality::Contradicted`] for a depth or
+    /// colour residual, [`PoseQuality::Lost`] otherwise.
+    pub fn of_lost(reason: &LostReason) -> Self {
+        match reason {
+            LostReason::DepthResidual { .. } | LostReason::ColourResidual { .. } => {
+                Self::Contradicted
+            }
+            LostReason::LowOverlap { .. }
+            | LostReason::MotionMismatch { .. }
+            | LostReason::NonFinite => Self::Lost,
         }
     }
 }
@@ -229,6 +252,10 @@ impl KeyframeMapper {
         self.frames_since += 1;
         let is_keyframe = match quality {
             PoseQuality::Skipped => false,
+            PoseQuality::Contradicted => {
+                self.consecutive_lost += 1;
+                false
+            }
             PoseQuality::Lost => {
                 self.consecutive_lost += 1;
                 let remap = self.config.remap_after_lost;

@@ -211,6 +211,26 @@ impl References {
             .collect()
     }
 
+    /// The references of the place `pose` looks at, whatever their age: up to `1 + extra`
+    /// within `max_distance` and `max_angle` of it, closest first (the first is the primary
+    /// one of [`crate::dense::align_many`]). The relocaliser's choice ([`crate::YawSearch`]):
+    /// after a spin, the newest reference looks elsewhere. Empty when none is near.
+    pub fn select_near(&self, pose: &Isometry3<f64>) -> Vec<(u64, &DenseReference)> {
+        let mut near: Vec<(f64, u64, &DenseReference)> = self
+            .entries
+            .iter()
+            .filter_map(|e| {
+                self.score(pose, &e.reference.pose)
+                    .map(|s| (s, e.serial, &e.reference))
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+        near.into_iter()
+            .take(1 + self.config.extra)
+            .map(|(_, serial, r)| (serial, r))
+            .collect()
+    }
+
     /// The serial the next [`References::push`] gives.
     pub fn next_serial(&self) -> u64 {
         self.next_serial

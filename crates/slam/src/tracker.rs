@@ -429,22 +429,8 @@ fn adam_refine(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dense::tests::{box_frame, camera_at};
+    use crate::dense::tests::{box_frame, camera_at, map_of};
     use activemap_geometry::Intrinsics;
-
-    /// Gaussians on the surfaces `frame` sees from `pose`: one per 2×2 pixels, 4 cm, nearly
-    /// opaque, with the frame's colour.
-    fn map_of(frame: &Frame, pose: &Isometry3<f64>, map: &mut Gaussians<f32>) {
-        let k = frame.intrinsics;
-        for y in (0..k.height as usize).step_by(2) {
-            for x in (0..k.width as usize).step_by(2) {
-                let i = y * k.width as usize + x;
-                let p = pose * k.unproject(x as f64, y as f64, frame.depth[i] as f64);
-                let c = frame.rgb[i].map(f64::from);
-                map.push([p.x, p.y, p.z], c, [1.0, 0.0, 0.0, 0.0], 0.95, [0.04; 3]);
-            }
-        }
-    }
 
     /// The dense tracker's low overlap with its reference keyframes is decided by the map:
     /// a view turned into space neither the references nor the map cover is new, not lost; a
