@@ -64,9 +64,13 @@ pub fn spawn(args: &[&str], cwd: &Path) -> Child {
 }
 
 /// Start `activemap args...` with piped output and the variables `env` set for it (and its
-/// node processes) only.
+/// node processes) only. The process gets SIGTERM when the test's thread ends, so a test that
+/// panics leaves no daemon behind (an `activemap up` that outlived its test held `.ci/run`'s
+/// build lock through an inherited descriptor).
 pub fn spawn_env(args: &[&str], cwd: &Path, env: &[(&str, &str)]) -> Child {
-    Command::new(exe())
+    let mut command = Command::new(exe());
+    die_with_test_thread(&mut command);
+    command
         .args(args)
         // No LPIPS download from the tests: absent weights stay "missing" (a test may override).
         .env("ACTIVEMAP_LPIPS_FETCH", "0")
@@ -77,6 +81,21 @@ pub fn spawn_env(args: &[&str], cwd: &Path, env: &[(&str, &str)]) -> Child {
         .stderr(Stdio::piped())
         .spawn()
         .expect("start activemap")
+}
+
+/// SIGTERM to the child when the thread that started it ends (`PR_SET_PDEATHSIG` follows the
+/// spawning thread: each test runs on its own).
+fn die_with_test_thread(command: &mut Command) {
+    use std::os::unix::process::CommandExt as _;
+    // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
 }
 
 /// Wait for `child` at most `timeout`; kill it and panic on timeout.
