@@ -1218,3 +1218,92 @@ mod tests {
         );
     }
 }
+
+#[cfg(test)]
+mod box_room {
+    use super::*;
+    use crate::dense::tests::{box_frame, camera_at};
+    use activemap_geometry::Intrinsics;
+    use activemap_splat::{Camera, render};
+
+    /// Signed distance of a point to the room's nearest face, metres: positive inside the room
+    /// (in front of the surface), negative behind it.
+    fn signed_distance(p: [f32; 3]) -> f64 {
+        let [x, y, z] = p.map(f64::from);
+        (2.0 - x.abs()).min(2.0 - y.abs()).min(z).min(3.0 - z)
+    }
+
+    /// Opacity-weighted median of `values` (value, weight).
+    fn weighted_median(mut values: Vec<(f64, f64)>) -> f64 {
+        values.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let total: f64 = values.iter().map(|v| v.1).sum();
+        let mut cumulative = 0.0;
+        for (v, w) in values {
+            cumulative += w;
+            if cumulative >= 0.5 * total {
+                return v;
+            }
+        }
+        f64::NAN
+    }
+
+    fn psnr(mapper: &Mapper, k: Intrinsics, pose: &Isometry3<f64>) -> f64 {
+        let frame = box_frame(k, pose);
+        let camera = Camera::from_world_pose(k, pose);
+        let out = render(mapper.map(), &camera, &RenderOptions::default()).unwrap();
+        let mut sum = 0.0;
+        for (r, t) in out.colour.iter().zip(&frame.rgb) {
+            for c in 0..3 {
+                sum += f64::from(r[c].clamp(0.0, 1.0) - t[c]).powi(2);
+            }
+        }
+        -10.0 * (sum / (3 * frame.rgb.len()) as f64).log10()
+    }
+
+    /// Twelve keyframes at the true poses, a look-around in 30° turns from two points of the
+    /// room (64×64, camera 1.2 m up, level), with the default mapper (the plane depth model).
+    /// The goal is a median within 1 cm of the surfaces; this is where the map sinks
+    /// without tracking or noise, a guard at today's level: opacity-weighted median of the
+    /// signed distance −2.31 cm (behind the surfaces), of its magnitude 2.36 cm, held-out PSNR
+    /// (a view turned 15° from every keyframe, from a point between them) 30.84 dB, 11 s.
+    /// Screened here (same measures): the centre depth model −2.45 cm; no depth term (α = 1)
+    /// −1.05 cm, so the colour term alone sinks the centres by a centimetre; 30 iterations per
+    /// keyframe −3.42 cm (more optimisation, more sinking); the opacity-weighted depth term
+    /// −1.84 cm; no densification −2.30 cm; `snap_behind_m` 0.15 −0.25 cm and 31.46 dB, which
+    /// on the house loop of `bench slam` costs 0.54 dB of held-out PSNR and 1.5 cm of depth
+    /// MAE (the SLAM chapter of the book).
+    #[test]
+    fn a_box_room_mapped_from_known_poses_stays_within_3_cm_of_its_surfaces() {
+        let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
+        let mut mapper = Mapper::new(MapperConfig::default()).unwrap();
+        let poses: Vec<Isometry3<f64>> = (0..12)
+            .map(|i| {
+                let (x, y) = if i % 2 == 0 { (0.5, -0.3) } else { (-0.4, 0.3) };
+                camera_at(x, y, (30.0 * i as f64).to_radians())
+            })
+            .collect();
+        for pose in &poses {
+            mapper
+                .add_keyframe(box_frame(k, pose), *pose, [0.0, 0.0])
+                .unwrap();
+        }
+        let map = mapper.map();
+        let signed: Vec<(f64, f64)> = (0..map.len())
+            .map(|i| (signed_distance(map.means[i]), map.opacity(i)))
+            .collect();
+        let median = weighted_median(signed.clone());
+        let median_abs = weighted_median(signed.iter().map(|(d, w)| (d.abs(), *w)).collect());
+        let held_out = psnr(&mapper, k, &camera_at(0.05, 0.0, 15f64.to_radians()));
+        let last = psnr(&mapper, k, poses.last().unwrap());
+        let summary = format!(
+            "{} Gaussians, signed median {:.2} cm, |d| median {:.2} cm, held-out PSNR {held_out:.2} dB, keyframe PSNR {last:.2} dB",
+            map.len(),
+            median * 100.0,
+            median_abs * 100.0
+        );
+        eprintln!("box room: {summary}");
+        assert!(median.abs() <= 0.03, "{summary}");
+        assert!(median_abs <= 0.03, "{summary}");
+        assert!(held_out >= 29.0, "{summary}");
+    }
+}
