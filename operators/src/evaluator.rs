@@ -462,6 +462,7 @@ impl Operator for Evaluator {
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);
                     self.reports.push(FrameReport {
+                        frame_id: e.frame_id,
                         skipped: e.status == activemap_schemas::TrackingStatus::Skipped,
                         lost: e
                             .lost_reason

@@ -559,6 +559,9 @@ pub struct TrackingSummary {
     pub unexplained_jumps: u64,
     /// The largest of those, metres (0 without any).
     pub max_unexplained_jump_m: f64,
+    /// The frame that ends each of those jumps, in order (absent in runs evaluated before
+    /// this field), so that its log and trajectory can be looked up.
+    pub unexplained_jump_frames: Vec<u64>,
 }
 
 impl TrackingSummary {
@@ -584,8 +587,21 @@ impl TrackingSummary {
             100.0 * self.max_error_jump_m,
             self.unexplained_jumps,
             100.0 * crate::step_metrics::JUMP_LIMIT_M
-        )
+        ) + &jump_frames(&self.unexplained_jump_frames)
     }
+}
+
+/// ` (frames A, B, …)` naming the first few frames of unexplained jumps; empty without any.
+fn jump_frames(frames: &[u64]) -> String {
+    const SHOWN: usize = 5;
+    if frames.is_empty() {
+        return String::new();
+    }
+    let mut names: Vec<String> = frames.iter().take(SHOWN).map(u64::to_string).collect();
+    if frames.len() > SHOWN {
+        names.push("…".into());
+    }
+    format!(" (frames {})", names.join(", "))
 }
 
 /// Whether a record's decision differs from the fallback's choice: `None` when it does not say
@@ -1430,8 +1446,9 @@ mod tests {
                 relocalisations: 1,
                 loop_closures: 0,
                 max_error_jump_m: 0.031,
-                unexplained_jumps: 0,
-                max_unexplained_jump_m: 0.0,
+                unexplained_jumps: 2,
+                max_unexplained_jump_m: 0.062,
+                unexplained_jump_frames: vec![120, 344],
             }),
             map_depth_model: Some(DepthModel::Plane),
             warnings: Vec::new(),

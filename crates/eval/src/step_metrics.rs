@@ -111,6 +111,8 @@ pub const JUMP_LIMIT_M: f64 = 0.05;
 /// What the tracker said of one frame, for [`tracking_summary`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameReport {
+    /// The frame's id (named in [`TrackingSummary::unexplained_jump_frames`]).
+    pub frame_id: u64,
     /// The frame was skipped (unusable): it neither starts nor ends a run of lost frames.
     pub skipped: bool,
     /// Why the frame was reported lost (`None`: it was not).
@@ -175,6 +177,7 @@ pub fn tracking_summary(
             {
                 out.unexplained_jumps += 1;
                 out.max_unexplained_jump_m = out.max_unexplained_jump_m.max(jump);
+                out.unexplained_jump_frames.push(report.frame_id);
             }
         }
         previous = Some((error, report));
@@ -319,6 +322,7 @@ mod tests {
             let off = Isometry3::translation(e, 0.0, 0.0) * true_pose;
             estimated.push(k as f64, anchor.inverse() * off);
             reports.push(FrameReport {
+                frame_id: k as u64,
                 skipped: false,
                 lost: (k == 3).then_some("motion_mismatch"),
                 relocalised: k == 6,
@@ -331,6 +335,12 @@ mod tests {
         assert!((s.max_error_jump_m - 0.08).abs() < 1e-9, "{s:?}");
         // Frame 2's jump is unexplained; frame 4's follows the lost frame 3.
         assert_eq!(s.unexplained_jumps, 1);
+        assert_eq!(s.unexplained_jump_frames, vec![2]);
+        assert!(s.line().ends_with("explains (frames 2)"), "{}", s.line());
+        // A summary written before the frames were listed still reads.
+        let old: crate::run_folder::TrackingSummary =
+            serde_json::from_str(r#"{ "lost_frames": 1, "unexplained_jumps": 1 }"#).unwrap();
+        assert!(old.unexplained_jump_frames.is_empty() && old.line().ends_with("explains"));
         assert!((s.max_unexplained_jump_m - 0.08).abs() < 1e-9);
         // A loop closure at frame 2 explains its jump.
         reports[2].loop_closure = true;
