@@ -82,7 +82,7 @@ pub struct Config {
     /// confirmed by `confirm_frames` consecutive agreeing frames, is taken (a relocalisation:
     /// the robot spun or slid on a turn without the tracker knowing). `null` turns it off.
     #[serde(default = "default_yaw_search")]
-    pub yaw_search: Option<YawSearchConfig>,
+    pub yaw_search: Option<YawSearch>,
     /// The per-pixel depth of a Gaussian in the tracker's renders (`centre` or `plane`); must
     /// match the mapper's `tuning.depth_model` (library default when absent).
     #[serde(default)]
@@ -112,28 +112,8 @@ impl Default for MotionCheckConfig {
     }
 }
 
-/// The `tracker` node's `yaw_search` (defaults: [`YawSearch::default`]).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct YawSearchConfig {
-    /// Evenly spaced yaws tried, the prediction's included (12).
-    pub yaw_hypotheses: u32,
-    /// Agreeing consecutive solutions after which one is taken (3).
-    pub confirm_frames: u32,
-}
-
-impl Default for YawSearchConfig {
-    fn default() -> Self {
-        let y = YawSearch::default();
-        Self {
-            yaw_hypotheses: y.yaw_hypotheses,
-            confirm_frames: y.confirm_frames,
-        }
-    }
-}
-
-fn default_yaw_search() -> Option<YawSearchConfig> {
-    Some(YawSearchConfig::default())
+fn default_yaw_search() -> Option<YawSearch> {
+    Some(YawSearch::default())
 }
 
 fn default_motion_check() -> Option<MotionCheckConfig> {
@@ -175,10 +155,7 @@ impl Config {
                     max_rotation_rad: c.max_rotation_deg.to_radians(),
                     confirm_frames: c.confirm_frames,
                 }),
-            yaw_search: self.yaw_search.map(|y| YawSearch {
-                yaw_hypotheses: y.yaw_hypotheses,
-                confirm_frames: y.confirm_frames,
-            }),
+            yaw_search: self.yaw_search,
             ..TrackingConfig::default()
         };
         if let Some(d) = self.downscale {

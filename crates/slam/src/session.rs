@@ -91,12 +91,14 @@ pub struct TrackingConfig {
 /// pixels associate with the references, `lost_min_coverage`, not through the new-space rule)
 /// and the map's render at the solution covers the frame and agrees with it in depth and
 /// colour (a box room's walls let point-to-plane alignment settle 30° off with half the
-/// pixels associated; their colours tell). The best of those (the largest reference overlap, then the smallest
-/// depth residual) is taken once `confirm_frames` consecutive frames found solutions that agree
+/// pixels associated; their colours tell). The best of those (the largest reference overlap,
+/// then the smallest depth residual) is taken once `confirm_frames` consecutive frames found
+/// solutions that agree
 /// with each other under the commanded motions ([`MotionGate`] with the motion check's limits),
 /// and reported as a relocalisation ([`TrackedFrame::relocalised`]); until then the frame stays
 /// lost for its own reason and the robot keeps looking around.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct YawSearch {
     /// Evenly spaced yaws tried, the prediction's included (12: 30° apart, within the dense
     /// aligner's reach of ±15°).
@@ -590,7 +592,7 @@ impl TrackingSession {
                         }
                         _ => self.gate.reset(),
                     }
-                    let search = match (self.config.yaw_search, t.status) {
+                    let found = match (self.config.yaw_search, t.status) {
                         (Some(search), TrackingStatus::Lost(reason))
                             if !matches!(reason, LostReason::MotionMismatch { .. }) =>
                         {
@@ -603,35 +605,30 @@ impl TrackingSession {
                                 &predicted,
                                 self.exposure,
                             )?
-                            .map(|found| (search, found))
+                            .map(|found| (search.confirm_frames, found))
                         }
                         _ => None,
                     };
-                    match search {
-                        None => self.search_gate.reset(),
-                        Some((search, (found_selected, found))) => {
-                            let check = MotionCheck {
-                                confirm_frames: search.confirm_frames,
-                                ..self.config.motion_check.unwrap_or_default()
-                            };
-                            let commanded = self.pose.inverse() * predicted;
-                            let verdict = self.search_gate.judge(
-                                &check,
-                                k,
-                                &self.pose,
-                                &found.pose,
-                                &commanded,
-                            );
-                            match verdict {
-                                // Unconfirmed: the frame stays lost for its own reason.
-                                MotionVerdict::Reject(_) => {}
-                                MotionVerdict::Accept => (selected, t) = (found_selected, found),
-                                MotionVerdict::Relocalise(r) => {
-                                    (selected, t) = (found_selected, found);
-                                    estimate.relocalised = Some(r);
-                                }
+                    if let Some((confirm_frames, (found_selected, found))) = found {
+                        let check = MotionCheck {
+                            confirm_frames,
+                            ..self.config.motion_check.unwrap_or_default()
+                        };
+                        let commanded = self.pose.inverse() * predicted;
+                        match self
+                            .search_gate
+                            .judge(&check, k, &self.pose, &found.pose, &commanded)
+                        {
+                            // Unconfirmed: the frame stays lost for its own reason.
+                            MotionVerdict::Reject(_) => {}
+                            MotionVerdict::Accept => (selected, t) = (found_selected, found),
+                            MotionVerdict::Relocalise(r) => {
+                                (selected, t) = (found_selected, found);
+                                estimate.relocalised = Some(r);
                             }
                         }
+                    } else {
+                        self.search_gate.reset();
                     }
                     let mut pose = t.pose;
                     if t.status == TrackingStatus::Ok {
