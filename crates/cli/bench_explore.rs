@@ -263,6 +263,7 @@ fn run_house(
     let mut opts = LaunchOptions::new(run_dir.clone(), exe.to_path_buf());
     opts.max_steps = Some(args.steps);
     opts.record = false;
+    opts.record_digests = crate::MapRecording::default().digests();
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;
     let started = Instant::now();

@@ -15,9 +15,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
+use activemap_bench::episodes::{
+    EpisodeClient as _, EpisodeError, EpisodeRequest, EpisodeState, SceneRef,
+};
 use activemap_bench::results::{Cell, grid::CELL_FILE};
 use activemap_runtime::daemon::DaemonClient;
-use activemap_runtime::daemon::episodes::{EpisodeError, EpisodeRequest, EpisodeState, SceneRef};
 
 /// How often a running remote cell's state is asked for.
 const POLL: Duration = Duration::from_millis(200);

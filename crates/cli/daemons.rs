@@ -93,11 +93,14 @@ pub fn up(daemon: Daemon, tls: &Tls) -> anyhow::Result<()> {
         insecure: daemon.insecure,
         tls: tls.files()?,
         derived: Some(Arc::new(crate::view::FoxgloveView)),
-        slots: daemon.slots,
+        record_digests: crate::MapRecording::default().digests(),
     };
+    let episodes = activemap_bench::episodes::EpisodeHost::new(&opts, daemon.slots)?;
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;
-    serve(&opts, &activemap_operators::catalog(), stop)?;
+    let mut services: Vec<Box<dyn activemap_runtime::daemon::DaemonService>> =
+        vec![Box::new(episodes)];
+    serve(&opts, &activemap_operators::catalog(), &mut services, stop)?;
     eprintln!("activemap daemon `{}` stopped", opts.machine);
     Ok(())
 }

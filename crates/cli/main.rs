@@ -13,6 +13,7 @@ use activemap_runtime::graph::{GraphFormat, render};
 use activemap_runtime::launch::{LaunchOptions, NodeExit, run_local};
 use activemap_runtime::node::{NodeSetup, RunInfo, install_stop_signals};
 use activemap_runtime::{bench, record};
+use activemap_schemas::MessageKind;
 use anyhow::{Context as _, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 
@@ -73,7 +74,7 @@ enum Command {
         /// `activemap replay` remakes them by replaying the mapper, with this build) or `full`
         /// (every map, delta-encoded; a larger file).
         #[arg(long, value_name = "MODE", default_value = "regenerated")]
-        record_maps: record::MapRecording,
+        record_maps: MapRecording,
         /// Serve the run live to Foxglove over its WebSocket protocol, on HOST:PORT (default
         /// 127.0.0.1:8765, loopback; another host only when named here).
         #[arg(long, value_name = "HOST:PORT", num_args = 0..=1,
@@ -388,6 +389,8 @@ fn log_library_errors() {
 }
 
 fn real_main() -> anyhow::Result<ExitCode> {
+    // Every subcommand that records or reads a recording stores Gaussian maps column-wise.
+    activemap_operators::register_recording_codecs();
     let cli = Cli::parse();
     match cli.command {
         Command::Validate { file, set } => {
@@ -470,7 +473,7 @@ fn real_main() -> anyhow::Result<ExitCode> {
                     max_steps,
                     Outputs {
                         record: !no_record,
-                        record_maps: record::MapRecording::default(),
+                        record_maps: MapRecording::default(),
                         view: None,
                     },
                     Some((machine, run_id)),
@@ -597,11 +600,52 @@ fn real_main() -> anyhow::Result<ExitCode> {
 }
 
 /// What a local run writes and serves besides its run folder.
+/// How the recorder stores the Gaussian maps of built-in operators (`--record-maps`).
+///
+/// Maps are most of a recording's bytes (the README's main episode: 312 of 375 MB stored in
+/// full), and they are a deterministic function of the mapper's recorded inputs, so by default
+/// only their digests are written and readers remake them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) enum MapRecording {
+    /// Each map's length and 128-bit hash only (`record::DIGEST_ENCODING`); `activemap replay`
+    /// regenerates the maps by replaying the mapper on its recorded inputs and checks every one
+    /// against its digest. Replay then costs the mapper's time, and needs the same build (a
+    /// build whose mapper computes differently is told so at the first map).
+    #[default]
+    Regenerated,
+    /// Every map, delta-encoded against the previous one (`record::DELTA_ENCODING`): larger
+    /// files whose maps read back without rerunning anything (e.g. to replay with another build).
+    Full,
+}
+
+impl MapRecording {
+    /// The kinds the recorder stores as digests ([`LaunchOptions::record_digests`]).
+    pub(crate) fn digests(self) -> Vec<MessageKind> {
+        match self {
+            Self::Regenerated => vec![MessageKind::GaussianMap],
+            Self::Full => Vec::new(),
+        }
+    }
+}
+
+impl std::str::FromStr for MapRecording {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "regenerated" => Ok(Self::Regenerated),
+            "full" => Ok(Self::Full),
+            _ => Err(format!(
+                "`{s}` is not a map recording mode (`regenerated` or `full`)"
+            )),
+        }
+    }
+}
+
 struct Outputs {
     /// Write recording.mcap.
     record: bool,
     /// How it stores the Gaussian maps.
-    record_maps: record::MapRecording,
+    record_maps: MapRecording,
     /// Serve the live view on this address.
     view: Option<String>,
 }
@@ -643,10 +687,10 @@ fn run(
     );
     opts.max_steps = max_steps;
     opts.record = outputs.record;
-    opts.record_maps = outputs.record_maps;
+    opts.record_digests = outputs.record_maps.digests();
     opts.view = outputs.view;
     opts.derived = Some(Arc::new(view::FoxgloveView));
-    opts.progress = true;
+    opts.progress = Some(activemap_operators::sim::EPISODE_PROGRESS);
     if let Some((machine, run_id)) = distributed {
         opts.machine = Some(machine);
         opts.run_id = Some(run_id);

@@ -33,7 +33,7 @@ use std::path::Path;
 use activemap_geometry::RobotModel;
 use activemap_runtime::dataflow::{NodeImpl, Override};
 use activemap_runtime::{
-    Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, catalog::config_from_value,
+    Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, config_from_value,
 };
 
 /// The `map_lag` of a node of the tracker, mapper or occupancy operator (`None` for any other

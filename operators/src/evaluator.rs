@@ -882,7 +882,7 @@ mod tests {
     struct NoOutputs;
 
     impl activemap_runtime::OutputSink for NoOutputs {
-        fn send(&mut self, _: usize, _: &[u8]) -> Result<(), activemap_runtime::RuntimeError> {
+        fn send(&mut self, _: usize, _: &[u8]) -> Result<(), activemap_runtime::OperatorError> {
             Ok(())
         }
         fn loan(
@@ -890,7 +890,7 @@ mod tests {
             _: usize,
             _: usize,
             _: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
-        ) -> Result<(), activemap_runtime::RuntimeError> {
+        ) -> Result<(), activemap_runtime::OperatorError> {
             Ok(())
         }
     }

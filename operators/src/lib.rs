@@ -13,8 +13,14 @@
 //! (modules `inputs` and `outputs`, used by both the descriptor and the dispatch) and a
 //! `pub fn registered() -> Registered`, then add one line to [`registry`] (and drop its entry
 //! from [`planned`]).
+//!
+//! What the recorder does with this crate's messages it learns from here: the Gaussian maps'
+//! column-wise codec ([`register_recording_codecs`], which a program calls before it records or
+//! reads a recording).
 
 use activemap_runtime::{OperatorDescriptor, OperatorImpl};
+
+pub use map_columns::register_recording_codecs;
 
 pub mod checks;
 pub mod convert;
@@ -22,6 +28,7 @@ pub mod evaluator;
 pub mod follower;
 pub mod frontier;
 pub mod join;
+pub mod map_columns;
 pub mod mapper;
 pub mod occupancy;
 pub mod planned;

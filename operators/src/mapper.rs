@@ -164,7 +164,7 @@ pub fn slam_nodes(flow: &Dataflow) -> anyhow::Result<(crate::tracker::Config, Co
             .iter()
             .filter(|n| matches!(&n.implementation, NodeImpl::Operator(o) if o == operator));
         match (nodes.next(), nodes.next()) {
-            (Some(node), None) => activemap_runtime::catalog::config_from_value(&node.config)
+            (Some(node), None) => activemap_runtime::config_from_value(&node.config)
                 .map_err(|e| anyhow::anyhow!("node `{}` ({operator}): {e}", node.id)),
             (None, _) => anyhow::bail!("the dataflow has no `{operator}` node"),
             (Some(a), Some(b)) => anyhow::bail!(

@@ -32,7 +32,7 @@ use crate::convert::{pose_from_wire, read_grid, with_map_snapshot};
 use crate::join::FrameJoin;
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
-    let config: Config = activemap_runtime::catalog::config_from_value(value)?;
+    let config: Config = activemap_runtime::config_from_value(value)?;
     config.validate()
 }
 

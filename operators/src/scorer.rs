@@ -28,7 +28,7 @@ use crate::join::FrameJoin;
 use crate::planner::REFINE_TARGET;
 
 fn check_config(value: &serde_json::Value) -> Result<(), String> {
-    let config: Config = activemap_runtime::catalog::config_from_value(value)?;
+    let config: Config = activemap_runtime::config_from_value(value)?;
     config.validate().map_err(|e| e.to_string())
 }
 

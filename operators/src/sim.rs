@@ -461,6 +461,31 @@ pub mod outputs {
     }
 }
 
+/// How a run's progress is read from the simulator's `episode` output: the step, the budget and
+/// how the episode ended (`LaunchOptions::progress`; the CLI's progress line).
+pub const EPISODE_PROGRESS: activemap_runtime::progress::ProgressSource =
+    activemap_runtime::progress::ProgressSource {
+        kind: activemap_schemas::MessageKind::EpisodeStatus,
+        noun: "episode",
+        read: read_episode_progress,
+    };
+
+fn read_episode_progress(bytes: &[u8]) -> Option<activemap_runtime::progress::StepStatus> {
+    use activemap_runtime::progress::{RunEnd, StepStatus};
+    use activemap_schemas::{EpisodeState, EpisodeStatus, SmallMessage as _};
+    let status = EpisodeStatus::decode(bytes).ok()?;
+    Some(StepStatus {
+        step: status.step,
+        max_steps: status.max_steps,
+        end: match status.state {
+            EpisodeState::Running => None,
+            EpisodeState::Finished => Some(RunEnd::Finished),
+            EpisodeState::Failed => Some(RunEnd::Failed),
+        },
+        message: status.message,
+    })
+}
+
 /// Registry entry.
 pub fn registered() -> Registered {
     Registered {
@@ -595,7 +620,7 @@ mod tests {
         let value = activemap_runtime::yaml::parse(source)
             .map_err(|e| format!("{}: {}", e.loc, e.message))?
             .to_json();
-        activemap_runtime::catalog::config_from_value::<Config>(&value)
+        activemap_runtime::config_from_value::<Config>(&value)
     }
 
     #[test]

@@ -21,6 +21,7 @@
 
 pub mod clocal_error;
 pub mod eig_psnr;
+pub mod episodes;
 pub mod house_episode;
 pub mod house_map;
 pub mod planner_bench;

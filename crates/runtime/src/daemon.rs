@@ -18,19 +18,34 @@ use serde::{Deserialize, Serialize};
 use zenoh::Wait;
 use zenoh::query::{ConsolidationMode, QueryTarget};
 
+use crate::OperatorDescriptor;
 use crate::RuntimeError;
-use crate::catalog::OperatorDescriptor;
 use crate::dataflow::Dataflow;
 use crate::launch::{LaunchOptions, NodeExit, broadcast_stop, new_run_id, run_local, tail};
 use crate::node::logs_dir;
 use crate::tls::TlsFiles;
 use crate::transport::{ZenohSettings, open_zenoh};
 
-pub mod episodes;
-
 /// Zenoh key of a daemon request: `activemap/daemon/<machine>/<verb>` (`*` for every machine).
 pub fn daemon_key(machine: &str, verb: &str) -> String {
     format!("activemap/daemon/{machine}/{verb}")
+}
+
+/// A service a daemon offers besides running flows, registered by whoever starts the daemon
+/// (the CLI: benchmark episodes for remote clients, `activemap_bench::episodes`): it answers the
+/// queries of its own verbs and is polled between queries.
+pub trait DaemonService {
+    /// Answers a query; `None` when `verb` is not one of its verbs. `catalog` validates flows.
+    fn answer(
+        &mut self,
+        verb: &str,
+        payload: &[u8],
+        catalog: &[OperatorDescriptor],
+    ) -> Option<Result<Vec<u8>, String>>;
+    /// Called between queries (about every 200 ms): reap finished work.
+    fn poll(&mut self) {}
+    /// The daemon is stopping: stop what it runs.
+    fn shutdown(&mut self) {}
 }
 
 /// How a daemon is started.
@@ -60,8 +75,9 @@ pub struct DaemonOptions {
     pub tls: Option<TlsFiles>,
     /// Makes the derived channels (the view) of the recordings of the runs it starts.
     pub derived: Option<Arc<dyn crate::derived::DerivedFactory>>,
-    /// Episodes it runs at once for remote benchmark clients (`--slots`, [`episodes`]).
-    pub slots: usize,
+    /// Message kinds the recordings of its runs store as digests
+    /// ([`LaunchOptions::record_digests`]).
+    pub record_digests: Vec<activemap_schemas::MessageKind>,
 }
 
 /// True when a Zenoh endpoint (`tcp/HOST:PORT`, `udp/…`, `tls/…`, optionally with a
@@ -241,6 +257,7 @@ struct Run {
 pub fn serve(
     opts: &DaemonOptions,
     catalog: &[OperatorDescriptor],
+    services: &mut [Box<dyn DaemonService>],
     stop: Arc<AtomicBool>,
 ) -> Result<(), RuntimeError> {
     if opts.listen.is_empty() {
@@ -271,9 +288,10 @@ pub fn serve(
         opts.runs_dir.display()
     );
     let mut runs: BTreeMap<String, Run> = BTreeMap::new();
-    let mut host = episodes::EpisodeHost::new(opts)?;
     while !stop.load(Ordering::SeqCst) {
-        host.reap(false);
+        for service in services.iter_mut() {
+            service.poll();
+        }
         // Join the supervisors of finished runs: a joinable thread keeps its stack until then
         // (a long-lived daemon would grow by one per run).
         for run in runs.values_mut() {
@@ -305,8 +323,9 @@ pub fn serve(
                 stop.store(true, Ordering::SeqCst);
                 Ok(b"down".to_vec())
             }
-            other => host
-                .answer(other, payload.as_deref().unwrap_or_default(), catalog)
+            other => services
+                .iter_mut()
+                .find_map(|s| s.answer(other, payload.as_deref().unwrap_or_default(), catalog))
                 .unwrap_or_else(|| Err(format!("unknown daemon request `{other}`"))),
         };
         let key = daemon_key(&opts.machine, &verb);
@@ -318,7 +337,9 @@ pub fn serve(
             eprintln!("activemap daemon: cannot answer a `{verb}` request: {e}");
         }
     }
-    host.shutdown();
+    for service in services.iter_mut() {
+        service.shutdown();
+    }
     for (id, run) in &mut runs {
         run.stop.store(true, Ordering::SeqCst);
         if let Some(t) = run.thread.take()
@@ -406,6 +427,7 @@ fn start_run(
     launch.run_id = Some(request.run_id.clone());
     launch.tls = opts.tls.as_ref().map(TlsFiles::zenoh_config);
     launch.derived = opts.derived.clone();
+    launch.record_digests = opts.record_digests.clone();
     let state = Arc::new(Mutex::new(RunState::Running));
     let stop = Arc::new(AtomicBool::new(false));
     let thread = {
@@ -495,7 +517,7 @@ pub fn log_tails(
 }
 
 /// One daemon's answer to a request: its machine and the reply bytes or the error text.
-type Answer = (String, Result<Vec<u8>, String>);
+pub type Answer = (String, Result<Vec<u8>, String>);
 
 /// A client of the daemon network, connected to one daemon's control endpoint.
 pub struct DaemonClient {
@@ -531,9 +553,14 @@ impl DaemonClient {
         Ok(Self { session, timeout })
     }
 
+    /// How long a query waits for answers.
+    pub fn timeout(&self) -> Duration {
+        self.timeout
+    }
+
     /// Send `verb` with `payload` to `machine` (`*` for all); every answer, as (machine, bytes)
     /// or (machine, error text).
-    fn ask(
+    pub fn ask(
         &self,
         machine: &str,
         verb: &str,
@@ -710,7 +737,7 @@ impl DaemonClient {
 }
 
 /// The error text for a machine whose daemon did not answer a request.
-fn no_answer(machine: &str, timeout: Duration) -> String {
+pub fn no_answer(machine: &str, timeout: Duration) -> String {
     format!(
         "machine `{machine}`: no daemon answered within {timeout:?} (is `activemap up --machine {machine}` running and connected?)"
     )

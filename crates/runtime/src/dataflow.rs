@@ -28,7 +28,7 @@ use std::time::Duration;
 
 use activemap_schemas::MessageKind;
 
-use crate::catalog::OperatorDescriptor;
+use crate::OperatorDescriptor;
 use crate::yaml::{self, Loc, Node};
 
 mod overrides;
@@ -1058,7 +1058,7 @@ impl Validator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::catalog::{PortSpec, check_config_as};
+    use crate::{PortSpec, check_config_as};
 
     #[derive(serde::Deserialize)]
     #[serde(deny_unknown_fields)]

@@ -12,19 +12,25 @@
 //! - `0` then the payload: stored in full;
 //! - `1`, then the payload length (u64), then runs of `offset (u64), length (u64), bytes` that
 //!   replace the previous payload's bytes at those offsets;
-//! - `2`, then a Gaussian map stored column by column against the previous map, Gaussian by
-//!   Gaussian id ([`map_columns`], [`encode_map`]).
+//! - `2` or higher, then the payload stored by the [`LayoutCodec`] registered under that tag
+//!   ([`register_codec`]): a codec that knows one message kind's layout (activemap-operators
+//!   registers tag 2, Gaussian maps stored column by column against the previous map).
+//!
+//! Why a registry: the runtime moves bytes and knows no message's layout; whoever knows one (the
+//! operators) registers a codec for it before recording or reading, and a reader without the
+//! codec says which tag it lacks.
 
+use std::sync::RwLock;
+
+use activemap_schemas::MessageKind;
 use thiserror::Error;
-
-mod map_columns;
 
 /// Tag of a payload stored in full.
 const FULL: u8 = 0;
 /// Tag of a payload stored as changed runs.
 const RUNS: u8 = 1;
-/// Tag of a Gaussian map stored column by column against the previous one.
-const MAP: u8 = 2;
+/// The first tag a [`LayoutCodec`] may be registered under.
+pub const FIRST_CODEC_TAG: u8 = 2;
 /// Payloads are compared in blocks of this many bytes; a run covers whole blocks.
 const BLOCK: usize = 64;
 /// Bytes of a run header (offset and length).
@@ -36,9 +42,6 @@ pub enum DeltaError {
     /// The message ends inside a field.
     #[error("delta message cut short: {0}")]
     Truncated(&'static str),
-    /// The first byte is neither tag.
-    #[error("unknown delta tag {0}")]
-    UnknownTag(u8),
     /// A run-encoded message with no earlier message on its channel, or one of another length.
     #[error("delta message of {expected} bytes refers to a previous payload of {previous:?} bytes")]
     NoBase {
@@ -47,9 +50,17 @@ pub enum DeltaError {
         /// Length of the previous payload, if any.
         previous: Option<usize>,
     },
-    /// A column-wise map message whose header or sections do not add up.
-    #[error("column-wise map message: {0}")]
-    InvalidMap(String),
+    /// A message of a layout codec whose body does not add up.
+    #[error("delta message of codec tag {tag}: {message}")]
+    InvalidLayout {
+        /// The codec's tag.
+        tag: u8,
+        /// What does not add up.
+        message: String,
+    },
+    /// A message of a layout codec this program has not registered.
+    #[error("delta tag {0} is a layout codec this program has not registered")]
+    NoCodec(u8),
     /// A run reaches past the end of the payload.
     #[error("delta run at {offset} of {len} bytes ends past the payload's {total} bytes")]
     RunOutOfRange {
@@ -106,17 +117,80 @@ pub fn encode(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) {
     out.extend_from_slice(next);
 }
 
-/// Encodes a Gaussian-map payload: as changed runs when only a little changed (a map
-/// republished between keyframes), otherwise column by column against the previous map
-/// ([`map_columns`]); a payload that is not a valid map goes through [`encode`].
-pub fn encode_map(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) {
+/// A lossless codec for the payloads of one message kind that knows their layout (e.g. a
+/// Gaussian map stored column by column, Gaussian by id), used where the byte-run delta of
+/// [`encode`] does poorly (a payload whose length changes).
+pub trait LayoutCodec: Send + Sync {
+    /// Appends `next`, encoded against `previous` (the channel's previous payload, if any), to
+    /// `out`, which already holds the codec's tag. Returns false, with `out` left as it may be,
+    /// when `next` is not a payload this codec understands.
+    fn encode(&self, previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) -> bool;
+    /// Decodes `body` (a message of [`LayoutCodec::encode`] without its tag) against `previous`;
+    /// an error says what does not add up ([`DeltaError::InvalidLayout`]).
+    fn decode(&self, previous: Option<&[u8]>, body: &[u8]) -> Result<Vec<u8>, DeltaError>;
+}
+
+/// One registered codec: its tag in encoded messages and the message kind it encodes.
+#[derive(Clone, Copy)]
+struct Registered {
+    tag: u8,
+    kind: MessageKind,
+    codec: &'static dyn LayoutCodec,
+}
+
+static CODECS: RwLock<Vec<Registered>> = RwLock::new(Vec::new());
+
+/// Registers `codec` for the payloads of `kind`, under `tag` (at least [`FIRST_CODEC_TAG`]), for
+/// the whole process: recorders encode `kind` with it and readers decode `tag` with it.
+/// Registering the same codec again is a no-op; another codec for a taken tag or kind is refused.
+pub fn register_codec(
+    tag: u8,
+    kind: MessageKind,
+    codec: &'static dyn LayoutCodec,
+) -> Result<(), String> {
+    if tag < FIRST_CODEC_TAG {
+        return Err(format!(
+            "delta tag {tag} is reserved (codecs start at {FIRST_CODEC_TAG})"
+        ));
+    }
+    let mut codecs = CODECS.write().unwrap_or_else(|e| e.into_inner());
+    if let Some(r) = codecs.iter().find(|r| r.tag == tag || r.kind == kind) {
+        let same = r.tag == tag
+            && r.kind == kind
+            && std::ptr::addr_eq(r.codec as *const dyn LayoutCodec, codec);
+        return if same {
+            Ok(())
+        } else {
+            Err(format!(
+                "delta tag {} is already the codec of {}",
+                r.tag,
+                r.kind.name()
+            ))
+        };
+    }
+    codecs.push(Registered { tag, kind, codec });
+    Ok(())
+}
+
+fn codec_where(pred: impl Fn(&Registered) -> bool) -> Option<Registered> {
+    let codecs = CODECS.read().unwrap_or_else(|e| e.into_inner());
+    codecs.iter().find(|r| pred(r)).copied()
+}
+
+/// Encodes a payload of message kind `kind`: as changed runs when only a little changed (e.g. a
+/// map republished between keyframes), otherwise with the codec registered for `kind`, if any;
+/// a kind without one, or a payload its codec does not understand, goes through [`encode`].
+pub fn encode_kind(kind: MessageKind, previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) {
     encode(previous, next, out);
     if out.len() <= next.len() / 4 {
         return;
     }
+    let Some(r) = codec_where(|r| r.kind == kind) else {
+        return;
+    };
     out.clear();
-    out.push(MAP);
-    if !map_columns::encode(previous, next, out) {
+    out.push(r.tag);
+    if !r.codec.encode(previous, next, out) {
         encode(previous, next, out);
     }
 }
@@ -181,8 +255,10 @@ pub fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, DeltaErro
             }
             Ok(out)
         }
-        MAP => map_columns::decode(previous, rest),
-        other => Err(DeltaError::UnknownTag(other)),
+        tag => match codec_where(|r| r.tag == tag) {
+            Some(r) => r.codec.decode(previous, rest),
+            None => Err(DeltaError::NoCodec(tag)),
+        },
     }
 }
 
@@ -300,7 +376,7 @@ mod tests {
                 r.map(|v| v.len())
             );
         }
-        assert_eq!(decode(Some(&p), &[7, 1, 2]), Err(DeltaError::UnknownTag(7)));
+        assert_eq!(decode(Some(&p), &[7, 1, 2]), Err(DeltaError::NoCodec(7)));
         let mut bad = vec![RUNS];
         bad.extend_from_slice(&100u64.to_le_bytes());
         bad.extend_from_slice(&90u64.to_le_bytes());
@@ -318,5 +394,60 @@ mod tests {
             decode(Some(&p), &huge),
             Err(DeltaError::RunOutOfRange { .. })
         ));
+    }
+
+    /// Stores a payload reversed (a stand-in with a layout of its own: every byte moves).
+    struct Reversed;
+
+    impl LayoutCodec for Reversed {
+        fn encode(&self, _: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) -> bool {
+            if next.len() < 8 {
+                return false; // "not a payload it understands"
+            }
+            out.extend(next.iter().rev());
+            true
+        }
+        fn decode(&self, _: Option<&[u8]>, body: &[u8]) -> Result<Vec<u8>, DeltaError> {
+            Ok(body.iter().rev().copied().collect())
+        }
+    }
+
+    static REVERSED: Reversed = Reversed;
+    static OTHER: Reversed = Reversed;
+
+    #[test]
+    fn a_registered_codec_encodes_its_kind_and_decodes_its_tag() {
+        let tag = 200;
+        let kind = MessageKind::Counter;
+        let mut enc = Vec::new();
+        let p: Vec<u8> = (0..1000u32).map(|b| b as u8).collect();
+        let q: Vec<u8> = (0..1200u32).map(|b| (b * 3) as u8).collect();
+        register_codec(tag, kind, &REVERSED).unwrap();
+        // Idempotent; a taken tag or kind, or a reserved tag, is refused.
+        register_codec(tag, kind, &REVERSED).unwrap();
+        assert!(register_codec(tag, MessageKind::Action, &OTHER).is_err());
+        assert!(register_codec(201, kind, &OTHER).is_err());
+        assert!(register_codec(1, MessageKind::Action, &OTHER).is_err());
+        // A changed length: the codec; the same length, little changed (runs of at most a
+        // quarter of the payload): runs.
+        encode_kind(kind, Some(&p), &q, &mut enc);
+        assert_eq!(enc[0], tag);
+        assert_eq!(decode(Some(&p), &enc).unwrap(), q);
+        let mut r = q.clone();
+        r[5] = 0;
+        encode_kind(kind, Some(&q), &r, &mut enc);
+        assert_eq!(enc[0], RUNS);
+        assert_eq!(decode(Some(&q), &enc).unwrap(), r);
+        // A payload the codec refuses, and a kind without a codec, go through `encode`.
+        encode_kind(kind, None, &[1, 2, 3], &mut enc);
+        assert_eq!(enc, [FULL, 1, 2, 3]);
+        encode_kind(MessageKind::RgbdFrame, Some(&p), &q, &mut enc);
+        assert_eq!(enc[0], FULL);
+        // A tag nobody registered names itself.
+        let e = decode(None, &[201, 0]).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "delta tag 201 is a layout codec this program has not registered"
+        );
     }
 }

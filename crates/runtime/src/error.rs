@@ -1,7 +1,5 @@
 //! Errors of the runtime library.
 
-use activemap_schemas::SchemaError;
-
 /// Everything that can go wrong while running a node or a flow.
 #[derive(Debug, thiserror::Error)]
 pub enum RuntimeError {
@@ -11,40 +9,9 @@ pub enum RuntimeError {
     /// A node id that the dataflow does not declare.
     #[error("node `{0}` is not in the dataflow")]
     UnknownNode(String),
-    /// The operator sent on a port its node does not declare.
-    #[error("node `{node}` has no output `{port}`")]
-    UnknownOutput {
-        /// Node id.
-        node: String,
-        /// Port name.
-        port: String,
-    },
-    /// A port was used with another message type than it carries.
-    #[error("port `{port}` carries {declared}, not {used}")]
-    WrongType {
-        /// Port name.
-        port: String,
-        /// Declared kind.
-        declared: &'static str,
-        /// Kind used.
-        used: &'static str,
-    },
-    /// A received payload did not decode.
-    #[error("input `{port}`: {source}")]
-    Decode {
-        /// Port name.
-        port: String,
-        /// Schema error.
-        source: SchemaError,
-    },
-    /// A message could not be encoded.
-    #[error("output `{port}`: {source}")]
-    Encode {
-        /// Port name.
-        port: String,
-        /// Schema error.
-        source: SchemaError,
-    },
+    /// An operator used a port wrongly, or a payload did not decode or encode.
+    #[error(transparent)]
+    Port(#[from] activemap_operator::OperatorError),
     /// The operator's config does not deserialise.
     #[error("bad config for node `{node}`: {message}")]
     Config {

@@ -1,7 +1,7 @@
 //! Entry points of the fuzz targets (`fuzz/`) and their regression replay test: each feeds
 //! arbitrary bytes to a parser and ignores the result. Not part of the public API.
 
-use crate::catalog::OperatorDescriptor;
+use crate::OperatorDescriptor;
 use crate::dataflow::{Dataflow, Override};
 use crate::{delta, yaml};
 use std::path::PathBuf;

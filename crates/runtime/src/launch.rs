@@ -16,7 +16,7 @@ use crate::node::{RunInfo, control_key, logs_dir};
 use crate::progress::Progress;
 use crate::record::{Recorder, RecorderOutputs, RecorderStats};
 use crate::transport::{ZenohPublisher, ZenohSettings, ZenohSubscriber, open_zenoh, topic_key};
-use activemap_schemas::{EpisodeStatus, MessageKind, SmallMessage};
+use activemap_schemas::MessageKind;
 
 /// Options of [`run_local`].
 #[derive(Debug, Clone)]
@@ -29,15 +29,17 @@ pub struct LaunchOptions {
     pub max_steps: Option<u64>,
     /// Write `recording.mcap`.
     pub record: bool,
-    /// How the recording stores Gaussian maps (`--record-maps`).
-    pub record_maps: crate::record::MapRecording,
+    /// Message kinds the recording stores as digests when a built-in operator produces them
+    /// (readers regenerate them by replay); the CLI names Gaussian maps unless `--record-maps
+    /// full`. Empty: every payload is stored whole.
+    pub record_digests: Vec<MessageKind>,
     /// Serve the view channels live on this `HOST:PORT` (`--view`); needs `derived`.
     pub view: Option<String>,
     /// Makes the derived channels of the recording (the view of the run), registered by the CLI;
     /// without it the recording holds the exact channels only.
     pub derived: Option<std::sync::Arc<dyn crate::derived::DerivedFactory>>,
-    /// Show a progress bar on stderr.
-    pub progress: bool,
+    /// Show the run's progress on stderr, read from these messages (registered by the CLI).
+    pub progress: Option<crate::progress::ProgressSource>,
     /// Give up when the nodes are not all ready after this long.
     pub startup_timeout: Duration,
     /// Grace period between SIGTERM and SIGKILL when stopping.
@@ -60,10 +62,10 @@ impl LaunchOptions {
             exe,
             max_steps: None,
             record: true,
-            record_maps: crate::record::MapRecording::default(),
+            record_digests: Vec::new(),
             view: None,
             derived: None,
-            progress: false,
+            progress: None,
             startup_timeout: Duration::from_secs(60),
             stop_grace: Duration::from_secs(5),
             machine: None,
@@ -367,7 +369,7 @@ pub fn run_local(
             RecorderOutputs {
                 file: opts.record.then(|| opts.run_dir.join("recording.mcap")),
                 derived,
-                maps: opts.record_maps,
+                digests: opts.record_digests.clone(),
             },
             dataflow,
             &run,
@@ -458,13 +460,11 @@ fn supervise(
             },
         );
     }
-    let mut progress = opts.progress.then(|| Progress::new(opts.max_steps));
-    // The episode's progress: every `EpisodeStatus` output (the simulator's `episode`).
-    let episode_subs = if opts.progress {
-        episode_subscribers(dataflow, run, session)?
-    } else {
-        Vec::new()
-    };
+    let mut progress = opts
+        .progress
+        .map(|source| Progress::new(source.noun, opts.max_steps));
+    // The run's progress: every output of the progress source's kind.
+    let progress_subs = progress_subscribers(dataflow, run, session, opts.progress)?;
     let say = |progress: &Option<Progress>, message: String| match progress {
         Some(p) => p.println(&message),
         None => eprintln!("{message}"),
@@ -508,7 +508,7 @@ fn supervise(
             break;
         }
         if let Some(p) = &mut progress {
-            drain_statuses(&episode_subs, p, None)?;
+            drain_statuses(&progress_subs, p, None)?;
         }
         let mut crashed = None;
         for (id, r) in nodes.iter_mut() {
@@ -617,7 +617,7 @@ fn supervise(
     if let Some(mut p) = progress {
         // The simulator's last status may arrive after its process ended.
         if !p.ended() {
-            drain_statuses(&episode_subs, &mut p, Some(Duration::from_millis(300)))?;
+            drain_statuses(&progress_subs, &mut p, Some(Duration::from_millis(300)))?;
         }
         p.finish();
     }
@@ -628,16 +628,16 @@ fn supervise(
     Ok((summary, failure, interrupted))
 }
 
-/// Hands every waiting episode status to `progress`; with `wait`, waits that long for one more on
-/// each subscriber until the episode's end is seen.
+/// Hands every waiting progress message to `progress`, read by `subs`' source; with `wait`,
+/// waits that long for one more on each subscriber until the run's end is seen.
 fn drain_statuses(
-    subs: &[ZenohSubscriber],
+    subs: &ProgressSubscribers,
     progress: &mut Progress,
     wait: Option<Duration>,
 ) -> Result<(), RuntimeError> {
-    for sub in subs {
+    for sub in &subs.subscribers {
         while let Some(sample) = sub.recv(wait.filter(|_| !progress.ended()))? {
-            if let Ok(status) = EpisodeStatus::decode(&sample.payload().to_bytes()) {
+            if let Some(status) = (subs.read)(&sample.payload().to_bytes()) {
                 progress.status(&status);
             }
         }
@@ -645,28 +645,37 @@ fn drain_statuses(
     Ok(())
 }
 
-/// Subscribers to every `EpisodeStatus` output of the dataflow (small messages travel on Zenoh).
-fn episode_subscribers(
+/// Subscribers to every progress output of a flow, and how to read them.
+struct ProgressSubscribers {
+    subscribers: Vec<ZenohSubscriber>,
+    read: fn(&[u8]) -> Option<crate::progress::StepStatus>,
+}
+
+/// Subscribers to every output of `source`'s kind in the dataflow (small messages travel on
+/// Zenoh); none without a source.
+fn progress_subscribers(
     dataflow: &Dataflow,
     run: &RunInfo,
     session: &zenoh::Session,
-) -> Result<Vec<ZenohSubscriber>, RuntimeError> {
-    let mut subs = Vec::new();
-    for n in &dataflow.nodes {
-        for o in n
-            .outputs
-            .iter()
-            .filter(|o| o.kind == MessageKind::EpisodeStatus)
-        {
-            subs.push(ZenohSubscriber::create(
-                session,
-                &topic_key(&run.run_id, &n.id, &o.name),
-                256,
-                crate::dataflow::DropPolicy::DropOldest,
-            )?);
+    source: Option<crate::progress::ProgressSource>,
+) -> Result<ProgressSubscribers, RuntimeError> {
+    let mut subscribers = Vec::new();
+    if let Some(source) = source {
+        for n in &dataflow.nodes {
+            for o in n.outputs.iter().filter(|o| o.kind == source.kind) {
+                subscribers.push(ZenohSubscriber::create(
+                    session,
+                    &topic_key(&run.run_id, &n.id, &o.name),
+                    256,
+                    crate::dataflow::DropPolicy::DropOldest,
+                )?);
+            }
         }
     }
-    Ok(subs)
+    Ok(ProgressSubscribers {
+        subscribers,
+        read: source.map_or(|_| None, |s| s.read),
+    })
 }
 
 /// Broadcast a stop to every node and daemon of run `run_id` through the router at `connect`.
@@ -697,8 +706,8 @@ pub fn broadcast_stop(session: &zenoh::Session, run_id: &str) -> Result<(), Runt
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::catalog::{OperatorDescriptor, PortSpec};
     use crate::node::{output_needs_zenoh, readable_from_shm};
+    use crate::{OperatorDescriptor, PortSpec};
     use activemap_schemas::MessageKind;
 
     fn accept_any(_: &serde_json::Value) -> Result<(), String> {

@@ -1,9 +1,14 @@
-//! Dataflow runtime: the operator API, the dataflow file and its validation, the iceoryx2/Zenoh
-//! transport, the launcher, the recorder and replay.
+//! Dataflow runtime: the dataflow file and its validation, the iceoryx2/Zenoh transport, the node
+//! runner, the launcher, the recorder and replay, the daemons. It runs operators written against
+//! `activemap-operator` (re-exported here) and knows no message's meaning: what it should do with
+//! a kind (store it column-wise or as digests, read a run's progress from it, show it in a
+//! viewer, serve episodes from a daemon) is registered by the program that starts it
+//! ([`delta::register_codec`], [`launch::LaunchOptions`], [`derived`], [`daemon::DaemonService`]).
 //!
 //! # Writing an operator
 //!
-//! An operator is a type implementing [`Operator`]: it is built from its node's `config:` and then
+//! An operator is a type implementing [`Operator`] (unit-tested without any transport with
+//! [`Harness`]): it is built from its node's `config:` and then
 //! receives [`Event`]s — input messages, timer ticks, end of an input stream, stop — and sends
 //! outputs through the [`Context`]. The runtime picks the transport: large payloads
 //! (RGB-D frames, maps, grids) travel through iceoryx2 shared memory on one machine and are
@@ -88,7 +93,6 @@
 //! subprocess; `activemap replay REC --node camera` re-runs the node alone on its recorded inputs.
 
 pub mod bench;
-pub mod catalog;
 pub mod daemon;
 pub mod dataflow;
 pub mod delta;
@@ -100,15 +104,18 @@ pub mod fuzzing;
 pub mod graph;
 pub mod launch;
 pub mod node;
-pub mod operator;
 pub mod progress;
 pub mod record;
 pub mod tls;
 pub mod transport;
 pub mod yaml;
 
-pub use catalog::{OperatorDescriptor, PortSpec, check_config_as};
+/// The operator API lives in `activemap-operator` (no transport); re-exported here so that
+/// `activemap_runtime::Operator` and `activemap_operator::Operator` are one trait.
+pub use activemap_operator::{
+    ConfigCheck, Context, Event, Flow, Harness, Input, Operator, OperatorDescriptor, OperatorError,
+    OutputSink, PortSpec, Sent, check_config_as, config_from_value, ports,
+};
 pub use dataflow::{Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, RestartPolicy};
 pub use error::RuntimeError;
 pub use node::{NodeSetup, OperatorImpl, RunInfo};
-pub use operator::{Context, Event, Flow, Input, Operator, OutputSink};

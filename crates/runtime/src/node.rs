@@ -10,11 +10,12 @@ use std::time::{Duration, Instant};
 use activemap_schemas::{MessageKind, TransportClass};
 
 use crate::RuntimeError;
-use crate::catalog::config_from_value;
 use crate::dataflow::{Dataflow, DropPolicy, NodeImpl, NodeSpec};
-use crate::operator::{
-    Context, Event, Flow, IDLE_SLEEP_MAX, IDLE_SLEEP_MIN, Input, Operator, OutputSink,
-};
+use crate::{Context, Event, Flow, Input, Operator, OperatorError, OutputSink, config_from_value};
+
+/// Poll back-off bounds of the node event loop.
+const IDLE_SLEEP_MIN: Duration = Duration::from_micros(20);
+const IDLE_SLEEP_MAX: Duration = Duration::from_millis(2);
 use crate::transport::{
     ShmLimits, ShmPublisher, ShmSubscriber, ZenohPublisher, ZenohSettings, ZenohSubscriber,
     iox_node, open_zenoh, topic_key,
@@ -206,8 +207,8 @@ struct CallbackSink<'a, 'f> {
 }
 
 impl OutputSink for CallbackSink<'_, '_> {
-    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), RuntimeError> {
-        (self.emit)(&self.outputs[port].0, bytes)
+    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), OperatorError> {
+        (self.emit)(&self.outputs[port].0, bytes).map_err(OperatorError::sink)
     }
 
     fn loan(
@@ -215,10 +216,10 @@ impl OutputSink for CallbackSink<'_, '_> {
         port: usize,
         len: usize,
         fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
-    ) -> Result<(), RuntimeError> {
+    ) -> Result<(), OperatorError> {
         let mut storage = vec![0u64; len.div_ceil(8)];
         let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[..len];
-        fill(buf).map_err(|e| RuntimeError::Operator(format!("{e:#}")))?;
+        fill(buf).map_err(|e| OperatorError::Fill(format!("{e:#}")))?;
         self.send(port, buf)
     }
 }
@@ -337,7 +338,26 @@ struct LiveSink {
 }
 
 impl OutputSink for LiveSink {
-    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), RuntimeError> {
+    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), OperatorError> {
+        self.send_live(port, bytes).map_err(OperatorError::sink)
+    }
+
+    fn loan(
+        &mut self,
+        port: usize,
+        len: usize,
+        fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
+    ) -> Result<(), OperatorError> {
+        self.loan_live(port, len, fill).map_err(|e| match e {
+            // The operator's own failure keeps its message as the operator wrote it.
+            RuntimeError::Operator(message) => OperatorError::Fill(message),
+            e => OperatorError::sink(e),
+        })
+    }
+}
+
+impl LiveSink {
+    fn send_live(&mut self, port: usize, bytes: &[u8]) -> Result<(), RuntimeError> {
         let p = &mut self.ports[port];
         p.seq += 1;
         if let Some(shm) = &p.shm {
@@ -349,7 +369,7 @@ impl OutputSink for LiveSink {
         Ok(())
     }
 
-    fn loan(
+    fn loan_live(
         &mut self,
         port: usize,
         len: usize,
@@ -717,7 +737,7 @@ mod tests {
         assert_eq!(lost_in_transit(0, 7, DropPolicy::Block), None);
         assert_eq!(lost_in_transit(7, 1, DropPolicy::Block), None);
     }
-    use crate::catalog::{OperatorDescriptor, PortSpec, check_config_as};
+    use crate::{OperatorDescriptor, PortSpec, check_config_as};
     use activemap_schemas::{Counter, Payload};
 
     /// Running sum: deterministic, so replay must reproduce it exactly.

@@ -1,17 +1,53 @@
-//! Episode progress on stderr while the launcher waits for a run.
+//! Run progress on stderr while the launcher waits for a run.
 //!
-//! The launcher subscribes to every `EpisodeStatus` output of the dataflow (the simulator's
-//! `episode`, one per step, with the step budget) and hands each status to [`Progress`]. With a
+//! The runtime knows no message that says how far a run is; whoever does registers a
+//! [`ProgressSource`] (the CLI: the simulator's `EpisodeStatus`, one per step, with the step
+//! budget). The launcher subscribes to every output of that kind and hands each [`StepStatus`]
+//! read from it to [`Progress`]. With a
 //! terminal on stderr, a single line updates in place (an `indicatif` bar: step/max, percent,
 //! steps/s, ETA); in a pipe or CI, one plain line every [`PLAIN_PERCENT`] % of the budget (every
 //! [`PLAIN_STEPS`] steps when the budget is unknown). Launcher messages (node finished, crashes)
-//! and the end-of-episode summary are printed in both modes. The line itself is
+//! and the end-of-run summary are printed in both modes. The line itself is
 //! [`progress_line`] and the plain-mode rule [`PlainSchedule`]: both pure, unit-tested.
 
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
-use activemap_schemas::{EpisodeState, EpisodeStatus};
+use activemap_schemas::MessageKind;
+
+/// How far a run is, as one progress message tells it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepStatus {
+    /// Steps done.
+    pub step: u64,
+    /// The step budget, when the message knows it (0: unknown).
+    pub max_steps: u64,
+    /// `None` while running; how the run ended otherwise.
+    pub end: Option<RunEnd>,
+    /// Why it ended (shown after the summary), or empty.
+    pub message: String,
+}
+
+/// How a run ended, as its progress message says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunEnd {
+    /// It reached its end (budget, goal, stop).
+    Finished,
+    /// It failed.
+    Failed,
+}
+
+/// Which messages tell a run's progress and how to read them (`LaunchOptions::progress`).
+#[derive(Debug, Clone, Copy)]
+pub struct ProgressSource {
+    /// The message kind: the launcher subscribes to every output of this kind (a small kind,
+    /// which travels on Zenoh).
+    pub kind: MessageKind,
+    /// What a run is called in the lines (`episode`).
+    pub noun: &'static str,
+    /// Reads one payload; `None` for a payload it cannot read (skipped).
+    pub read: fn(&[u8]) -> Option<StepStatus>,
+}
 
 /// Plain mode prints one line each time the episode crosses another multiple of this percentage.
 pub const PLAIN_PERCENT: u64 = 5;
@@ -55,16 +91,21 @@ pub fn progress_line(step: u64, max: Option<u64>, elapsed: Duration) -> String {
     line
 }
 
-/// The end-of-episode line: `episode finished at step 120/120 in 9s (13.1 steps/s): max_steps
-/// reached`, with `elapsed` the time since step 0.
-pub fn summary_line(status: &EpisodeStatus, max: Option<u64>, elapsed: Duration) -> String {
-    let state = match status.state {
-        EpisodeState::Failed => "failed",
+/// The end-of-run line: `episode finished at step 120/120 in 9s (13.1 steps/s): max_steps
+/// reached`, with `noun` what a run is called and `elapsed` the time since step 0.
+pub fn summary_line(
+    noun: &str,
+    status: &StepStatus,
+    max: Option<u64>,
+    elapsed: Duration,
+) -> String {
+    let state = match status.end {
+        Some(RunEnd::Failed) => "failed",
         _ => "finished",
     };
     let mut line = match max.filter(|&m| m > 0) {
-        Some(m) => format!("episode {state} at step {}/{m}", status.step),
-        None => format!("episode {state} at step {}", status.step),
+        Some(m) => format!("{noun} {state} at step {}/{m}", status.step),
+        None => format!("{noun} {state} at step {}", status.step),
     };
     line.push_str(&format!(" in {}", format_duration(elapsed)));
     let secs = elapsed.as_secs_f64();
@@ -113,20 +154,23 @@ enum Display {
 /// The progress display of one run (see the module doc).
 pub struct Progress {
     display: Display,
+    /// What a run is called in the lines.
+    noun: &'static str,
     /// Budget: from the statuses, else the run's `--max-steps`.
     max: Option<u64>,
     /// When step 0 was seen (the first status), and the step then.
     started: Option<(Instant, u64)>,
     /// Last step seen.
     step: Option<u64>,
-    /// The episode's end was reported.
+    /// The run's end was reported.
     ended: bool,
 }
 
 impl Progress {
-    /// A display on stderr: a bar when stderr is a terminal, plain lines otherwise. `max` is the
-    /// budget known before the first status (`--max-steps`).
-    pub fn new(max: Option<u64>) -> Self {
+    /// A display on stderr: a bar when stderr is a terminal, plain lines otherwise. `noun` is
+    /// what a run is called (`episode`), `max` the budget known before the first status
+    /// (`--max-steps`).
+    pub fn new(noun: &'static str, max: Option<u64>) -> Self {
         let display = if std::io::stderr().is_terminal() {
             let bar = indicatif::ProgressBar::new_spinner();
             bar.set_style(
@@ -140,6 +184,7 @@ impl Progress {
         };
         Self {
             display,
+            noun,
             max,
             started: None,
             step: None,
@@ -155,15 +200,15 @@ impl Progress {
         }
     }
 
-    /// Shows what the launcher is waiting for before the episode's first step (bar only).
+    /// Shows what the launcher is waiting for before the run's first step (bar only).
     pub fn waiting(&self, message: &str) {
         if let (Display::Bar(bar), None) = (&self.display, self.step) {
             bar.set_message(message.to_string());
         }
     }
 
-    /// Takes one episode status.
-    pub fn status(&mut self, status: &EpisodeStatus) {
+    /// Takes one status.
+    pub fn status(&mut self, status: &StepStatus) {
         if status.max_steps > 0 {
             self.max = Some(status.max_steps);
         }
@@ -182,19 +227,19 @@ impl Progress {
         match &mut self.display {
             Display::Bar(bar) => bar.set_message(line),
             Display::Plain(schedule) => {
-                if status.state == EpisodeState::Running && schedule.due(status.step, self.max) {
+                if status.end.is_none() && schedule.due(status.step, self.max) {
                     eprintln!("activemap: {line}");
                 }
             }
         }
-        if status.state != EpisodeState::Running && !self.ended {
+        if status.end.is_some() && !self.ended {
             self.ended = true;
-            let line = summary_line(status, self.max, now.duration_since(t0));
+            let line = summary_line(self.noun, status, self.max, now.duration_since(t0));
             self.println(&format!("activemap: {line}"));
         }
     }
 
-    /// True once a status reported the episode's end (finished or failed).
+    /// True once a status reported the run's end (finished or failed).
     pub fn ended(&self) -> bool {
         self.ended
     }
@@ -238,23 +283,24 @@ mod tests {
 
     #[test]
     fn the_summary_names_the_end_and_the_rate() {
-        let status = |state, message: &str| EpisodeStatus {
+        let status = |end, message: &str| StepStatus {
             step: 120,
             max_steps: 120,
-            state,
+            end: Some(end),
             message: message.into(),
         };
         assert_eq!(
             summary_line(
-                &status(EpisodeState::Finished, "max_steps reached"),
+                "episode",
+                &status(RunEnd::Finished, "max_steps reached"),
                 Some(120),
                 Duration::from_secs(10)
             ),
             "episode finished at step 120/120 in 10s (12.0 steps/s): max_steps reached"
         );
         assert_eq!(
-            summary_line(&status(EpisodeState::Failed, ""), None, Duration::ZERO),
-            "episode failed at step 120 in 0s"
+            summary_line("run", &status(RunEnd::Failed, ""), None, Duration::ZERO),
+            "run failed at step 120 in 0s"
         );
     }
 

@@ -6,10 +6,11 @@
 //! any gap is counted and reported per topic.
 //!
 //! Large payloads are stored delta-encoded against the previous payload of their channel
-//! ([`crate::delta`], encoding [`DELTA_ENCODING`]). The Gaussian maps of built-in operators are
-//! stored by default as digests only ([`DIGEST_ENCODING`], [`MapRecording`]): they are a
-//! deterministic function of the mapper's recorded inputs, so a reader that needs them
-//! regenerates them by replaying the mapper ([`RecordingReader::regenerate_with`]) and checks
+//! ([`crate::delta`], encoding [`DELTA_ENCODING`]). The outputs of built-in operators whose
+//! kinds the launcher names ([`RecorderOutputs::digests`]; the CLI names Gaussian maps unless
+//! `--record-maps full`) are stored as digests only ([`DIGEST_ENCODING`]): they are a
+//! deterministic function of their producer's recorded inputs, so a reader that needs them
+//! regenerates them by replaying the producer ([`RecordingReader::regenerate_with`]) and checks
 //! each against its digest. [`read_recording`] gives back every other payload byte for byte, and
 //! still reads recordings of plain [`LARGE_ENCODING`] channels.
 //!
@@ -62,8 +63,8 @@ pub const DELTA_ENCODING: &str = "activemap/repr-c-delta";
 /// Message encoding of a channel recorded as digests only: each payload is stored as its length
 /// (u64, little endian) and 128-bit hash (u128, little endian), 24 bytes. Readers that need the
 /// payloads regenerate them by replaying the channel's producer on its own recorded inputs
-/// ([`Producer`]) and check each against its digest. The recorder uses it for the Gaussian maps
-/// of built-in operators ([`MapRecording::Regenerated`]).
+/// ([`Producer`]) and check each against its digest. The recorder uses it for the outputs of
+/// built-in operators of the kinds in [`RecorderOutputs::digests`].
 pub const DIGEST_ENCODING: &str = "activemap/digest-v1";
 
 /// True for the encodings of the exact (replay) channels; false for the view channels, which
@@ -73,37 +74,6 @@ pub fn is_replay_encoding(encoding: &str) -> bool {
         || encoding == LARGE_ENCODING
         || encoding == DELTA_ENCODING
         || encoding == DIGEST_ENCODING
-}
-
-/// How the recorder stores the Gaussian maps of built-in operators (`--record-maps`).
-///
-/// Maps are most of a recording's bytes (the README's main episode: 312 of 375 MB stored in
-/// full), and they are a deterministic function of the mapper's recorded inputs, so by default
-/// only their digests are written and readers remake them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum MapRecording {
-    /// Each map's length and 128-bit hash only ([`DIGEST_ENCODING`]); `activemap replay`
-    /// regenerates the maps by replaying the mapper on its recorded inputs and checks every one
-    /// against its digest. Replay then costs the mapper's time, and needs the same build (a
-    /// build whose mapper computes differently is told so at the first map).
-    #[default]
-    Regenerated,
-    /// Every map, delta-encoded against the previous one ([`DELTA_ENCODING`]): larger files
-    /// whose maps read back without rerunning anything (e.g. to replay with another build).
-    Full,
-}
-
-impl std::str::FromStr for MapRecording {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "regenerated" => Ok(Self::Regenerated),
-            "full" => Ok(Self::Full),
-            _ => Err(format!(
-                "`{s}` is not a map recording mode (`regenerated` or `full`)"
-            )),
-        }
-    }
 }
 
 /// Target uncompressed size of one chunk of a recording, in bytes.
@@ -168,8 +138,8 @@ pub(crate) fn write_test_recording(
             log_time: *seq,
             publish_time: *seq,
         };
-        // Large test payloads go through the map codec's entry point, which stores anything
-        // that is not a valid map as the byte-run delta does.
+        // Large test payloads go through the kind-aware entry point as Gaussian maps (no codec
+        // is registered in the runtime's own tests, so as the byte-run delta stores them).
         let kind = if *large {
             MessageKind::GaussianMap
         } else {

@@ -307,8 +307,7 @@ impl RecordingReader {
         self.topics = Some(topics);
     }
 
-    /// Regenerate the payloads of the digest channels (maps recorded with
-    /// [`MapRecording::Regenerated`]) whose topic has a producer here: each is remade by
+    /// Regenerate the payloads of the digest channels (see [`super::DIGEST_ENCODING`]) whose topic has a producer here: each is remade by
     /// replaying the producer on its recorded inputs, on a thread of its own, and checked
     /// against its digest; a mismatch is an error naming the topic and message. Other digest
     /// channels, and those in `except`, yield their digests (`digest_only`). A producer whose

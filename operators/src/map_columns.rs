@@ -1,4 +1,6 @@
-//! Column-wise delta of Gaussian-map payloads (tag `MAP` of [`crate::delta`]).
+//! Column-wise delta of Gaussian-map payloads in recordings: the layout codec this crate registers
+//! with the runtime's recorder under tag [`MAP_COLUMNS_TAG`] ([`register_recording_codecs`];
+//! `activemap_runtime::delta`).
 //!
 //! Why: at each keyframe the map grows (new Gaussians appended), some Gaussians are pruned and
 //! the optimised ones move a little, so the payload's length changes and the byte-run delta
@@ -22,7 +24,45 @@ use std::ops::Range;
 
 use activemap_schemas::{GaussianMapHeader, GaussianMapView, SECTION_WIDTHS};
 
-use super::DeltaError;
+use activemap_runtime::delta::{DeltaError, LayoutCodec};
+
+/// The delta tag of Gaussian maps stored column by column (tag 2 since recordings first had it,
+/// so older recordings read back unchanged).
+pub const MAP_COLUMNS_TAG: u8 = 2;
+
+/// The Gaussian-map codec (a unit type: the registry holds a `'static` reference to it).
+pub struct GaussianMapColumns;
+
+/// The one instance the registry refers to.
+static MAP_COLUMNS: GaussianMapColumns = GaussianMapColumns;
+
+impl LayoutCodec for GaussianMapColumns {
+    fn encode(&self, previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) -> bool {
+        encode(previous, next, out)
+    }
+    fn decode(&self, previous: Option<&[u8]>, body: &[u8]) -> Result<Vec<u8>, DeltaError> {
+        decode(previous, body)
+    }
+}
+
+/// Registers the recording codecs of this crate's message layouts (the Gaussian map's) with the
+/// runtime, for the whole process. Call it before recording or reading a recording: the CLI does
+/// at start, and a reader without it is told which tag it lacks. Idempotent.
+pub fn register_recording_codecs() {
+    activemap_runtime::delta::register_codec(
+        MAP_COLUMNS_TAG,
+        activemap_schemas::MessageKind::GaussianMap,
+        &MAP_COLUMNS,
+    )
+    .expect("tag 2 and Gaussian maps are this codec's alone");
+}
+
+fn invalid(message: String) -> DeltaError {
+    DeltaError::InvalidLayout {
+        tag: MAP_COLUMNS_TAG,
+        message,
+    }
+}
 
 /// A payload's sections as the codec sees them.
 struct MapLayout {
@@ -91,7 +131,7 @@ fn ids_of(payload: &[u8], layout: &MapLayout) -> Vec<u64> {
 
 /// Encodes `next` (which must be a valid map: returns false and writes nothing otherwise)
 /// against `previous`, appending the tag-less body to `out`.
-pub(super) fn encode(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) -> bool {
+fn encode(previous: Option<&[u8]>, next: &[u8], out: &mut Vec<u8>) -> bool {
     let Some(layout) = layout_of(next) else {
         return false;
     };
@@ -154,31 +194,29 @@ fn take<'a>(
 }
 
 /// Decodes a body written by [`encode`] (after its tag) given the previous payload.
-pub(super) fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, DeltaError> {
+fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, DeltaError> {
     let mut at = 0;
     let total = u64::from_le_bytes(
         take(data, &mut at, 8, "map payload length")?
             .try_into()
             .unwrap_or([0; 8]),
     );
-    let header = GaussianMapHeader::read(&data[at..])
-        .map_err(|e| DeltaError::InvalidMap(format!("header: {e}")))?;
-    let expected = header
-        .payload_len()
-        .map_err(|e| DeltaError::InvalidMap(e.to_string()))?;
+    let header =
+        GaussianMapHeader::read(&data[at..]).map_err(|e| invalid(format!("header: {e}")))?;
+    let expected = header.payload_len().map_err(|e| invalid(e.to_string()))?;
     if expected as u64 != total {
-        return Err(DeltaError::InvalidMap(format!(
+        return Err(invalid(format!(
             "the header makes {expected} bytes, the message says {total}"
         )));
     }
     let r = header
         .section_ranges()
-        .map_err(|e| DeltaError::InvalidMap(e.to_string()))?;
+        .map_err(|e| invalid(e.to_string()))?;
     let n = header.count as usize;
     // The body is a rearrangement of the payload: exactly as long. Checked before anything is
     // allocated for it.
     if (data.len() - at) as u64 != total {
-        return Err(DeltaError::InvalidMap(format!(
+        return Err(invalid(format!(
             "{} bytes of body for a map of {total} bytes",
             data.len() - at
         )));
@@ -222,9 +260,9 @@ pub(super) fn decode(previous: Option<&[u8]>, data: &[u8]) -> Result<Vec<u8>, De
 
 #[cfg(test)]
 mod tests {
-    use super::super::{MAP, decode as decode_any, encode_map};
     use super::*;
-    use activemap_schemas::GaussianMap;
+    use activemap_runtime::delta::{decode as decode_any, encode_kind};
+    use activemap_schemas::{GaussianMap, MessageKind};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -263,8 +301,9 @@ mod tests {
     }
 
     fn roundtrip(prev: Option<&[u8]>, next: &[u8]) -> Vec<u8> {
+        register_recording_codecs();
         let mut enc = Vec::new();
-        encode_map(prev, next, &mut enc);
+        encode_kind(MessageKind::GaussianMap, prev, next, &mut enc);
         assert_eq!(decode_any(prev, &enc).unwrap(), next, "bit for bit");
         enc
     }
@@ -331,7 +370,10 @@ mod tests {
             map = kept;
             let bytes = payload(&mut rng, &map);
             let enc = roundtrip(prev.as_deref(), &bytes);
-            assert_eq!(enc[0], MAP, "step {step}: a changed map goes column-wise");
+            assert_eq!(
+                enc[0], MAP_COLUMNS_TAG,
+                "step {step}: a changed map goes column-wise"
+            );
             // The same map republished with a new frame id: a few bytes of runs.
             let mut again = bytes.clone();
             again[16] ^= 1;
@@ -385,13 +427,13 @@ mod tests {
         longer.push(0);
         assert!(matches!(
             decode_any(Some(&a), &longer),
-            Err(DeltaError::InvalidMap(_))
+            Err(DeltaError::InvalidLayout { .. })
         ));
         let mut bad_total = enc.clone();
         bad_total[1] ^= 8;
         assert!(matches!(
             decode_any(Some(&a), &bad_total),
-            Err(DeltaError::InvalidMap(_))
+            Err(DeltaError::InvalidLayout { .. })
         ));
         // A base that is not a map: stored and read against zero, still exact.
         let not_a_map = vec![7u8; 33];
@@ -399,6 +441,6 @@ mod tests {
         roundtrip(None, &b);
         // A payload that is not a map goes through the byte-run delta.
         let enc = roundtrip(Some(&a), &not_a_map);
-        assert_ne!(enc[0], MAP);
+        assert_ne!(enc[0], MAP_COLUMNS_TAG);
     }
 }

@@ -1,5 +1,5 @@
-//! Operator descriptors: the ports, types and config check of every built-in operator, known to the
-//! validator independently of whether the operator is implemented yet.
+//! Typed ports and operator descriptors: the ports, types and config check of an operator, which
+//! the dataflow validator knows independently of whether the operator is implemented yet.
 
 use activemap_schemas::MessageKind;
 
@@ -20,7 +20,7 @@ pub struct PortSpec {
 ///
 /// ```
 /// mod inputs {
-///     activemap_runtime::ports! { RGBD = "rgbd": activemap_schemas::MessageKind::RgbdFrame }
+///     activemap_operator::ports! { RGBD = "rgbd": activemap_schemas::MessageKind::RgbdFrame }
 /// }
 /// assert_eq!(inputs::ALL[0].name, inputs::RGBD);
 /// ```

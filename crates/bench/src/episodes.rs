@@ -25,8 +25,10 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest as _, Sha256};
 
-use crate::catalog::OperatorDescriptor;
-use crate::dataflow::Dataflow;
+use activemap_runtime::OperatorDescriptor;
+use activemap_runtime::RuntimeError;
+use activemap_runtime::daemon::{DaemonClient, DaemonOptions, DaemonService, no_answer};
+use activemap_runtime::dataflow::Dataflow;
 
 /// Largest chunk of a file read or uploaded in one request (bytes).
 pub const CHUNK_BYTES: u64 = 4 << 20;
@@ -229,7 +231,7 @@ struct Episode {
 }
 
 /// The daemon's side: its episodes, its slots and its scene store.
-pub(crate) struct EpisodeHost {
+pub struct EpisodeHost {
     machine: String,
     slots: usize,
     /// Episode folders: `<runs>/episodes/<job id>`.
@@ -243,16 +245,17 @@ pub(crate) struct EpisodeHost {
 }
 
 impl EpisodeHost {
-    /// A host with `slots` slots keeping its folders under `runs_dir`.
-    pub(crate) fn new(opts: &super::DaemonOptions) -> Result<Self, crate::RuntimeError> {
+    /// A host with `slots` slots for the daemon started with `opts`, keeping its folders under
+    /// its runs folder.
+    pub fn new(opts: &DaemonOptions, slots: usize) -> Result<Self, RuntimeError> {
         let root = opts.runs_dir.join("episodes");
         let scenes = opts.runs_dir.join("scenes");
         for dir in [&root, &scenes] {
-            std::fs::create_dir_all(dir).map_err(|e| crate::RuntimeError::io(dir, e))?;
+            std::fs::create_dir_all(dir).map_err(|e| RuntimeError::io(dir, e))?;
         }
         Ok(Self {
             machine: opts.machine.clone(),
-            slots: opts.slots,
+            slots,
             root,
             scenes,
             exe: opts.exe.clone(),
@@ -263,7 +266,7 @@ impl EpisodeHost {
     }
 
     /// Answers one of this module's verbs; `None` when `verb` is not one of them.
-    pub(crate) fn answer(
+    fn answer_verb(
         &mut self,
         verb: &str,
         payload: &[u8],
@@ -366,7 +369,7 @@ impl EpisodeHost {
         let mut machines: Vec<&str> = flow.nodes.iter().map(|n| n.machine.as_str()).collect();
         machines.dedup();
         for m in machines {
-            super::check_exec_allowed(&flow, m, &self.allow_exec)?;
+            activemap_runtime::daemon::check_exec_allowed(&flow, m, &self.allow_exec)?;
         }
         let dir = self.root.join(&request.job_id);
         if dir.exists() {
@@ -527,7 +530,7 @@ impl EpisodeHost {
     }
 
     /// Stops every running episode and waits for them (the daemon is going down).
-    pub(crate) fn shutdown(&mut self) {
+    fn stop_all(&mut self) {
         for e in self.episodes.values() {
             e.stop.store(true, Ordering::SeqCst);
         }
@@ -535,7 +538,7 @@ impl EpisodeHost {
     }
 
     /// Joins the supervisors of ended episodes (all of them when `all`).
-    pub(crate) fn reap(&mut self, all: bool) {
+    fn reap(&mut self, all: bool) {
         for (id, e) in &mut self.episodes {
             if (all || e.thread.as_ref().is_some_and(|t| t.is_finished()))
                 && let Some(t) = e.thread.take()
@@ -544,6 +547,25 @@ impl EpisodeHost {
                 eprintln!("activemap daemon: the supervisor of episode {id} panicked");
             }
         }
+    }
+}
+
+impl DaemonService for EpisodeHost {
+    fn answer(
+        &mut self,
+        verb: &str,
+        payload: &[u8],
+        catalog: &[OperatorDescriptor],
+    ) -> Option<Result<Vec<u8>, String>> {
+        self.answer_verb(verb, payload, catalog)
+    }
+
+    fn poll(&mut self) {
+        self.reap(false);
+    }
+
+    fn shutdown(&mut self) {
+        self.stop_all();
     }
 }
 
@@ -615,7 +637,7 @@ fn supervise(mut cmd: Command, stop: &AtomicBool, log: &Path) -> EpisodeState {
                     } else {
                         ""
                     },
-                    crate::launch::tail(log, 8)
+                    activemap_runtime::launch::tail(log, 8)
                 ));
             }
             Ok(None) => {}
@@ -651,55 +673,54 @@ impl std::fmt::Display for EpisodeError {
     }
 }
 
-impl super::DaemonClient {
-    /// Asks one machine; its one answer's bytes.
-    fn ask_one(
-        &self,
-        machine: &str,
-        verb: &str,
-        payload: Vec<u8>,
-    ) -> Result<Vec<u8>, EpisodeError> {
-        let answers = self
-            .ask(machine, verb, payload)
-            .map_err(|e| EpisodeError::Unreachable(format!("machine `{machine}`: {e}")))?;
-        match answers.into_iter().next() {
-            None => Err(EpisodeError::Unreachable(super::no_answer(
-                machine,
-                self.timeout,
-            ))),
-            Some((_, Ok(bytes))) => Ok(bytes),
-            // Zenoh answers a query whose queryable vanished (a dead daemon, before its link's
-            // lease expires) with an error reply reading `Timeout`; a daemon never does.
-            Some((_, Err(why))) if why == "Timeout" => Err(EpisodeError::Unreachable(
-                super::no_answer(machine, self.timeout),
-            )),
-            Some((_, Err(why))) => {
-                Err(EpisodeError::Refused(format!("machine `{machine}`: {why}")))
-            }
-        }
-    }
-
-    /// Asks one machine and reads its JSON answer.
-    fn ask_json<T: serde::de::DeserializeOwned>(
-        &self,
-        machine: &str,
-        verb: &str,
-        payload: Vec<u8>,
-    ) -> Result<T, EpisodeError> {
-        let bytes = self.ask_one(machine, verb, payload)?;
-        serde_json::from_slice(&bytes).map_err(|e| {
-            EpisodeError::Refused(format!("machine `{machine}`: bad {verb} answer: {e}"))
-        })
-    }
-
+/// The client side of the episode verbs, on a [`DaemonClient`] (`activemap bench results
+/// --connect`).
+pub trait EpisodeClient {
     /// Every reachable daemon's episode board, sorted by machine.
-    pub fn episode_boards(&self) -> Result<Vec<EpisodeBoard>, crate::RuntimeError> {
+    fn episode_boards(&self) -> Result<Vec<EpisodeBoard>, RuntimeError>;
+
+    /// One machine's episode board.
+    fn episode_board(&self, machine: &str) -> Result<EpisodeBoard, EpisodeError>;
+
+    /// Starts an episode on `machine`.
+    fn start_episode(
+        &self,
+        machine: &str,
+        request: &EpisodeRequest,
+    ) -> Result<EpisodeEntry, EpisodeError>;
+
+    /// Asks `machine` to stop an episode (its files stay readable once it has ended).
+    fn cancel_episode(&self, machine: &str, job_id: &str) -> Result<(), EpisodeError>;
+
+    /// Copies an ended episode's files (the recording only with `record`) from `machine` into
+    /// `dest`, chunk by chunk; the bytes copied.
+    fn fetch_episode(
+        &self,
+        machine: &str,
+        job_id: &str,
+        record: bool,
+        dest: &Path,
+    ) -> Result<u64, EpisodeError>;
+
+    /// The path on `machine` of the scene file `file` (of this machine), uploading it first
+    /// when the daemon's store does not hold its content yet.
+    fn ensure_scene(
+        &self,
+        machine: &str,
+        file: &Path,
+        scene: &SceneRef,
+    ) -> Result<PathBuf, EpisodeError>;
+}
+
+impl EpisodeClient for DaemonClient {
+    /// Every reachable daemon's episode board, sorted by machine.
+    fn episode_boards(&self) -> Result<Vec<EpisodeBoard>, RuntimeError> {
         let mut boards = Vec::new();
         for (m, answer) in self.ask("*", "episodes", Vec::new())? {
-            let bytes = answer
-                .map_err(|why| crate::RuntimeError::Other(format!("machine `{m}`: {why}")))?;
+            let bytes =
+                answer.map_err(|why| RuntimeError::Other(format!("machine `{m}`: {why}")))?;
             boards.push(serde_json::from_slice::<EpisodeBoard>(&bytes).map_err(|e| {
-                crate::RuntimeError::Other(format!("machine `{m}`: bad episodes answer: {e}"))
+                RuntimeError::Other(format!("machine `{m}`: bad episodes answer: {e}"))
             })?);
         }
         boards.sort_by(|a, b| a.machine.cmp(&b.machine));
@@ -707,28 +728,27 @@ impl super::DaemonClient {
     }
 
     /// One machine's episode board.
-    pub fn episode_board(&self, machine: &str) -> Result<EpisodeBoard, EpisodeError> {
-        self.ask_json(machine, "episodes", Vec::new())
+    fn episode_board(&self, machine: &str) -> Result<EpisodeBoard, EpisodeError> {
+        ask_json(self, machine, "episodes", Vec::new())
     }
 
     /// Starts an episode on `machine`.
-    pub fn start_episode(
+    fn start_episode(
         &self,
         machine: &str,
         request: &EpisodeRequest,
     ) -> Result<EpisodeEntry, EpisodeError> {
-        self.ask_json(machine, "episode", json(request))
+        ask_json(self, machine, "episode", json(request))
     }
 
     /// Asks `machine` to stop an episode (its files stay readable once it has ended).
-    pub fn cancel_episode(&self, machine: &str, job_id: &str) -> Result<(), EpisodeError> {
-        self.ask_one(machine, "episode_cancel", json(&job_id))
-            .map(|_| ())
+    fn cancel_episode(&self, machine: &str, job_id: &str) -> Result<(), EpisodeError> {
+        ask_one(self, machine, "episode_cancel", json(&job_id)).map(|_| ())
     }
 
     /// Copies an ended episode's files (the recording only with `record`) from `machine` into
     /// `dest`, chunk by chunk; the bytes copied.
-    pub fn fetch_episode(
+    fn fetch_episode(
         &self,
         machine: &str,
         job_id: &str,
@@ -739,7 +759,7 @@ impl super::DaemonClient {
             job_id: job_id.to_string(),
             record,
         };
-        let files: Vec<EpisodeFile> = self.ask_json(machine, "episode_files", json(&request))?;
+        let files: Vec<EpisodeFile> = ask_json(self, machine, "episode_files", json(&request))?;
         let local = |why: String| EpisodeError::Refused(format!("{}: {why}", dest.display()));
         let mut total = 0;
         for f in files {
@@ -763,7 +783,7 @@ impl super::DaemonClient {
                     offset,
                     len: CHUNK_BYTES.min(f.size - offset),
                 };
-                let chunk = self.ask_one(machine, "episode_read", json(&read))?;
+                let chunk = ask_one(self, machine, "episode_read", json(&read))?;
                 if chunk.is_empty() {
                     return Err(EpisodeError::Refused(format!(
                         "machine `{machine}`: {} ended at byte {offset} of {}",
@@ -780,13 +800,13 @@ impl super::DaemonClient {
 
     /// The path on `machine` of the scene file `file` (of this machine), uploading it first
     /// when the daemon's store does not hold its content yet.
-    pub fn ensure_scene(
+    fn ensure_scene(
         &self,
         machine: &str,
         file: &Path,
         scene: &SceneRef,
     ) -> Result<PathBuf, EpisodeError> {
-        if let Some(path) = self.ask_json::<Option<PathBuf>>(machine, "scene_have", json(scene))? {
+        if let Some(path) = ask_json::<Option<PathBuf>>(self, machine, "scene_have", json(scene))? {
             return Ok(path);
         }
         let bytes = std::fs::read(file)
@@ -801,7 +821,7 @@ impl super::DaemonClient {
                 data: bytes[offset..end].to_vec(),
             };
             let payload = postcard::to_allocvec(&put).expect("serialisable");
-            let answer: Option<PathBuf> = self.ask_json(machine, "scene_put", payload)?;
+            let answer: Option<PathBuf> = ask_json(self, machine, "scene_put", payload)?;
             if let Some(path) = answer {
                 return Ok(path);
             }
@@ -814,6 +834,44 @@ impl super::DaemonClient {
             offset = end;
         }
     }
+}
+
+/// Asks one machine; its one answer's bytes.
+fn ask_one(
+    client: &DaemonClient,
+    machine: &str,
+    verb: &str,
+    payload: Vec<u8>,
+) -> Result<Vec<u8>, EpisodeError> {
+    let answers = client
+        .ask(machine, verb, payload)
+        .map_err(|e| EpisodeError::Unreachable(format!("machine `{machine}`: {e}")))?;
+    match answers.into_iter().next() {
+        None => Err(EpisodeError::Unreachable(no_answer(
+            machine,
+            client.timeout(),
+        ))),
+        Some((_, Ok(bytes))) => Ok(bytes),
+        // Zenoh answers a query whose queryable vanished (a dead daemon, before its link's
+        // lease expires) with an error reply reading `Timeout`; a daemon never does.
+        Some((_, Err(why))) if why == "Timeout" => Err(EpisodeError::Unreachable(no_answer(
+            machine,
+            client.timeout(),
+        ))),
+        Some((_, Err(why))) => Err(EpisodeError::Refused(format!("machine `{machine}`: {why}"))),
+    }
+}
+
+/// Asks one machine and reads its JSON answer.
+fn ask_json<T: serde::de::DeserializeOwned>(
+    client: &DaemonClient,
+    machine: &str,
+    verb: &str,
+    payload: Vec<u8>,
+) -> Result<T, EpisodeError> {
+    let bytes = ask_one(client, machine, verb, payload)?;
+    serde_json::from_slice(&bytes)
+        .map_err(|e| EpisodeError::Refused(format!("machine `{machine}`: bad {verb} answer: {e}")))
 }
 
 #[cfg(test)]
@@ -848,7 +906,7 @@ mod tests {
     }
 
     fn host(dir: &Path) -> EpisodeHost {
-        let opts = super::super::DaemonOptions {
+        let opts = DaemonOptions {
             machine: "m".into(),
             listen: vec![],
             connect: vec![],
@@ -858,10 +916,10 @@ mod tests {
             allow_exec: vec![],
             insecure: false,
             tls: None,
+            record_digests: vec![],
             derived: None,
-            slots: 1,
         };
-        EpisodeHost::new(&opts).unwrap()
+        EpisodeHost::new(&opts, 1).unwrap()
     }
 
     /// A scene uploaded in chunks is published under its hash; a corrupted upload is refused

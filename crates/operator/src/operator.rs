@@ -1,11 +1,9 @@
 //! The operator API: an operator reacts to events (inputs, timer ticks, stop) and sends outputs
 //! through a [`Context`]. It never sees the transport.
 
-use std::time::Duration;
-
 use activemap_schemas::{MessageKind, Payload};
 
-use crate::RuntimeError;
+use crate::OperatorError;
 
 /// What the operator wants after handling an event.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,15 +30,15 @@ pub struct Input<'a> {
 
 impl Input<'_> {
     /// Decode into an owned message, checking the port carries `T`.
-    pub fn decode<T: Payload>(&self) -> Result<T, RuntimeError> {
+    pub fn decode<T: Payload>(&self) -> Result<T, OperatorError> {
         if T::KIND != self.kind {
-            return Err(RuntimeError::WrongType {
+            return Err(OperatorError::WrongType {
                 port: self.port.to_string(),
                 declared: self.kind.name(),
                 used: T::KIND.name(),
             });
         }
-        T::from_bytes(self.bytes).map_err(|e| RuntimeError::Decode {
+        T::from_bytes(self.bytes).map_err(|e| OperatorError::Decode {
             port: self.port.to_string(),
             source: e,
         })
@@ -69,7 +67,7 @@ pub enum Event<'a> {
 /// Where a context's outputs go (the transport in a real run, a recorder in a replay).
 pub trait OutputSink {
     /// Send an encoded payload on output `port` (index into the node's outputs).
-    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), RuntimeError>;
+    fn send(&mut self, port: usize, bytes: &[u8]) -> Result<(), OperatorError>;
     /// Loan a `len`-byte, 8-byte aligned buffer for output `port`, let `fill` write the payload in
     /// place, then send it.
     fn loan(
@@ -77,7 +75,7 @@ pub trait OutputSink {
         port: usize,
         len: usize,
         fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
-    ) -> Result<(), RuntimeError>;
+    ) -> Result<(), OperatorError>;
 }
 
 /// The operator's handle on its node: send outputs, read node facts.
@@ -114,19 +112,19 @@ impl<'a> Context<'a> {
         self.max_steps
     }
 
-    fn port(&self, name: &str, kind: Option<MessageKind>) -> Result<usize, RuntimeError> {
+    fn port(&self, name: &str, kind: Option<MessageKind>) -> Result<usize, OperatorError> {
         let index = self
             .outputs
             .iter()
             .position(|(n, _)| n == name)
-            .ok_or_else(|| RuntimeError::UnknownOutput {
+            .ok_or_else(|| OperatorError::UnknownOutput {
                 node: self.node_id.to_string(),
                 port: name.to_string(),
             })?;
         if let Some(kind) = kind {
             let declared = self.outputs[index].1;
             if declared != kind {
-                return Err(RuntimeError::WrongType {
+                return Err(OperatorError::WrongType {
                     port: name.to_string(),
                     declared: declared.name(),
                     used: kind.name(),
@@ -137,9 +135,9 @@ impl<'a> Context<'a> {
     }
 
     /// Encode and send a message on output `port`; the port must carry `T`.
-    pub fn send<T: Payload>(&mut self, port: &str, message: &T) -> Result<(), RuntimeError> {
+    pub fn send<T: Payload>(&mut self, port: &str, message: &T) -> Result<(), OperatorError> {
         let index = self.port(port, Some(T::KIND))?;
-        let bytes = message.to_bytes().map_err(|e| RuntimeError::Encode {
+        let bytes = message.to_bytes().map_err(|e| OperatorError::Encode {
             port: port.to_string(),
             source: e,
         })?;
@@ -147,7 +145,7 @@ impl<'a> Context<'a> {
     }
 
     /// Send an already encoded payload on output `port`.
-    pub fn send_bytes(&mut self, port: &str, bytes: &[u8]) -> Result<(), RuntimeError> {
+    pub fn send_bytes(&mut self, port: &str, bytes: &[u8]) -> Result<(), OperatorError> {
         let index = self.port(port, None)?;
         self.sink.send(index, bytes)
     }
@@ -161,7 +159,7 @@ impl<'a> Context<'a> {
         port: &str,
         len: usize,
         mut fill: impl FnMut(&mut [u8]) -> anyhow::Result<()>,
-    ) -> Result<(), RuntimeError> {
+    ) -> Result<(), OperatorError> {
         let index = self.port(port, None)?;
         self.sink.loan(index, len, &mut fill)
     }
@@ -179,7 +177,3 @@ pub trait Operator: Sized + 'static {
     /// Handle one event.
     fn on_event(&mut self, event: Event<'_>, ctx: &mut Context<'_>) -> anyhow::Result<Flow>;
 }
-
-/// Poll back-off bounds of the node event loop.
-pub(crate) const IDLE_SLEEP_MIN: Duration = Duration::from_micros(20);
-pub(crate) const IDLE_SLEEP_MAX: Duration = Duration::from_millis(2);
