@@ -42,11 +42,7 @@ impl OutputSink for Collect {
         len: usize,
         fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
     ) -> Result<(), OperatorError> {
-        // 8-byte aligned, as shared memory is: large payloads are read in place as f32/u64.
-        let mut storage = vec![0u64; len.div_ceil(8)];
-        let bytes = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[..len];
-        fill(bytes).map_err(|e| OperatorError::Fill(format!("{e:#}")))?;
-        self.send(port, bytes)
+        crate::loan_on_heap(len, fill, |bytes| self.send(port, bytes))
     }
 }
 

@@ -54,5 +54,5 @@ mod ports;
 
 pub use error::OperatorError;
 pub use harness::{Harness, Sent};
-pub use operator::{Context, Event, Flow, Input, Operator, OutputSink};
+pub use operator::{Context, Event, Flow, Input, Operator, OutputSink, loan_on_heap};
 pub use ports::{ConfigCheck, OperatorDescriptor, PortSpec, check_config_as, config_from_value};

@@ -78,6 +78,23 @@ pub trait OutputSink {
     ) -> Result<(), OperatorError>;
 }
 
+/// The `loan` of a sink without shared memory: fills a heap buffer of `len` bytes, 8-byte
+/// aligned as a shared-memory sample is (large payloads are read in place as f32 and u64), and
+/// hands it to `send`. The operator's own failure comes back as [`OperatorError::Fill`].
+pub fn loan_on_heap<E>(
+    len: usize,
+    fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
+    send: impl FnOnce(&[u8]) -> Result<(), E>,
+) -> Result<(), E>
+where
+    E: From<OperatorError>,
+{
+    let mut storage = vec![0u64; len.div_ceil(8)];
+    let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[..len];
+    fill(buf).map_err(|e| OperatorError::Fill(format!("{e:#}")))?;
+    send(buf)
+}
+
 /// The operator's handle on its node: send outputs, read node facts.
 pub struct Context<'a> {
     pub(crate) node_id: &'a str,

@@ -114,7 +114,7 @@ pub mod yaml;
 /// `activemap_runtime::Operator` and `activemap_operator::Operator` are one trait.
 pub use activemap_operator::{
     ConfigCheck, Context, Event, Flow, Harness, Input, Operator, OperatorDescriptor, OperatorError,
-    OutputSink, PortSpec, Sent, check_config_as, config_from_value, ports,
+    OutputSink, PortSpec, Sent, check_config_as, config_from_value, loan_on_heap, ports,
 };
 pub use dataflow::{Dataflow, Diagnostic, Diagnostics, DropPolicy, NodeSpec, RestartPolicy};
 pub use error::RuntimeError;

@@ -217,10 +217,7 @@ impl OutputSink for CallbackSink<'_, '_> {
         len: usize,
         fill: &mut dyn FnMut(&mut [u8]) -> anyhow::Result<()>,
     ) -> Result<(), OperatorError> {
-        let mut storage = vec![0u64; len.div_ceil(8)];
-        let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[..len];
-        fill(buf).map_err(|e| OperatorError::Fill(format!("{e:#}")))?;
-        self.send(port, buf)
+        crate::loan_on_heap(len, fill, |buf| self.send(port, buf))
     }
 }
 
@@ -351,6 +348,7 @@ impl OutputSink for LiveSink {
         self.loan_live(port, len, fill).map_err(|e| match e {
             // The operator's own failure keeps its message as the operator wrote it.
             RuntimeError::Operator(message) => OperatorError::Fill(message),
+            RuntimeError::Port(e) => e,
             e => OperatorError::sink(e),
         })
     }
@@ -389,12 +387,7 @@ impl LiveSink {
                 })?;
                 z.send(p.seq, copy)
             }
-            (None, Some(z)) => {
-                let mut storage = vec![0u64; len.div_ceil(8)];
-                let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut storage)[..len];
-                fill(buf).map_err(|e| RuntimeError::Operator(format!("{e:#}")))?;
-                z.send(p.seq, buf.to_vec())
-            }
+            (None, Some(z)) => crate::loan_on_heap(len, fill, |buf| z.send(p.seq, buf.to_vec())),
             (None, None) => Ok(()),
         }
     }
