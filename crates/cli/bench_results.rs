@@ -24,6 +24,7 @@ use std::time::Duration;
 use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method, Suite};
 use activemap_operators::checks::ROBOT_OPERATORS;
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
+use activemap_sim::NoisePreset;
 use anyhow::{Context as _, bail};
 use serde_json::Value;
 
@@ -468,7 +469,8 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
         let needs_config = operator == "sim"
             || operator == "evaluator"
             || (takes_robot && s.camera_height_m.is_some())
-            || (operator == "planner" && s.when_no_frontier.is_some());
+            || (operator == "planner" && s.when_no_frontier.is_some())
+            || (operator == "tracker" && s.noise.is_some());
         if needs_config {
             child_map(node, "config");
         }
@@ -516,6 +518,18 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
                         "checkpoints",
                         Some(from_json(&serde_json::json!(s.checkpoints))),
                     );
+                }
+            }
+            // A tracker is configured for its sensor: the dense aligner weighs each depth
+            // residual by the noise preset's σ(z) (issue 34: without it, the realistic sensor's
+            // depth noise drifts long episodes by decimetres). A flow that sets its own keeps it.
+            "tracker" => {
+                if let Some(preset) = s.noise.as_deref().and_then(NoisePreset::from_name) {
+                    let dense = child_map(config, "dense");
+                    if dense.get("depth_sigma_z2").is_none() {
+                        let z2 = preset.config().depth.sigma_z2;
+                        set(dense, "depth_sigma_z2", Some(scalar(z2)));
+                    }
                 }
             }
             // A Fisher scorer renders at the simulator's camera (checked across nodes).
@@ -987,6 +1001,17 @@ mod tests {
                 if op == "sim" {
                     assert_eq!(node.config["hfov_deg"].as_f64(), Some(79.0));
                     assert_eq!(node.config["noise"], "realistic");
+                }
+                if op == "tracker" {
+                    assert_eq!(
+                        node.config["dense"]["depth_sigma_z2"].as_f64(),
+                        Some(
+                            activemap_sim::NoisePreset::Realistic
+                                .config()
+                                .depth
+                                .sigma_z2
+                        )
+                    );
                 }
             }
             assert!(robots >= 5, "{}: {robots} robot nodes", known.name);

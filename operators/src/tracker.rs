@@ -87,6 +87,24 @@ pub struct Config {
     /// match the mapper's `tuning.depth_model` (library default when absent).
     #[serde(default)]
     pub depth_model: Option<activemap_splat::DepthModel>,
+    /// The dense aligner's depth-noise model and normals (`activemap_slam::DenseConfig`); any
+    /// field left out keeps the library default.
+    #[serde(default)]
+    pub dense: DenseTuning,
+}
+
+/// The `tracker` node's `dense` key: the parts of `activemap_slam::DenseConfig` a sensor calls
+/// for.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DenseTuning {
+    /// σ_d at depth 0, metres (`depth_sigma`, 0.005).
+    pub depth_sigma: Option<f64>,
+    /// Quadratic growth of σ_d with depth, 1/metres (`depth_sigma_z2`, 0; the RealSense D435:
+    /// 0.0036).
+    pub depth_sigma_z2: Option<f64>,
+    /// Baseline of the normals' central differences, pixels (`normal_step`, 1).
+    pub normal_step: Option<usize>,
 }
 
 /// The `tracker` node's `motion_check` (defaults: [`MotionCheck::default`]).
@@ -166,6 +184,16 @@ impl Config {
         }
         if let Some(n) = self.max_iterations {
             config.tracker.max_iterations = n;
+        }
+        let dense = &mut config.tracker.dense;
+        if let Some(v) = self.dense.depth_sigma {
+            dense.depth_sigma = v;
+        }
+        if let Some(v) = self.dense.depth_sigma_z2 {
+            dense.depth_sigma_z2 = v;
+        }
+        if let Some(v) = self.dense.normal_step {
+            dense.normal_step = v;
         }
         config
             .validate()
@@ -432,6 +460,33 @@ pub fn registered() -> Registered {
 mod tests {
     use super::*;
 
+    /// The node's `dense` key reaches the aligner, fields left out keep the library's
+    /// defaults, and a bad value is refused naming its field.
+    #[test]
+    fn the_dense_key_sets_the_aligners_noise_model() {
+        let config: Config = serde_json::from_value(serde_json::json!({
+            "dense": { "depth_sigma_z2": 0.0036, "normal_step": 2 }
+        }))
+        .unwrap();
+        let dense = config.tracking_config().unwrap().tracker.dense;
+        assert_eq!(
+            (dense.depth_sigma, dense.depth_sigma_z2, dense.normal_step),
+            (0.005, 0.0036, 2)
+        );
+        let bad: Config =
+            serde_json::from_value(serde_json::json!({ "dense": { "depth_sigma_z2": -1.0 } }))
+                .unwrap();
+        let e = bad.tracking_config().unwrap_err().to_string();
+        assert!(e.contains("dense.depth_sigma_z2"), "{e}");
+        let zero: Config =
+            serde_json::from_value(serde_json::json!({ "dense": { "normal_step": 0 } })).unwrap();
+        assert!(zero.tracking_config().is_err());
+        assert!(
+            serde_json::from_value::<Config>(serde_json::json!({ "dense": { "sigma": 1 } }))
+                .is_err()
+        );
+    }
+
     /// The commanded motion is the camera-frame motion of the robot: forward = +z (optical
     /// axis) by 5 cm; a left turn rotates the optical axis toward camera −x (left) by 5°.
     #[test]
@@ -485,6 +540,7 @@ mod tests {
             motion_check: default_motion_check(),
             yaw_search: default_yaw_search(),
             depth_model: None,
+            dense: DenseTuning::default(),
         })
         .unwrap();
         assert_eq!(tracker.set_map(h.frame_id, map), 3);
