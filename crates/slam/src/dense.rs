@@ -480,7 +480,11 @@ fn linearise(
                     acc.inliers += 1;
                     // In units of the noise floor: a far pair's larger expected residual does
                     // not read as a misalignment (`lost_max_rms`).
-                    let r_floor = r * config.depth_sigma / sigma;
+                    let r_floor = if extra > 0.0 {
+                        r * config.depth_sigma / sigma
+                    } else {
+                        r // bit for bit as without the model
+                    };
                     acc.squared_distance += r_floor * r_floor;
                     acc.residual(&n_ref, &q, r, sigma, config.huber);
                     if config.colour_sigma > 0.0
