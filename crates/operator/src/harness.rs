@@ -15,8 +15,7 @@ use crate::{Context, Event, Flow, Input, Operator, OperatorError, OutputSink, Po
 pub struct Sent {
     /// Output port.
     pub port: String,
-    /// Encoded payload (empty: end of stream is never sent by an operator, so never empty here
-    /// unless the operator sent an empty payload itself).
+    /// Encoded payload, as the operator sent it.
     pub bytes: Vec<u8>,
 }
 
