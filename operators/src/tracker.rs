@@ -57,6 +57,11 @@ pub struct Config {
     /// once the overlap with the current reference falls below this fraction.
     #[serde(default = "default_rereference")]
     pub rereference_below: f64,
+    /// Which overlap `rereference_below` is compared with: `associated` (the pixels the aligner
+    /// pairs with the reference, the default) or `covisible` (the pixels the reference also
+    /// sees, which depth noise does not lower; `activemap_slam::ReferenceOverlap`).
+    #[serde(default)]
+    pub rereference_overlap: activemap_slam::ReferenceOverlap,
     /// Map lag L in frames: frame k is tracked against the snapshot of frame k − 1 − L. Must
     /// equal the mapper's `map_lag`.
     #[serde(default)]
@@ -162,6 +167,7 @@ impl Config {
             .map_err(|e| anyhow::anyhow!("tracker: {e}"))?;
         let mut config = TrackingConfig {
             rereference_below: self.rereference_below,
+            rereference_overlap: self.rereference_overlap,
             map_lag: self.map_lag,
             initial_pose: start_anchor(&self.robot),
             pose_graph: self.pose_graph.then(KeyframeGraphConfig::default),
@@ -487,6 +493,25 @@ mod tests {
         );
     }
 
+    /// `rereference_overlap` reaches the session (`associated` when absent); an unknown
+    /// measure is refused.
+    #[test]
+    fn the_rereference_overlap_key_picks_the_measure() {
+        let parse = |v| serde_json::from_value::<Config>(v);
+        let default = parse(serde_json::json!({})).unwrap();
+        assert_eq!(
+            default.tracking_config().unwrap().rereference_overlap,
+            activemap_slam::ReferenceOverlap::Associated
+        );
+        let covisible = parse(serde_json::json!({ "rereference_overlap": "covisible" })).unwrap();
+        assert_eq!(
+            covisible.tracking_config().unwrap().rereference_overlap,
+            activemap_slam::ReferenceOverlap::Covisible
+        );
+        let e = parse(serde_json::json!({ "rereference_overlap": "visible" })).unwrap_err();
+        assert!(e.to_string().contains("covisible"), "{e}");
+    }
+
     /// The commanded motion is the camera-frame motion of the robot: forward = +z (optical
     /// axis) by 5 cm; a left turn rotates the optical axis toward camera −x (left) by 5°.
     #[test]
@@ -535,6 +560,7 @@ mod tests {
             downscale: None,
             max_iterations: None,
             rereference_below: default_rereference(),
+            rereference_overlap: Default::default(),
             map_lag: 0,
             pose_graph: false,
             motion_check: default_motion_check(),

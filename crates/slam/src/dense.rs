@@ -371,6 +371,13 @@ pub struct Aligned {
     pub rms_distance: f64,
     /// Whether the finest level's step fell below the threshold.
     pub converged: bool,
+    /// Fraction of the frame's valid-depth pixels (finest level) that the primary reference
+    /// also sees: they project inside its image onto a valid reading within the association
+    /// gate, whatever the normals say. Unlike `inlier_fraction` it does not fall with depth
+    /// noise (noisy far normals fail the normal test, not this one), so it measures how far
+    /// the view has moved from the reference: the re-reference test
+    /// ([`crate::ReferenceOverlap::Covisible`]).
+    pub covisible_fraction: f64,
     /// Per reference (in the order given), the fraction of the frame's valid-depth pixels
     /// associated with it at the last linearisation.
     pub reference_inliers: Vec<f64>,
@@ -387,6 +394,10 @@ struct Normal {
     g: Vector6<f64>,
     inliers: usize,
     valid: usize,
+    /// Pixels with a valid depth reading.
+    points: usize,
+    /// Of those, the ones the reference sees (see [`Aligned::covisible_fraction`]).
+    covisible: usize,
     squared_distance: f64,
 }
 
@@ -397,6 +408,8 @@ impl Normal {
             g: Vector6::zeros(),
             inliers: 0,
             valid: 0,
+            points: 0,
+            covisible: 0,
             squared_distance: 0.0,
         }
     }
@@ -406,6 +419,8 @@ impl Normal {
         self.g += o.g;
         self.inliers += o.inliers;
         self.valid += o.valid;
+        self.points += o.points;
+        self.covisible += o.covisible;
         self.squared_distance += o.squared_distance;
         self
     }
@@ -443,11 +458,16 @@ fn linearise(
             for y in row0..(row0 + ROWS_PER_CHUNK).min(current.height) {
                 for x in 0..current.width {
                     let i = y * current.width + x;
-                    let n_cur = current.normals[i];
-                    if n_cur == Vector3::zeros() {
+                    if current.points[i] == Vector3::zeros() {
                         continue;
                     }
-                    acc.valid += 1;
+                    acc.points += 1;
+                    // Pixels without a normal count towards the covisible share only.
+                    let n_cur = current.normals[i];
+                    let has_normal = n_cur != Vector3::zeros();
+                    if has_normal {
+                        acc.valid += 1;
+                    }
                     let p = current.points[i].cast::<f64>();
                     let q = rotation * p + translation;
                     if q.z <= 1e-6 {
@@ -463,14 +483,22 @@ fn linearise(
                         continue;
                     }
                     let j = yr as usize * reference.width + xr as usize;
-                    let n_ref = reference.normals[j].cast::<f64>();
-                    if n_ref == Vector3::zeros() {
+                    let p_ref = reference.points[j];
+                    if p_ref == Vector3::zeros() {
                         continue;
                     }
-                    let delta = q - reference.points[j].cast::<f64>();
+                    let delta = q - p_ref.cast::<f64>();
                     // The sensor's noise at this depth beyond its floor (0 without a z² term).
                     let extra = config.depth_sigma_z2 * q.z * q.z;
-                    if delta.norm() > gate + 3.0 * std::f64::consts::SQRT_2 * extra
+                    if delta.norm() > gate + 3.0 * std::f64::consts::SQRT_2 * extra {
+                        continue;
+                    }
+                    acc.covisible += 1;
+                    // A reference normal implies a reference point, so the association is
+                    // the same as testing the normals first.
+                    let n_ref = reference.normals[j].cast::<f64>();
+                    if !has_normal
+                        || n_ref == Vector3::zeros()
                         || n_ref.dot(&(rotation * n_cur.cast::<f64>())) < config.min_normal_cosine
                     {
                         continue;
@@ -564,6 +592,7 @@ pub fn align_many(
         pose: *predicted,
         iterations: 0,
         inlier_fraction: 0.0,
+        covisible_fraction: 0.0,
         rms_distance: f64::NAN,
         converged: false,
         reference_inliers: vec![0.0; references.len()],
@@ -577,6 +606,7 @@ pub fn align_many(
             let mut n = linearise(config, &primary.levels[level_index], &current, &t, gate);
             out.iterations += 1;
             out.inlier_fraction = n.inliers as f64 / n.valid.max(1) as f64;
+            out.covisible_fraction = n.covisible as f64 / n.points.max(1) as f64;
             out.rms_distance = (n.squared_distance / n.inliers.max(1) as f64).sqrt();
             out.reference_inliers[0] = out.inlier_fraction;
             let mut inliers = n.inliers;
@@ -771,6 +801,40 @@ pub(crate) mod tests {
         let (e_flat, e_modelled) = (rms_error(&flat), rms_error(&modelled));
         eprintln!("rms error: one scale {e_flat} m, noise model {e_modelled} m");
         assert!(e_modelled < 0.5 * e_flat, "{e_flat} m → {e_modelled} m");
+    }
+
+    /// Issue 34: the re-reference test must not read depth noise as motion. Between two frames
+    /// 5 cm apart in the box room at 128 px, noise-free, the aligner associates nearly every
+    /// pixel; with the D435's depth noise the far normals fail the normal test and the
+    /// associated share falls (in the episodes to about 0.7, below the 0.85 re-reference
+    /// threshold, so every frame became a reference), while the share the reference sees
+    /// (`covisible_fraction`) stays where it was.
+    #[test]
+    fn the_covisible_share_does_not_fall_with_depth_noise() {
+        let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
+        let reference_pose = camera_at(-1.5, 0.3, 0.1);
+        let truth = camera_at(-1.5 + 0.05 * 0.1f64.cos(), 0.3 + 0.05 * 0.1f64.sin(), 0.1);
+        let config = DenseConfig {
+            depth_sigma_z2: 0.0036,
+            ..DenseConfig::default()
+        };
+        let (clean_ref, clean_cur) = (box_frame(k, &reference_pose), box_frame(k, &truth));
+        let shares = |reference: &Frame, current: &Frame| {
+            let reference = DenseReference::new(reference, reference_pose, &config);
+            let out = align(&config, &reference, current, &truth).unwrap();
+            (out.inlier_fraction, out.covisible_fraction)
+        };
+        let (clean_associated, clean_covisible) = shares(&clean_ref, &clean_cur);
+        let (noisy_associated, noisy_covisible) = shares(
+            &with_depth_noise(&clean_ref, 7),
+            &with_depth_noise(&clean_cur, 8),
+        );
+        eprintln!(
+            "associated {clean_associated:.3} -> {noisy_associated:.3}, covisible {clean_covisible:.3} -> {noisy_covisible:.3}"
+        );
+        assert!(clean_associated > 0.9 && clean_covisible > 0.9);
+        assert!(noisy_associated < clean_associated - 0.1);
+        assert!((noisy_covisible - clean_covisible).abs() < 0.03);
     }
 
     #[test]

@@ -70,7 +70,7 @@ pub use mapping::{
 pub use pose_graph::{Edge, PoseGraph, PoseGraphConfig};
 pub use references::{ReferenceConfig, References};
 pub use session::{
-    MotionCheck, MotionGate, MotionPrior, MotionVerdict, Relocalisation, TrackedFrame,
-    TrackingConfig, TrackingSession, YawSearch, required_snapshot,
+    MotionCheck, MotionGate, MotionPrior, MotionVerdict, ReferenceOverlap, Relocalisation,
+    TrackedFrame, TrackingConfig, TrackingSession, YawSearch, required_snapshot,
 };
 pub use tracker::{LostReason, TrackOutput, TrackerConfig, TrackerMethod, TrackingStatus, track};

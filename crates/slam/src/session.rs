@@ -51,6 +51,23 @@ pub enum MotionPrior {
     Relative(Isometry3<f64>),
 }
 
+/// The overlap of a frame with its reference keyframe that decides when the frame becomes
+/// the new reference (issue 34).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceOverlap {
+    /// The share of the frame's pixels the aligner associated with the reference
+    /// ([`crate::dense::Aligned::inlier_fraction`]): with a noisy sensor it falls with the
+    /// noise (far normals fail the normal test), and under the realistic D435 model it reads
+    /// about 0.7 between consecutive frames, so every frame becomes a reference.
+    #[default]
+    Associated,
+    /// The share of the frame's pixels the reference also sees
+    /// ([`crate::dense::Aligned::covisible_fraction`]): how far the view has moved, whatever
+    /// the noise.
+    Covisible,
+}
+
 /// Settings of a [`TrackingSession`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackingConfig {
@@ -62,6 +79,8 @@ pub struct TrackingConfig {
     /// A tracked frame becomes the newest reference once its overlap with the current
     /// references falls below this fraction.
     pub rereference_below: f64,
+    /// Which overlap `rereference_below` is compared with.
+    pub rereference_overlap: ReferenceOverlap,
     /// Map lag L in frames: frame k is tracked against the snapshot of frame k − 1 − L.
     pub map_lag: u64,
     /// `T_world_camera` of the first usable frame (the world is anchored there).
@@ -312,6 +331,7 @@ impl Default for TrackingConfig {
             tracker,
             references: ReferenceConfig::default(),
             rereference_below: 0.85,
+            rereference_overlap: ReferenceOverlap::default(),
             map_lag: 0,
             initial_pose: Isometry3::identity(),
             pose_graph: None,
@@ -639,7 +659,11 @@ impl TrackingSession {
                             self.pose.inverse() * t.pose
                         };
                         self.exposure = t.exposure;
-                        if t.reference_overlap < self.config.rereference_below {
+                        let overlap = match self.config.rereference_overlap {
+                            ReferenceOverlap::Associated => t.reference_overlap,
+                            ReferenceOverlap::Covisible => t.reference_covisible,
+                        };
+                        if overlap < self.config.rereference_below {
                             if let Some(graph) = &mut self.graph {
                                 let serial = self.references.next_serial();
                                 (pose, estimate.loop_closure) = graph.add_keyframe(

@@ -188,6 +188,9 @@ pub struct TrackOutput {
     /// [`TrackerMethod::Dense`]: the fraction of the frame's valid-depth pixels associated
     /// with the reference keyframe (a falling overlap asks for a new reference); 1 otherwise.
     pub reference_overlap: f64,
+    /// [`TrackerMethod::Dense`]: the fraction of the frame's valid-depth pixels the reference
+    /// keyframe also sees ([`crate::dense::Aligned::covisible_fraction`]); 1 otherwise.
+    pub reference_covisible: f64,
 }
 
 /// Decides the status from residuals (see the module doc); a lost frame names the first check
@@ -246,6 +249,7 @@ pub fn track(
         loss: f64::NAN,
         visible: vec![false; map.len()],
         reference_overlap: 0.0,
+        reference_covisible: 0.0,
     };
     if let Err(reason) = frame.usability() {
         return Ok(skipped(reason));
@@ -258,11 +262,13 @@ pub fn track(
         depth: config.depth_model,
     };
     let mut inlier_fraction = 1.0;
+    let mut covisible_fraction = 1.0;
     let mut dense_status = None;
     let (camera_from_world, exposure, iterations, converged) = match config.method {
         TrackerMethod::Dense if !references.is_empty() => {
             let a = align_many(&config.dense, references, frame, predicted_pose)?;
             inlier_fraction = a.inlier_fraction;
+            covisible_fraction = a.covisible_fraction;
             dense_status = Some(if a.inlier_fraction < config.lost_min_coverage {
                 TrackingStatus::Lost(LostReason::LowOverlap {
                     fraction: a.inlier_fraction,
@@ -362,6 +368,7 @@ pub fn track(
         loss,
         visible: final_render.context.visible,
         reference_overlap: inlier_fraction,
+        reference_covisible: covisible_fraction,
     })
 }
 
