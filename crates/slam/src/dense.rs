@@ -763,6 +763,16 @@ pub(crate) mod tests {
         Frame::new(frame.intrinsics, frame.rgb.clone(), depth, 0.0).unwrap()
     }
 
+    /// A 5 cm forward step towards the box room's wall 3.5 m away, at the episodes' 128 px:
+    /// (reference pose, true pose, the clean frames seen from each).
+    fn step_towards_the_far_wall() -> (Isometry3<f64>, Isometry3<f64>, Frame, Frame) {
+        let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
+        let reference_pose = camera_at(-1.5, 0.3, 0.1);
+        let truth = camera_at(-1.5 + 0.05 * 0.1f64.cos(), 0.3 + 0.05 * 0.1f64.sin(), 0.1);
+        let (reference, current) = (box_frame(k, &reference_pose), box_frame(k, &truth));
+        (reference_pose, truth, reference, current)
+    }
+
     /// Issue 34: the drift of long episodes with the realistic sensor comes from its depth
     /// noise (noise-free, the same episodes end at 1 cm ATE). A 5 cm step towards a wall 3.5 m
     /// away, aligned from the reference pose (no prior), over 16 seeded noise draws of both
@@ -771,10 +781,7 @@ pub(crate) mod tests {
     /// sensor's σ(z) (`depth_sigma_z2`) the error shrinks severalfold.
     #[test]
     fn the_depth_noise_model_recovers_a_step_under_realistic_depth_noise() {
-        let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
-        let reference_pose = camera_at(-1.5, 0.3, 0.1);
-        let truth = camera_at(-1.5 + 0.05 * 0.1f64.cos(), 0.3 + 0.05 * 0.1f64.sin(), 0.1);
-        let (clean_ref, clean_cur) = (box_frame(k, &reference_pose), box_frame(k, &truth));
+        let (reference_pose, truth, clean_ref, clean_cur) = step_towards_the_far_wall();
         let rms_error = |config: &DenseConfig| {
             let mut sum = 0.0;
             for seed in 0..16u64 {
@@ -811,14 +818,11 @@ pub(crate) mod tests {
     /// (`covisible_fraction`) stays where it was.
     #[test]
     fn the_covisible_share_does_not_fall_with_depth_noise() {
-        let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
-        let reference_pose = camera_at(-1.5, 0.3, 0.1);
-        let truth = camera_at(-1.5 + 0.05 * 0.1f64.cos(), 0.3 + 0.05 * 0.1f64.sin(), 0.1);
+        let (reference_pose, truth, clean_ref, clean_cur) = step_towards_the_far_wall();
         let config = DenseConfig {
             depth_sigma_z2: 0.0036,
             ..DenseConfig::default()
         };
-        let (clean_ref, clean_cur) = (box_frame(k, &reference_pose), box_frame(k, &truth));
         let shares = |reference: &Frame, current: &Frame| {
             let reference = DenseReference::new(reference, reference_pose, &config);
             let out = align(&config, &reference, current, &truth).unwrap();
