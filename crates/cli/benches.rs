@@ -68,7 +68,9 @@ pub struct SlamArgs {
     #[arg(long, default_value = "dataflow.yaml")]
     flow: std::path::PathBuf,
     /// Simulator noise: `none` or a preset name (`realistic`: RealSense D435 depth noise and
-    /// LoCoBot-derived actuation noise, see `activemap_sim::noise`).
+    /// LoCoBot-derived actuation noise, see `activemap_sim::noise`). Under a preset the
+    /// tracker weighs depth by the preset's σ(z), as `bench results` sets it, unless the flow's
+    /// tracker sets `dense.depth_sigma_z2` itself.
     #[arg(long, default_value = "none")]
     noise: String,
     /// Overrides of the flow's node configs, e.g. `--set tracker.pose_graph=true`.
@@ -95,8 +97,17 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<Vec<(u32, usize)>>>()?;
     let flow = crate::load(&args.flow, &args.set.set)?;
-    let (tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
+    let (mut tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
         .with_context(|| format!("{}", args.flow.display()))?;
+    let preset = activemap_sim::NoisePreset::from_name(&args.noise)
+        .with_context(|| format!("--noise {}: expected `none` or `realistic`", args.noise))?;
+    let noise = preset.config();
+    // The tracker is configured for its sensor, as `bench results` does for a suite's noise:
+    // the dense aligner weighs each depth residual by the preset's σ(z) unless the flow sets
+    // its own.
+    if noise.is_active() && tracker.dense.depth_sigma_z2.is_none() {
+        tracker.dense.depth_sigma_z2 = Some(noise.depth.sigma_z2);
+    }
     let slam_for = |resolution: u32| {
         let (track, map) = activemap_bench::slam_loop::resolution_profile(
             resolution,
@@ -107,9 +118,6 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
         (t.downscale, m.downscale) = (Some(track), Some(map));
         activemap_operators::mapper::slam_config(&t, &m)
     };
-    let preset = activemap_sim::NoisePreset::from_name(&args.noise)
-        .with_context(|| format!("--noise {}: expected `none` or `realistic`", args.noise))?;
-    let noise = preset.config();
     let noise_name = noise.is_active().then_some(args.noise.as_str());
     println!(
         "# SLAM of {}: tracker {:?}, mapper {:?}, noise {}",
