@@ -67,13 +67,24 @@ pub struct ShmLimits {
     pub safe_overflow: bool,
 }
 
+/// Queue depth of a topic that no node consumes: only the recorder reads it, and with a queue
+/// of one it lost 800×800 frames published every 50 ms while it compressed the previous one on
+/// a loaded machine (nothing applies back-pressure to such a topic).
+pub const RECORDER_ONLY_BUFFER: usize = 8;
+
 impl ShmLimits {
-    /// Limits for a topic with these consumer queue sizes and policies.
+    /// Limits for a topic with these consumer queue sizes and policies (none: the recorder's
+    /// [`RECORDER_ONLY_BUFFER`]).
     pub fn for_consumers(queues: &[(usize, DropPolicy)]) -> Self {
         Self {
             max_subscribers: queues.len() + 2,
             max_publishers: 2,
-            buffer: queues.iter().map(|q| q.0).max().unwrap_or(1).max(1),
+            buffer: queues
+                .iter()
+                .map(|q| q.0)
+                .max()
+                .unwrap_or(RECORDER_ONLY_BUFFER)
+                .max(1),
             safe_overflow: queues.iter().all(|q| q.1 == DropPolicy::DropOldest),
         }
     }
