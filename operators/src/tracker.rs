@@ -110,6 +110,10 @@ pub struct DenseTuning {
     pub depth_sigma_z2: Option<f64>,
     /// Baseline of the normals' central differences, pixels (`normal_step`, 1).
     pub normal_step: Option<usize>,
+    /// Grey-level residuals whose reference interpolation cell spans more than this range are
+    /// left out (`colour_edge_range`, 0: none; an image sampled at pixel centres has edges that
+    /// do not move with sub-pixel motion).
+    pub colour_edge_range: Option<f64>,
 }
 
 /// The `tracker` node's `motion_check` (defaults: [`MotionCheck::default`]).
@@ -200,6 +204,9 @@ impl Config {
         }
         if let Some(v) = self.dense.normal_step {
             dense.normal_step = v;
+        }
+        if let Some(v) = self.dense.colour_edge_range {
+            dense.colour_edge_range = v;
         }
         config
             .validate()
@@ -471,13 +478,18 @@ mod tests {
     #[test]
     fn the_dense_key_sets_the_aligners_noise_model() {
         let config: Config = serde_json::from_value(serde_json::json!({
-            "dense": { "depth_sigma_z2": 0.0036, "normal_step": 2 }
+            "dense": { "depth_sigma_z2": 0.0036, "normal_step": 2, "colour_edge_range": 0.05 }
         }))
         .unwrap();
         let dense = config.tracking_config().unwrap().tracker.dense;
         assert_eq!(
-            (dense.depth_sigma, dense.depth_sigma_z2, dense.normal_step),
-            (0.005, 0.0036, 2)
+            (
+                dense.depth_sigma,
+                dense.depth_sigma_z2,
+                dense.normal_step,
+                dense.colour_edge_range
+            ),
+            (0.005, 0.0036, 2, 0.05)
         );
         let bad: Config =
             serde_json::from_value(serde_json::json!({ "dense": { "depth_sigma_z2": -1.0 } }))
