@@ -794,11 +794,18 @@ pub(crate) mod tests {
     }
 
     /// A 5 cm forward step towards the box room's wall 3.5 m away, at the episodes' 128 px:
-    /// (reference pose, true pose, the clean frames seen from each).
-    fn step_towards_the_far_wall() -> (Isometry3<f64>, Isometry3<f64>, Frame, Frame) {
+    /// (camera, reference pose, true pose).
+    fn far_wall_step() -> (Intrinsics, Isometry3<f64>, Isometry3<f64>) {
         let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
         let reference_pose = camera_at(-1.5, 0.3, 0.1);
         let truth = camera_at(-1.5 + 0.05 * 0.1f64.cos(), 0.3 + 0.05 * 0.1f64.sin(), 0.1);
+        (k, reference_pose, truth)
+    }
+
+    /// [`far_wall_step`] with the clean frames seen from each pose: (reference pose, true pose,
+    /// reference frame, current frame).
+    fn step_towards_the_far_wall() -> (Isometry3<f64>, Isometry3<f64>, Frame, Frame) {
+        let (k, reference_pose, truth) = far_wall_step();
         let (reference, current) = (box_frame(k, &reference_pose), box_frame(k, &truth));
         (reference_pose, truth, reference, current)
     }
@@ -1002,8 +1009,7 @@ pub(crate) mod tests {
     /// reference cell spans an edge (`colour_edge_range` 0.05) removes it.
     #[test]
     fn the_colour_term_is_exact_on_smooth_texture_and_biased_by_intensity_edges() {
-        let (reference_pose, truth, _, _) = step_towards_the_far_wall();
-        let k = Intrinsics::from_hfov(128, 128, std::f64::consts::FRAC_PI_2);
+        let (k, reference_pose, truth) = far_wall_step();
         let config = DenseConfig {
             depth_sigma: 1e3,
             prior_translation_sigma: 0.0,
