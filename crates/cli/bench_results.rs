@@ -23,6 +23,7 @@ use std::time::Duration;
 
 use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method, Suite};
 use activemap_operators::checks::ROBOT_OPERATORS;
+use activemap_runtime::dataflow::Override;
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
 use activemap_sim::NoisePreset;
 use anyhow::{Context as _, bail};
@@ -256,7 +257,7 @@ fn plan_from_suite(file: &Path, out: Option<&Path>) -> anyhow::Result<Plan> {
     // A method that would only ask the offline fallback is not run under the `llm` name.
     let mut silent = Vec::new();
     for method in &suite.methods {
-        if asks_no_model(&method.dataflow, s.llm.as_ref())
+        if asks_no_model(method, s.llm.as_ref())
             .with_context(|| format!("method `{}`", method.name))?
         {
             eprintln!(
@@ -299,14 +300,11 @@ fn plan_from_suite(file: &Path, out: Option<&Path>) -> anyhow::Result<Plan> {
 
 /// True when the flow `file` has a `planner` of policy `llm` that asks no model: no
 /// `llm.provider` in its config, and none in the suite's `llm:` keys.
-fn asks_no_model(file: &Path, suite_llm: Option<&Value>) -> anyhow::Result<bool> {
+fn asks_no_model(method: &Method, suite_llm: Option<&Value>) -> anyhow::Result<bool> {
     if suite_llm.is_some_and(|l| l.get("provider").is_some_and(|p| !p.is_null())) {
         return Ok(false);
     }
-    let text =
-        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
-    let tree = yaml::parse(&text)
-        .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), e.loc, e.message))?;
+    let tree = method_flow(method)?;
     let Some(YamlNode::Seq { items: nodes, .. }) = tree.get("nodes") else {
         return Ok(false);
     };
@@ -439,10 +437,7 @@ pub fn run(args: &ResultsArgs) -> anyhow::Result<ExitCode> {
 /// YAML flow style), validated against the operator catalog.
 pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     let file = &cell.method.dataflow;
-    let text = std::fs::read_to_string(file)
-        .with_context(|| format!("method `{}`: reading {}", cell.method.name, file.display()))?;
-    let mut tree = yaml::parse(&text)
-        .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), e.loc, e.message))?;
+    let mut tree = method_flow(&cell.method)?;
     let base = file.parent().unwrap_or(Path::new("."));
     let Some(YamlNode::Seq { items: nodes, .. }) = entry(&mut tree, "nodes") else {
         bail!("{}: no `nodes` list", file.display());
@@ -577,6 +572,22 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
     )
     .map_err(|d| anyhow::anyhow!("{d}"))?;
     Ok(text)
+}
+
+/// The parsed dataflow of `method`: its file with its `set` overrides applied in order (as
+/// `activemap run --set` applies them).
+fn method_flow(method: &Method) -> anyhow::Result<YamlNode> {
+    let file = &method.dataflow;
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("method `{}`: reading {}", method.name, file.display()))?;
+    let mut tree = yaml::parse(&text)
+        .map_err(|e| anyhow::anyhow!("{}:{}: {}", file.display(), e.loc, e.message))?;
+    for (index, text) in method.set.iter().enumerate() {
+        Override::parse(text)
+            .and_then(|o| o.apply(&mut tree, index))
+            .map_err(|e| anyhow::anyhow!("method `{}`: {e} in {}", method.name, file.display()))?;
+    }
+    Ok(tree)
 }
 
 /// The keys that place a scene file, on the `sim` and `evaluator` nodes.
@@ -828,9 +839,23 @@ mod tests {
         let llm_flow = root().join("flows/llm.yaml");
         let provider = serde_json::json!({ "provider": {
             "kind": "ollama", "base_url": "http://127.0.0.1:11434", "model": "qwen2.5:1.5b" } });
-        assert!(asks_no_model(&llm_flow, None).unwrap());
-        assert!(!asks_no_model(&llm_flow, Some(&provider)).unwrap());
-        assert!(!asks_no_model(&root().join("flows/fisher.yaml"), None).unwrap());
+        let method = |file: &str| Method {
+            name: "m".into(),
+            dataflow: root().join(file),
+            set: Vec::new(),
+        };
+        assert!(asks_no_model(&method("flows/llm.yaml"), None).unwrap());
+        assert!(!asks_no_model(&method("flows/llm.yaml"), Some(&provider)).unwrap());
+        assert!(!asks_no_model(&method("flows/fisher.yaml"), None).unwrap());
+        // A method's own override naming a provider asks a model too.
+        let with_provider = Method {
+            set: vec![
+                "planner.llm.provider={ kind: ollama, base_url: \"http://127.0.0.1:11434\", model: m }"
+                    .into(),
+            ],
+            ..method("flows/llm.yaml")
+        };
+        assert!(!asks_no_model(&with_provider, None).unwrap());
         let mut m = Method::parse("llm").unwrap();
         m.dataflow = llm_flow;
         let settings = GridSettings {
@@ -844,6 +869,42 @@ mod tests {
         assert_eq!(planner["policy"], "llm");
         assert_eq!(planner["llm"]["provider"]["model"], "qwen2.5:1.5b");
         assert_eq!(planner["llm"]["provider"]["kind"], "ollama");
+    }
+
+    /// A method's `set` overrides reach its cells' dataflows, in order, before the cell's own
+    /// settings (which still win on the keys they set); an override naming no node fails with
+    /// the method's name.
+    #[test]
+    fn a_methods_overrides_reach_its_cell_flow() {
+        let m = Method {
+            name: "fisher_utility".into(),
+            dataflow: root().join("flows/fisher.yaml"),
+            set: vec![
+                "planner.frontier=utility".into(),
+                "scorer.fisher.max_actions=null".into(),
+                "sim.width=999".into(),
+            ],
+        };
+        let cell = results::cells(std::slice::from_ref(&m), &["house:3".into()], &[5], &small()).remove(0);
+        let text = cell_flow(&cell).unwrap();
+        let flow = Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+        assert_eq!(flow.node("planner").unwrap().config["frontier"], "utility");
+        assert_eq!(flow.node("planner").unwrap().config["policy"], "fbe");
+        let fisher = &flow.node("scorer").unwrap().config["fisher"];
+        assert!(fisher["max_actions"].is_null(), "{fisher}");
+        assert_eq!(fisher["objective"], "paper");
+        // The cell's resolution is set after the overrides.
+        assert_eq!(flow.node("sim").unwrap().config["width"], 64);
+        let bad = Method {
+            set: vec!["nosuchnode.key=1".into()],
+            ..m
+        };
+        let cell = results::cells(&[bad], &["house:3".into()], &[5], &small()).remove(0);
+        let e = format!("{:#}", cell_flow(&cell).unwrap_err());
+        assert!(
+            e.contains("method `fisher_utility`") && e.contains("no node `nosuchnode`"),
+            "{e}"
+        );
     }
 
     fn small() -> GridSettings {

@@ -11,13 +11,19 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// One exploration policy, given as the dataflow that runs it (FBE: `dataflow.yaml`; the Fisher
-/// and LLM planners are further dataflow files).
+/// and LLM planners are further dataflow files), optionally with config overrides, so that a
+/// variant of a flow is one line of a suite rather than a copy of the file.
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Method {
     /// Row name in the table (letters, digits, `-`, `_`, `.`; also the folder name).
     pub name: String,
     /// Dataflow file of the method.
     pub dataflow: PathBuf,
+    /// Overrides of node configs applied to the file, in order, each `NODE.KEY[.SUBKEY...]=VALUE`
+    /// as `activemap run --set` takes them (a suite method's `set:`). Absent from `cell.json`
+    /// when empty, so folders written before overrides existed still match.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub set: Vec<String>,
 }
 
 /// A policy a bare method name stands for (SPEC §6 baselines, issue 14).
@@ -74,6 +80,7 @@ impl Method {
                 Some(known) => Ok(Self {
                     name: known.name.to_string(),
                     dataflow: PathBuf::from(known.dataflow),
+                    set: Vec::new(),
                 }),
                 None => Err(bad(format!(
                     "not a known method ({}); give others as NAME=DATAFLOW, e.g. mine=flows/mine.yaml",
@@ -97,6 +104,7 @@ impl Method {
         Ok(Self {
             name: name.to_string(),
             dataflow: PathBuf::from(file.trim()),
+            set: Vec::new(),
         })
     }
 }

@@ -5,7 +5,12 @@
 //!
 //! ```yaml
 //! description: FBE against the Fisher paths, quick   # optional, printed under the title
-//! methods: [fbe, fisher]            # known names, or { name: mine, dataflow: flows/mine.yaml }
+//! methods:                          # known names, or { name: mine, dataflow: flows/mine.yaml }
+//!   - fbe
+//!   - fisher
+//!   - name: fisher_utility          # a variant: the file with config overrides (`--set` syntax)
+//!     dataflow: ../flows/fisher.yaml
+//!     set: [planner.frontier=utility]
 //! scenes:
 //!   - house:7                       # a procedural house
 //!   - scene: ../../shared/data/scenes/aws_small_house.glb
@@ -38,7 +43,7 @@ use super::grid::{
     Cell, GridSettings, KNOWN_METHODS, Method, is_folder_name, known_method, scene_folder,
 };
 use activemap_geometry::RobotModel;
-use activemap_runtime::dataflow::{Diagnostic, Diagnostics};
+use activemap_runtime::dataflow::{Diagnostic, Diagnostics, Override};
 use activemap_runtime::yaml::{self, Loc, Node};
 use activemap_sim::{NoiseConfig, Placement, SceneSpec};
 use std::path::{Path, PathBuf};
@@ -403,6 +408,7 @@ impl Parser<'_> {
                             Some(Method {
                                 name: known.name.to_string(),
                                 dataflow,
+                                set: Vec::new(),
                             })
                         } else {
                             self.err(
@@ -453,8 +459,8 @@ impl Parser<'_> {
     }
 
     fn method_map(&mut self, node: &Node) -> Option<Method> {
-        let entries = self.entries(node, "method", &["name", "dataflow"])?;
-        let (mut name, mut dataflow) = (None, None);
+        let entries = self.entries(node, "method", &["name", "dataflow", "set"])?;
+        let (mut name, mut dataflow, mut set) = (None, None, Some(Vec::new()));
         for (key, _, value) in entries {
             match key.as_str() {
                 "name" => {
@@ -475,16 +481,59 @@ impl Parser<'_> {
                         .string(key, value)
                         .and_then(|d| self.file_path("dataflow", value, &d))
                 }
+                "set" => set = self.overrides(value),
                 _ => {}
             }
         }
         if node.get("name").is_none() || node.get("dataflow").is_none() {
             self.err(node.loc(), "a method mapping needs `name` and `dataflow`");
         }
+        let (dataflow, set) = (dataflow?, set?);
+        if let Some(items) = node.get("set") {
+            self.check_overrides(&dataflow, items, &set);
+        }
         Some(Method {
             name: name?,
-            dataflow: dataflow?,
+            dataflow,
+            set: set.iter().map(|o| o.text().to_string()).collect(),
         })
+    }
+
+    /// A method's `set:`: a list of `NODE.KEY[.SUBKEY...]=VALUE` strings, each checked as
+    /// `activemap run --set` checks it.
+    fn overrides(&mut self, node: &Node) -> Option<Vec<Override>> {
+        let items = self.list("set", node)?;
+        let mut out = Vec::new();
+        for item in items {
+            let Some(text) = self.string("set", item) else {
+                continue;
+            };
+            match Override::parse(&text) {
+                Ok(o) => out.push(o),
+                Err(e) => self.err(item.loc(), format!("`set`: {e}")),
+            }
+        }
+        (out.len() == items.len()).then_some(out)
+    }
+
+    /// Applies `set` to the method's dataflow file, reporting an override that names no node
+    /// (or a key under a value that is not a mapping) at its line of the suite; the operators'
+    /// checks of the values run when the cells' dataflows are derived, before any episode.
+    fn check_overrides(&mut self, dataflow: &Path, items: &Node, set: &[Override]) {
+        let Ok(text) = std::fs::read_to_string(dataflow) else {
+            return;
+        };
+        let Ok(mut tree) = yaml::parse(&text) else {
+            return;
+        };
+        let Node::Seq { items, .. } = items else {
+            return;
+        };
+        for (index, (o, item)) in set.iter().zip(items).enumerate() {
+            if let Err(e) = o.apply(&mut tree, index) {
+                self.err(item.loc(), format!("{e} in {}", dataflow.display()));
+            }
+        }
     }
 
     fn scenes(&mut self, node: &Node) -> Option<Vec<SuiteScene>> {
@@ -1000,6 +1049,57 @@ eval_views: 20
         );
     }
 
+    /// A method's `set:` keeps its overrides in order; one without `=`, or naming a node its
+    /// dataflow lacks, is refused at its own line and column.
+    #[test]
+    fn a_methods_set_overrides_are_kept_and_checked_where_written() {
+        let dir = folder();
+        std::fs::write(
+            dir.path().join("flows/mine.yaml"),
+            "nodes:\n  - id: planner\n    operator: planner\n    config: { policy: fbe }\n",
+        )
+        .unwrap();
+        let methods = |set: &str| {
+            VALID.replace(
+                "methods: [fbe, { name: mine, dataflow: flows/mine.yaml }]",
+                &format!(
+                    "methods:\n  - fbe\n  - name: mine\n    dataflow: flows/mine.yaml\n    set: {set}"
+                ),
+            )
+        };
+        let suite = parse(
+            dir.path(),
+            &methods("[planner.frontier=utility, \"planner.strikes={ max: 3 }\"]"),
+        )
+        .unwrap();
+        assert!(suite.methods[0].set.is_empty());
+        assert_eq!(
+            suite.methods[1].set,
+            ["planner.frontier=utility", "planner.strikes={ max: 3 }"]
+        );
+        let e = parse(dir.path(), &methods("[planner.frontier]"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("s.yaml:6:11: error:") && e.contains("no `=`"),
+            "{e}"
+        );
+        let e = parse(
+            dir.path(),
+            &methods("[planner.frontier=utility, scorer.mode=fisher]"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("s.yaml:6:37: error:") && e.contains("no node `scorer` (nodes: planner)"),
+            "{e}"
+        );
+        let e = parse(dir.path(), &methods("planner.frontier=utility"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`set` must be a non-empty list"), "{e}");
+    }
+
     /// The shipped suites parse; the furnished house of `table1.yaml` lives in the shared data
     /// next to the checkout, so that suite is skipped (with a message) where it is absent.
     #[test]
@@ -1015,7 +1115,23 @@ eval_views: 20
         assert_eq!(graph.methods[1].name, "fisher_pose_graph");
         assert_eq!(graph.settings.noise.as_deref(), Some("realistic"));
         assert_eq!(large.settings.checkpoints, [500, 1000]);
+        let goal = Suite::load(&root().join("benchmarks/goal-choice.yaml"), &root()).unwrap();
+        let variant = &goal.methods[2];
+        assert_eq!(variant.name, "fisher_utility");
+        assert!(variant.dataflow.ends_with("flows/fisher.yaml"));
+        assert_eq!(variant.set, ["planner.frontier=utility"]);
         let house = root().join("../shared/data/scenes/aws_small_house.glb");
+        // Every other shipped suite parses too (those on the furnished house where it exists).
+        for entry in std::fs::read_dir(root().join("benchmarks")).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "yaml") {
+                match Suite::load(&path, &root()) {
+                    Ok(_) => {}
+                    Err(e) if !house.is_file() && e.to_string().contains("aws_small_house") => {}
+                    Err(e) => panic!("{e}"),
+                }
+            }
+        }
         if !house.is_file() {
             eprintln!("skipped table1.yaml: {} absent", house.display());
             return;
