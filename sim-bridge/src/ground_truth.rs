@@ -30,12 +30,8 @@ pub struct SurfaceSample {
 /// [`surface_samples`] with each point's triangle normal (the same points for the same seed), so
 /// that completeness can be broken down by kind of surface (floor, walls by height, ceiling).
 pub fn oriented_surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<SurfaceSample> {
-    let mut cumulative = Vec::with_capacity(scene.triangles.len());
-    let mut total = 0.0;
-    for t in &scene.triangles {
-        total += 0.5 * scene.scaled_normal(t).norm();
-        cumulative.push(total);
-    }
+    let cumulative = cumulative_areas(scene);
+    let total = cumulative.last().copied().unwrap_or(0.0);
     if total <= 0.0 {
         return Vec::new();
     }
@@ -61,6 +57,25 @@ pub fn oriented_surface_samples(scene: &Scene, n: usize, seed: u64) -> Vec<Surfa
                     .try_normalize(0.0)
                     .unwrap_or_else(Vector3::z),
             }
+        })
+        .collect()
+}
+
+/// The mesh's surface area, m² (both faces of a triangle count once): with it, a sample count
+/// gives a sampling density.
+pub fn surface_area(scene: &Scene) -> f64 {
+    cumulative_areas(scene).last().copied().unwrap_or(0.0)
+}
+
+/// The running sum of the triangles' areas, in triangle order.
+fn cumulative_areas(scene: &Scene) -> Vec<f64> {
+    let mut total = 0.0;
+    scene
+        .triangles
+        .iter()
+        .map(|t| {
+            total += 0.5 * scene.scaled_normal(t).norm();
+            total
         })
         .collect()
 }

@@ -45,7 +45,9 @@ use crate::fog::{FogConfig, coverage_fog};
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
 use crate::observable::{self, ObservabilityConfig, camera_sites};
 use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
-use crate::surface::{DepthView, SurfaceConfig, fuse_jobs, surface_complete, surface_metrics};
+use crate::surface::{
+    DepthView, SurfaceConfig, accuracy_sample_count, fuse_jobs, surface_complete, surface_metrics,
+};
 use crate::test_poses::{NavigableGrid, TEST_VIEW_COUNT, sample_test_poses};
 use crate::validity::{self, RunWarning};
 use crate::views::{ViewMeans, ViewMetrics, evaluate_view};
@@ -562,7 +564,17 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
                 report.mark_missing(m, "no ground-truth sample is observable from the floor");
             }
         } else {
-            let metrics = surface_metrics(&samples, &observable, &surface, threshold)?;
+            // Accuracy measures to a denser draw of the same surface (its own seed), so the
+            // samples' spacing does not set the figure.
+            let dense = activemap_sim::ground_truth::surface_samples(
+                sim.scene(),
+                accuracy_sample_count(
+                    activemap_sim::ground_truth::surface_area(sim.scene()),
+                    samples.len(),
+                ),
+                1,
+            );
+            let metrics = surface_metrics(&samples, &observable, &surface, &dense, threshold)?;
             report.completeness = Some(metrics.completeness);
             report.accuracy_cm = metrics.accuracy_cm;
             report.completion_error_cm = metrics.completion_error_cm;

@@ -5,7 +5,10 @@
 //!    A pixel counts only where the rendered opacity is at least
 //!    [`SurfaceConfig::min_opacity`]; its depth is the composited depth divided by the opacity
 //!    (SPEC §3's depth is `Σ z α T`, un-normalised, so a half-transparent pixel would otherwise
-//!    read half as deep).
+//!    read half as deep). A pixel whose depth steps from a 4-neighbour's by more than
+//!    [`SurfaceConfig::max_depth_step`] of the nearer one is dropped too: at a silhouette the
+//!    composited depth blends the object's and the background's, a reading in mid-air between
+//!    them (fused from many views, such pixels draw streaks along the view rays).
 //! 2. **Fusion** ([`Tsdf`]): a truncated signed distance field on a sparse voxel grid
 //!    ([`SurfaceConfig::voxel_m`]), KinectFusion-style: each voxel of the blocks near a view's
 //!    readings is projected into the view and takes the projective distance `D − z` to the
@@ -16,8 +19,10 @@
 //!    (naive surface nets: the vertices of the iso-surface mesh, about one per voxel of surface).
 //! 4. **Metrics** ([`surface_metrics`]): completeness = the share of ground-truth samples with a
 //!    reconstructed point within 5 cm; accuracy = the mean distance from the reconstruction's
-//!    points to the nearest ground-truth sample; completion error = the mean distance from the
-//!    ground-truth samples to the nearest reconstructed point (both in centimetres).
+//!    points to the nearest of a dense draw of ground-truth samples (one per (2 cm)² of mesh,
+//!    [`accuracy_sample_count`], so a point on the surface reads about 1 cm); completion error =
+//!    the mean distance from the ground-truth samples to the nearest reconstructed point (both in
+//!    centimetres).
 //!
 //! No transport, no I/O.
 
@@ -54,6 +59,12 @@ pub struct SurfaceConfig {
     pub min_opacity: f32,
     /// Readings farther than this z-depth are dropped, metres (the sensor's 10 m).
     pub max_depth_m: f64,
+    /// Largest depth step from a pixel to any of its 4-neighbours with a reading, as a fraction
+    /// of the nearer of the two; a pixel beyond it is dropped as a silhouette pixel. 0.05 keeps
+    /// every surface seen at more than about 3° of grazing at 160 px and 90° (the step between
+    /// neighbours is the depth times the pixel angle over the tangent of the grazing angle);
+    /// `f64::INFINITY` keeps every pixel.
+    pub max_depth_step: f64,
 }
 
 impl Default for SurfaceConfig {
@@ -63,6 +74,7 @@ impl Default for SurfaceConfig {
             truncation_voxels: 3.0,
             min_opacity: 0.8,
             max_depth_m: 10.0,
+            max_depth_step: 0.05,
         }
     }
 }
@@ -188,12 +200,13 @@ impl Tsdf {
         if !(ok(config.voxel_m)
             && ok(config.truncation_voxels)
             && ok(config.max_depth_m)
+            && config.max_depth_step > 0.0
             && config.min_opacity.is_finite())
         {
             return Err(EvalError::InvalidParameter {
                 metric: "surface reconstruction",
                 detail: format!(
-                    "voxel, truncation and depth limit must be finite and positive, got {config:?}"
+                    "voxel, truncation and depth limit must be finite and positive, the depth step positive, got {config:?}"
                 ),
             });
         }
@@ -241,6 +254,7 @@ impl Tsdf {
                     .filter(|&d| d <= self.config.max_depth_m)
             })
             .collect();
+        let readings = without_silhouettes(&readings, w, h, self.config.max_depth_step);
         // 1. The blocks the bands pass through (band ends and reading; a band is shorter than a
         //    block, so no block between them is skipped).
         let mut touched: FxHashSet<[i32; 3]> = FxHashSet::default();
@@ -419,6 +433,34 @@ impl Tsdf {
     }
 }
 
+/// `readings` (row-major, `w × h`) without the pixels whose depth steps from a 4-neighbour's
+/// reading by more than `max_step` times the nearer of the two ([`SurfaceConfig::max_depth_step`]).
+fn without_silhouettes(
+    readings: &[Option<f64>],
+    w: usize,
+    h: usize,
+    max_step: f64,
+) -> Vec<Option<f64>> {
+    (0..w * h)
+        .map(|i| {
+            let d = readings[i]?;
+            let (u, v) = (i % w, i / w);
+            let neighbours = [
+                (u > 0).then(|| i - 1),
+                (u + 1 < w).then(|| i + 1),
+                (v > 0).then(|| i - w),
+                (v + 1 < h).then(|| i + w),
+            ];
+            let steps = neighbours
+                .into_iter()
+                .flatten()
+                .filter_map(|n| readings[n])
+                .any(|e| (d - e).abs() > max_step * d.min(e));
+            (!steps).then_some(d)
+        })
+        .collect()
+}
+
 /// The surface metrics of a reconstruction against ground-truth samples.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfaceMetrics {
@@ -431,6 +473,22 @@ pub struct SurfaceMetrics {
     /// Mean distance from the considered ground-truth samples to the nearest reconstructed
     /// point, centimetres (`None` without reconstructed points).
     pub completion_error_cm: Option<f64>,
+}
+
+/// Spacing of the ground-truth samples accuracy measures to, metres: one sample per (2 cm)²
+/// of mesh area ([`accuracy_sample_count`]), so a point on the surface lies about 1 cm from the
+/// nearest one.
+pub const ACCURACY_SAMPLE_SPACING_M: f64 = 0.02;
+
+/// Most ground-truth samples accuracy measures to (memory: 8M points, ~200 MB with the tree).
+pub const MAX_ACCURACY_SAMPLES: usize = 8_000_000;
+
+/// Ground-truth samples for accuracy on a mesh of `area_m2`: one per
+/// [`ACCURACY_SAMPLE_SPACING_M`]², at least `at_least` (the completeness samples) and at most
+/// [`MAX_ACCURACY_SAMPLES`].
+pub fn accuracy_sample_count(area_m2: f64, at_least: usize) -> usize {
+    let dense = (area_m2.max(0.0) / (ACCURACY_SAMPLE_SPACING_M * ACCURACY_SAMPLE_SPACING_M)).ceil();
+    (dense.min(MAX_ACCURACY_SAMPLES as f64) as usize).max(at_least)
 }
 
 /// Reconstructed points used for accuracy at most (Active Neural Mapping samples 200k points on
@@ -449,12 +507,16 @@ pub fn surface_complete(
 
 /// Completeness, accuracy and completion error (see the module doc) of `reconstruction`
 /// against the ground-truth `truth` samples; only the samples with `considered[i]` enter
-/// completeness and completion error (the observable ones), every sample is a target of
-/// accuracy. `threshold` is the completeness radius, metres.
+/// completeness and completion error (the observable ones). Accuracy measures to
+/// `accuracy_truth`, samples of the same surface dense enough that their spacing does not
+/// dominate the distance (a point on the surface lies on average half the spacing from the
+/// nearest sample: 4–5 cm with 200k samples over a large house; see
+/// [`ACCURACY_SAMPLE_SPACING_M`]). `threshold` is the completeness radius, metres.
 pub fn surface_metrics(
     truth: &[Point3<f64>],
     considered: &[bool],
     reconstruction: &[Point3<f64>],
+    accuracy_truth: &[Point3<f64>],
     threshold: f64,
 ) -> Result<SurfaceMetrics, EvalError> {
     if truth.len() != considered.len() {
@@ -497,7 +559,7 @@ pub fn surface_metrics(
     } else {
         reconstruction.to_vec()
     };
-    let accuracy = mean_nearest_distance(&sampled, truth)?;
+    let accuracy = mean_nearest_distance(&sampled, accuracy_truth)?;
     Ok(SurfaceMetrics {
         completeness,
         accuracy_cm: Some(accuracy * 100.0),
@@ -668,15 +730,56 @@ mod tests {
                 .collect()
         };
         let all = vec![true; 256];
-        let front = surface_metrics(&grid(2.0), &all, &surface, 0.05).unwrap();
+        let front = surface_metrics(&grid(2.0), &all, &surface, &grid(2.0), 0.05).unwrap();
         assert_eq!(front.completeness, 1.0);
         assert!(front.completion_error_cm.unwrap() < 1.5, "{front:?}");
-        let back = surface_metrics(&grid(2.1), &all, &surface, 0.05).unwrap();
+        let back = surface_metrics(&grid(2.1), &all, &surface, &grid(2.1), 0.05).unwrap();
         assert_eq!(back.completeness, 0.0);
         assert!(
             (back.completion_error_cm.unwrap() - 10.0).abs() < 0.5,
             "{back:?}"
         );
+    }
+
+    /// A wall 2 m ahead covering the left half of the view, one 4 m ahead the right half, and
+    /// between them a column of silhouette pixels whose composited depth blends the two (3 m):
+    /// kept, they put surface in mid-air; the depth-step rule drops them and keeps both walls.
+    #[test]
+    fn silhouette_pixels_leave_no_surface_in_mid_air() {
+        let k = Intrinsics::from_hfov(48, 48, 60f64.to_radians());
+        let look_x = camera_pose_from_planar(&PlanarPose::new(0.0, 0.0, 0.0), 0.0, 0.0);
+        let (w, h) = (48, 48);
+        let depth: Vec<f32> = (0..w * h)
+            .map(|i| match (i % w).cmp(&(w / 2)) {
+                std::cmp::Ordering::Less => 2.0,
+                std::cmp::Ordering::Equal => 3.0,
+                std::cmp::Ordering::Greater => 4.0,
+            })
+            .collect();
+        let view = DepthView {
+            intrinsics: k,
+            t_world_camera: look_x,
+            opacity: vec![1.0; depth.len()],
+            depth,
+        };
+        let mid_air = |config: SurfaceConfig| {
+            let surface = reconstruct(config, std::slice::from_ref(&view)).unwrap();
+            let on = |x: f64| surface.iter().filter(|p| (p.x - x).abs() < 0.03).count();
+            let between = surface.iter().filter(|p| p.x > 2.1 && p.x < 3.9).count();
+            (on(2.0), on(4.0), between)
+        };
+        let kept = SurfaceConfig {
+            max_depth_step: f64::INFINITY,
+            ..SurfaceConfig::default()
+        };
+        let (near, far, between) = mid_air(kept);
+        assert!(
+            near > 100 && far > 100 && between > 10,
+            "{near} {far} {between}"
+        );
+        let (near, far, between) = mid_air(SurfaceConfig::default());
+        assert!(near > 100 && far > 100, "{near} {far}");
+        assert_eq!(between, 0, "surface points in mid-air");
     }
 
     #[test]
@@ -703,8 +806,8 @@ mod tests {
         assert!(offs[offs.len() - 1] < 0.03, "{:?}", offs.last());
         let truth = box_samples(lo, hi, 0.05);
         let all = vec![true; truth.len()];
-        let at5 = surface_metrics(&truth, &all, &surface, 0.05).unwrap();
-        let at2 = surface_metrics(&truth, &all, &surface, 0.02).unwrap();
+        let at5 = surface_metrics(&truth, &all, &surface, &truth, 0.05).unwrap();
+        let at2 = surface_metrics(&truth, &all, &surface, &truth, 0.02).unwrap();
         // All but a few samples in the room's corners, where the surface points are pulled
         // inwards (see above).
         assert!(at5.completeness > 0.995, "{at5:?}");
@@ -717,7 +820,7 @@ mod tests {
         assert!((3.0..4.5).contains(&accuracy), "{at5:?}");
         // Only the floor considered: the walls and ceiling do not count.
         let floor: Vec<bool> = truth.iter().map(|p| p.z == 0.0).collect();
-        let floor_only = surface_metrics(&truth, &floor, &surface, 0.05).unwrap();
+        let floor_only = surface_metrics(&truth, &floor, &surface, &truth, 0.05).unwrap();
         assert!(floor_only.completeness > 0.995, "{floor_only:?}");
     }
 
@@ -732,6 +835,34 @@ mod tests {
                 .install(|| reconstruct(SurfaceConfig::default(), &views).unwrap())
         };
         assert_eq!(run(1), run(3));
+    }
+
+    /// One accuracy sample per (2 cm)² of mesh, no fewer than the completeness samples, no
+    /// more than the memory cap; and a surface sampled that densely lies about 1 cm from its
+    /// nearest sample, where 200k samples over a large house's ~1500 m² leave it 4–5 cm away.
+    #[test]
+    fn accuracy_samples_follow_the_mesh_area() {
+        use rand::Rng;
+        assert_eq!(accuracy_sample_count(100.0, 200_000), 250_000);
+        assert_eq!(accuracy_sample_count(1.0, 200_000), 200_000);
+        assert_eq!(accuracy_sample_count(1e6, 0), MAX_ACCURACY_SAMPLES);
+        // A 2 × 2 m plane at z = 0: uniform random samples, and on-surface query points.
+        let plane = |n: usize, seed: u64| -> Vec<Point3<f64>> {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            (0..n)
+                .map(|_| Point3::new(rng.random::<f64>() * 2.0, rng.random::<f64>() * 2.0, 0.0))
+                .collect()
+        };
+        let queries: Vec<Point3<f64>> = plane(2000, 2)
+            .into_iter()
+            .map(|p| Point3::new(0.5 + 0.5 * p.x, 0.5 + 0.5 * p.y, 0.0))
+            .collect();
+        let dense =
+            mean_nearest_distance(&queries, &plane(accuracy_sample_count(4.0, 0), 1)).unwrap();
+        assert!((dense - 0.01).abs() < 0.002, "{dense}");
+        // 200k samples over 1500 m², as dense as 533 over these 4 m².
+        let sparse = mean_nearest_distance(&queries, &plane(533, 1)).unwrap();
+        assert!(sparse > 0.035 && sparse < 0.055, "{sparse}");
     }
 
     #[test]
@@ -778,7 +909,7 @@ mod tests {
         };
         let e = tsdf.integrate(&short).unwrap_err().to_string();
         assert!(e.contains("4×4") && e.contains("got 3"), "{e}");
-        let e = surface_metrics(&[Point3::origin()], &[], &[], 0.05)
+        let e = surface_metrics(&[Point3::origin()], &[], &[], &[Point3::origin()], 0.05)
             .unwrap_err()
             .to_string();
         assert!(e.contains("observability flags"), "{e}");

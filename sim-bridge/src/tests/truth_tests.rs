@@ -1,5 +1,5 @@
 use super::fixtures::*;
-use crate::ground_truth::{oriented_surface_samples, surface_samples, test_poses};
+use crate::ground_truth::{oriented_surface_samples, surface_area, surface_samples, test_poses};
 use crate::navigation::{AgentShape, Navigation};
 use crate::noise::{DepthNoise, NoiseConfig};
 use crate::simulator::{SimConfig, Simulator};
@@ -9,6 +9,7 @@ use activemap_geometry::PlanarPose;
 fn surface_samples_are_on_the_surface_and_area_weighted() {
     // Box 4 × 2 × 1: faces ±x 2 m², ±y 4 m², ±z 8 m² (total 28 m²).
     let scene = box_room([0.0, 0.0, 0.0], [4.0, 2.0, 1.0]);
+    assert!((surface_area(&scene) - 28.0).abs() < 1e-9);
     let n = 28_000;
     let pts = surface_samples(&scene, n, 11);
     assert_eq!(pts.len(), n);
