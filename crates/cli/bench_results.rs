@@ -885,7 +885,13 @@ mod tests {
                 "sim.width=999".into(),
             ],
         };
-        let cell = results::cells(std::slice::from_ref(&m), &["house:3".into()], &[5], &small()).remove(0);
+        let cell = results::cells(
+            std::slice::from_ref(&m),
+            &["house:3".into()],
+            &[5],
+            &small(),
+        )
+        .remove(0);
         let text = cell_flow(&cell).unwrap();
         let flow = Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
         assert_eq!(flow.node("planner").unwrap().config["frontier"], "utility");
