@@ -38,15 +38,21 @@ pub enum MapKind {
     SurfaceInWorldFrame,
 }
 
-/// Writes a run folder into `dir`: 12 true poses (turns and forward steps from the house's
-/// start), the estimate = the truth in the map frame (exact), a map of `kind`, `coverage.csv`
-/// ending at 0.42 and `summary.json` naming the scene.
+/// Writes a run folder into `dir`: 72 true poses (three turns then a forward step, over and
+/// over from the house's start: a 270° sweep, so the surface fusion's trajectory views see a
+/// good part of the room), the estimate = the truth in the map frame (exact), a map of `kind`,
+/// `coverage.csv` ending at 0.42 and `summary.json` naming the scene.
 pub fn write_run(dir: &Path, kind: MapKind) {
     let mut sim = simulator(16);
     let floor_z = sim.navigation().floor_z();
     let mut truth = Trajectory::default();
-    let actions = [Action::TurnLeft, Action::Forward, Action::Forward];
-    for k in 0..12 {
+    let actions = [
+        Action::TurnLeft,
+        Action::TurnLeft,
+        Action::TurnLeft,
+        Action::Forward,
+    ];
+    for k in 0..72 {
         truth.push(k as f64 * 0.1, sim.true_pose());
         sim.step(actions[k % actions.len()]);
     }

@@ -791,7 +791,7 @@ mod tests {
         // The restarted tracker's two rows are one stage: 3 s over 12 calls.
         assert!(html.contains("<td>3.000</td><td>75.0 %</td><td>12</td><td>250.00</td>"));
         assert!(html.contains("pick &lt;a frontier&gt;"));
-        assert!(html.contains("ATE RMSE 0.0000 m over 12 poses"));
+        assert!(html.contains("ATE RMSE 0.0000 m over 72 poses"));
         assert!(html.contains("3 replans, 1 refine, 1 fallbacks, median replan 800.0 ms"));
     }
 
