@@ -24,8 +24,9 @@
 //!    [`EvalOptions::cache_dir`]). `completeness` = observable samples within 5 cm of the
 //!    surface / observable samples; `completeness_all` the same over all samples;
 //!    `observable_share` = observable / all; `accuracy_cm` and `completion_error_cm` the mean
-//!    distances surface → truth (a denser draw of mesh samples) and observable truth → surface; the breakdown by kind of surface
-//!    over the observable samples. `completeness_gaussians` is the earlier figure: samples with
+//!    distances surface → truth (a denser draw of mesh samples) and observable truth →
+//!    surface; the breakdown by kind of surface over the observable samples.
+//!    `completeness_gaussians` is the earlier figure: samples with
 //!    a **mean of the map's Gaussians** within 5 cm, over all samples.
 //! 6. 2D coverage: the last row of `coverage.csv` (the evaluator's seen / reachable navigable
 //!    floor), else `summary.json`'s `coverage`; and `coverage_fog`, the release's fog of war
