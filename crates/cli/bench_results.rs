@@ -25,7 +25,6 @@ use activemap_bench::results::{self, Cell, CellOutcome, GridSettings, Method, Su
 use activemap_operators::checks::ROBOT_OPERATORS;
 use activemap_runtime::dataflow::Override;
 use activemap_runtime::yaml::{self, Loc, Node as YamlNode};
-use activemap_sim::NoisePreset;
 use anyhow::{Context as _, bail};
 use serde_json::Value;
 
@@ -464,8 +463,7 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
         let needs_config = operator == "sim"
             || operator == "evaluator"
             || (takes_robot && s.camera_height_m.is_some())
-            || (operator == "planner" && s.when_no_frontier.is_some())
-            || (operator == "tracker" && s.noise.is_some());
+            || (operator == "planner" && s.when_no_frontier.is_some());
         if needs_config {
             child_map(node, "config");
         }
@@ -513,18 +511,6 @@ pub(crate) fn cell_flow(cell: &Cell) -> anyhow::Result<String> {
                         "checkpoints",
                         Some(from_json(&serde_json::json!(s.checkpoints))),
                     );
-                }
-            }
-            // A tracker is configured for its sensor: the dense aligner weighs each depth
-            // residual by the noise preset's σ(z) (issue 34: without it, the realistic sensor's
-            // depth noise drifts long episodes by decimetres). A flow that sets its own keeps it.
-            "tracker" => {
-                if let Some(preset) = s.noise.as_deref().and_then(NoisePreset::from_name) {
-                    let dense = child_map(config, "dense");
-                    if dense.get("depth_sigma_z2").is_none() {
-                        let z2 = preset.config().depth.sigma_z2;
-                        set(dense, "depth_sigma_z2", Some(scalar(z2)));
-                    }
                 }
             }
             // A Fisher scorer renders at the simulator's camera (checked across nodes).
@@ -1033,8 +1019,9 @@ mod tests {
             c.scene = "/nowhere/room.glb".into();
             c.placement = placement;
             let text = cell_flow(&c).unwrap_or_else(|e| panic!("{}: {e:#}", known.name));
-            let flow =
-                Dataflow::parse("cell", &text, root(), &activemap_operators::catalog()).unwrap();
+            // Loaded as `activemap run` loads it: the tracker's depth noise is implied by the
+            // simulator's (`activemap_operators::checks::implied_overrides`).
+            let flow = activemap_operators::checks::parse("cell", &text, &root()).unwrap();
             let mut robots = 0;
             for node in &flow.nodes {
                 let op = match &node.implementation {

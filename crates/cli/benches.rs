@@ -68,9 +68,9 @@ pub struct SlamArgs {
     #[arg(long, default_value = "dataflow.yaml")]
     flow: std::path::PathBuf,
     /// Simulator noise: `none` or a preset name (`realistic`: RealSense D435 depth noise and
-    /// LoCoBot-derived actuation noise, see `activemap_sim::noise`). Under a preset the
-    /// tracker weighs depth by the preset's σ(z), as `bench results` sets it, unless the flow's
-    /// tracker sets `dense.depth_sigma_z2` itself.
+    /// LoCoBot-derived actuation noise, see `activemap_sim::noise`), set as the flow's
+    /// `sim.noise` before `--set`. As in `activemap run`, the tracker then weighs depth by the
+    /// sensor's σ(z) unless the flow's tracker sets `dense.depth_sigma_z2` itself.
     #[arg(long, default_value = "none")]
     noise: String,
     /// Overrides of the flow's node configs, e.g. `--set tracker.pose_graph=true`.
@@ -96,18 +96,21 @@ pub fn slam(args: &SlamArgs) -> anyhow::Result<()> {
             ))
         })
         .collect::<anyhow::Result<Vec<(u32, usize)>>>()?;
-    let flow = crate::load(&args.flow, &args.set.set)?;
-    let (mut tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
-        .with_context(|| format!("{}", args.flow.display()))?;
-    let preset = activemap_sim::NoisePreset::from_name(&args.noise)
+    activemap_sim::NoisePreset::from_name(&args.noise)
         .with_context(|| format!("--noise {}: expected `none` or `realistic`", args.noise))?;
-    let noise = preset.config();
-    // The tracker is configured for its sensor, as `bench results` does for a suite's noise:
-    // the dense aligner weighs each depth residual by the preset's σ(z) unless the flow sets
-    // its own.
-    if noise.is_active() && tracker.dense.depth_sigma_z2.is_none() {
-        tracker.dense.depth_sigma_z2 = Some(noise.depth.sigma_z2);
-    }
+    // The noise is the flow's `sim` node's, so the flow's checks configure the tracker for it
+    // (`activemap_operators::checks::implied_overrides`) as they do in `activemap run`.
+    let noise_override =
+        activemap_runtime::dataflow::Override::parse(&format!("sim.noise={}", args.noise))
+            .map_err(|e| anyhow::anyhow!("--noise: {e}"))?;
+    let overrides = [vec![noise_override], args.set.set.clone()].concat();
+    let flow = crate::load(&args.flow, &overrides)?;
+    let (tracker, mapper) = activemap_operators::mapper::slam_nodes(&flow)
+        .with_context(|| format!("{}", args.flow.display()))?;
+    let noise =
+        activemap_operators::single_node_config::<activemap_operators::sim::Config>(&flow, "sim")
+            .with_context(|| format!("{}", args.flow.display()))?
+            .noise;
     let slam_for = |resolution: u32| {
         let (track, map) = activemap_bench::slam_loop::resolution_profile(
             resolution,

@@ -27,6 +27,15 @@
 //! - **LLM planner.** A planner with policy `llm` draws its BEV from the mapper's lagged map
 //!   snapshot: its `map_lag` is checked like the tracker's, and it must read the map with
 //!   `drop: block`.
+//!
+//! One setting is implied rather than checked ([`implied_overrides`], applied by [`load_with`]
+//! and [`parse`] after the user's overrides, so the effective flow in the run folder holds it):
+//!
+//! - **Sensor depth noise.** A tracker weighs each depth residual by σ_d(z) = `depth_sigma` +
+//!   `depth_sigma_z2`·z² (`activemap_slam::DenseConfig`). When the simulator feeding its `rgbd`
+//!   adds depth noise growing with z² and the tracker leaves `dense.depth_sigma_z2` unset, the
+//!   tracker takes the simulator's coefficient (issue 34: unweighted, the realistic sensor's depth
+//!   noise drifts long episodes by decimetres). A tracker that sets it (0 included) keeps its own.
 
 use std::path::Path;
 
@@ -376,15 +385,62 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
     }
 }
 
+/// The `--set` overrides one node's config implies for another's (see the module doc): today
+/// `TRACKER.dense.depth_sigma_z2=C` for each tracker that leaves it unset and reads its `rgbd`
+/// from a `sim` node whose depth noise grows as C·z², C > 0. Empty when nothing is implied.
+pub fn implied_overrides(flow: &Dataflow) -> Vec<Override> {
+    let sim_depth_sigma_z2 = |id: &str| {
+        let node = flow.node(id)?;
+        let NodeImpl::Operator(op) = &node.implementation else {
+            return None;
+        };
+        (op == "sim")
+            .then(|| config_from_value::<crate::sim::Config>(&node.config).ok())
+            .flatten()
+            .map(|c| c.noise.depth.sigma_z2)
+    };
+    let mut implied = Vec::new();
+    for node in &flow.nodes {
+        let NodeImpl::Operator(op) = &node.implementation else {
+            continue;
+        };
+        if op != "tracker" {
+            continue;
+        }
+        let Ok(tracker) = config_from_value::<crate::tracker::Config>(&node.config) else {
+            continue;
+        };
+        if tracker.dense.depth_sigma_z2.is_some() {
+            continue;
+        }
+        let sensor = node
+            .inputs
+            .iter()
+            .find(|i| i.name == "rgbd")
+            .and_then(|i| sim_depth_sigma_z2(&i.source_node));
+        if let Some(z2) = sensor.filter(|z2| *z2 > 0.0) {
+            let text = format!("{}.dense.depth_sigma_z2={z2}", node.id);
+            implied.push(Override::parse(&text).expect("a node id, keys and a number"));
+        }
+    }
+    implied
+}
+
 /// Reads and validates a dataflow file against the operator catalog, then [`check_flow`].
 pub fn load(path: &Path) -> Result<Dataflow, Diagnostics> {
     load_with(path, &[])
 }
 
-/// As [`load`], with `--set` overrides of node configs applied first (see [`Override`]); a
-/// cross-node problem then says which overrides were in force.
+/// As [`load`], with `--set` overrides of node configs applied first (see [`Override`]), then
+/// the [`implied_overrides`]; a cross-node problem then says which overrides were in force.
 pub fn load_with(path: &Path, overrides: &[Override]) -> Result<Dataflow, Diagnostics> {
-    let flow = Dataflow::load_with(path, &crate::catalog(), overrides)?;
+    let catalog = crate::catalog();
+    let mut flow = Dataflow::load_with(path, &catalog, overrides)?;
+    let implied = implied_overrides(&flow);
+    if !implied.is_empty() {
+        flow = Dataflow::load_with(path, &catalog, &[overrides, &implied].concat())?;
+    }
+    let overrides = [overrides, &implied].concat();
     check_flow(&flow).map_err(|Diagnostics(mut diags)| {
         if !overrides.is_empty() {
             let labels: Vec<String> = overrides.iter().map(Override::label).collect();
@@ -399,7 +455,12 @@ pub fn load_with(path: &Path, overrides: &[Override]) -> Result<Dataflow, Diagno
 
 /// As [`load`], for dataflow text (`file` only names it in messages).
 pub fn parse(file: &str, source: &str, base_dir: &Path) -> Result<Dataflow, Diagnostics> {
-    let flow = Dataflow::parse(file, source, base_dir.to_path_buf(), &crate::catalog())?;
+    let catalog = crate::catalog();
+    let mut flow = Dataflow::parse(file, source, base_dir.to_path_buf(), &catalog)?;
+    let implied = implied_overrides(&flow);
+    if !implied.is_empty() {
+        flow = Dataflow::parse_with(file, source, base_dir.to_path_buf(), &catalog, &implied)?;
+    }
     check_flow(&flow)?;
     Ok(flow)
 }
@@ -411,6 +472,65 @@ mod tests {
     fn reference() -> String {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         std::fs::read_to_string(root.join("dataflow.yaml")).unwrap()
+    }
+
+    /// The tracker's depth σ(z) growth follows the simulator's depth noise when it leaves it
+    /// unset, through `--set` as through the file; its own value (0 too) is kept, and a
+    /// noise-free simulator implies nothing.
+    #[test]
+    fn the_tracker_takes_the_simulators_depth_noise_unless_it_sets_its_own() {
+        let z2 = |flow: &Dataflow| {
+            crate::single_node_config::<crate::tracker::Config>(flow, "tracker")
+                .unwrap()
+                .dense
+                .depth_sigma_z2
+        };
+        let realistic = activemap_sim::NoisePreset::Realistic
+            .config()
+            .depth
+            .sigma_z2;
+        assert!(realistic > 0.0);
+        let flow = parse("plain.yaml", &reference(), Path::new(".")).unwrap();
+        assert!(implied_overrides(&flow).is_empty());
+        assert_eq!(z2(&flow), None);
+        // In the file.
+        let noisy = reference().replace("lockstep: true,", "lockstep: true, noise: realistic,");
+        assert_ne!(noisy, reference());
+        let flow = parse("noisy.yaml", &noisy, Path::new(".")).unwrap();
+        assert_eq!(z2(&flow), Some(realistic));
+        // The effective text (run folder, recording) holds it and reads back the same.
+        assert!(
+            flow.source.contains("--set tracker.dense.depth_sigma_z2="),
+            "{}",
+            flow.source
+        );
+        let again = parse("again.yaml", &flow.source, Path::new(".")).unwrap();
+        assert_eq!(z2(&again), Some(realistic));
+        assert!(implied_overrides(&again).is_empty());
+        // Through `--set`, as `activemap run --set sim.noise=realistic` gives it.
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("flow.yaml");
+        std::fs::write(&file, reference()).unwrap();
+        let set = |text: &str| Override::parse(text).unwrap();
+        let flow = load_with(&file, &[set("sim.noise=realistic")]).unwrap();
+        assert_eq!(z2(&flow), Some(realistic));
+        // A custom coefficient is followed; the tracker's own value, 0 included, is kept.
+        let flow = load_with(&file, &[set("sim.noise={ depth: { sigma_z2: 0.002 } }")]).unwrap();
+        assert_eq!(z2(&flow), Some(0.002));
+        for own in ["0", "0.001"] {
+            let flow = load_with(
+                &file,
+                &[
+                    set("sim.noise=realistic"),
+                    set(&format!("tracker.dense.depth_sigma_z2={own}")),
+                ],
+            )
+            .unwrap();
+            assert_eq!(z2(&flow), Some(own.parse().unwrap()));
+        }
+        // Noise without depth growth (actuation only) implies nothing.
+        let flow = load_with(&file, &[set("sim.noise={ actuation: realistic }")]).unwrap();
+        assert_eq!(z2(&flow), None);
     }
 
     /// A robot override on one node only is refused, naming that node and the first one.

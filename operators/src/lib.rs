@@ -89,6 +89,27 @@ pub fn replay_config(
     }
 }
 
+/// The config of a dataflow's single node of operator `operator` (an error names a missing,
+/// doubled or refused one): what the benchmarks that run one part of a flow in process read.
+pub fn single_node_config<C: serde::de::DeserializeOwned>(
+    flow: &activemap_runtime::Dataflow,
+    operator: &str,
+) -> anyhow::Result<C> {
+    let mut nodes = flow.nodes.iter().filter(
+        |n| matches!(&n.implementation, activemap_runtime::dataflow::NodeImpl::Operator(o) if o == operator),
+    );
+    match (nodes.next(), nodes.next()) {
+        (Some(node), None) => activemap_runtime::config_from_value(&node.config)
+            .map_err(|e| anyhow::anyhow!("node `{}` ({operator}): {e}", node.id)),
+        (None, _) => anyhow::bail!("the dataflow has no `{operator}` node"),
+        (Some(a), Some(b)) => anyhow::bail!(
+            "the dataflow has two `{operator}` nodes (`{}` and `{}`)",
+            a.id,
+            b.id
+        ),
+    }
+}
+
 /// The registry entry of operator `name`.
 pub fn find(name: &str) -> Option<Registered> {
     registry().into_iter().find(|r| r.descriptor.name == name)

@@ -7,7 +7,7 @@
 //! map), with the stable id of every Gaussian, in shared memory. The node's `map_lag` must equal the consumers' (tracker, occupancy); a
 //! `timers:` entry (any name) additionally publishes finished snapshots as soon as they exist.
 
-use activemap_runtime::dataflow::{Dataflow, NodeImpl};
+use activemap_runtime::dataflow::Dataflow;
 use activemap_runtime::{
     Context, Event, Flow, Operator, OperatorDescriptor, OperatorImpl, check_config_as,
 };
@@ -155,26 +155,10 @@ impl Config {
 /// The configs of a dataflow's (single) `tracker` and `mapper` nodes: what `activemap bench
 /// slam` runs, so that the benchmark measures the flow's SLAM ([`slam_config`]).
 pub fn slam_nodes(flow: &Dataflow) -> anyhow::Result<(crate::tracker::Config, Config)> {
-    fn config_of<C: serde::de::DeserializeOwned>(
-        flow: &Dataflow,
-        operator: &str,
-    ) -> anyhow::Result<C> {
-        let mut nodes = flow
-            .nodes
-            .iter()
-            .filter(|n| matches!(&n.implementation, NodeImpl::Operator(o) if o == operator));
-        match (nodes.next(), nodes.next()) {
-            (Some(node), None) => activemap_runtime::config_from_value(&node.config)
-                .map_err(|e| anyhow::anyhow!("node `{}` ({operator}): {e}", node.id)),
-            (None, _) => anyhow::bail!("the dataflow has no `{operator}` node"),
-            (Some(a), Some(b)) => anyhow::bail!(
-                "the dataflow has two `{operator}` nodes (`{}` and `{}`)",
-                a.id,
-                b.id
-            ),
-        }
-    }
-    Ok((config_of(flow, "tracker")?, config_of(flow, "mapper")?))
+    Ok((
+        crate::single_node_config(flow, "tracker")?,
+        crate::single_node_config(flow, "mapper")?,
+    ))
 }
 
 /// The SLAM settings the `tracker` and `mapper` operators build from their node configs.
