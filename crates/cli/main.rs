@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use activemap_runtime::dataflow::{Dataflow, NodeImpl, NodeSpec, Override};
@@ -697,7 +697,7 @@ fn run(
     }
     let stop = Arc::new(AtomicBool::new(false));
     install_stop_signals(&stop)?;
-    let report = run_local(&flow, &opts, stop)?;
+    let report = run_local(&flow, &opts, stop.clone())?;
     eprintln!(
         "activemap: run {} in {}",
         report.run_id,
@@ -741,8 +741,26 @@ fn run(
         eprintln!("activemap: stopped by signal");
         return Ok(ExitCode::from(130));
     }
+    exit_on_stop_during_evaluation(stop, &report.run_dir);
     finish_run(&report.run_dir, eval)?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// Once the flow has finished, the run folder is complete and the evaluation (about an hour at
+/// 800×800 and 2000 test views) is work that `activemap eval` can redo: a SIGINT or SIGTERM
+/// then ends the process at once instead of being held until the evaluation ends. The
+/// evaluation writes `metrics.json` last, so an interrupted one leaves the folder unevaluated.
+fn exit_on_stop_during_evaluation(stop: Arc<AtomicBool>, run_dir: &Path) {
+    let run_dir = run_dir.display().to_string();
+    std::thread::spawn(move || {
+        while !stop.load(Ordering::SeqCst) {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+        eprintln!(
+            "activemap: evaluation stopped by signal; the run folder is complete, evaluate it with `activemap eval {run_dir}`"
+        );
+        std::process::exit(130);
+    });
 }
 
 /// After a successful run whose flow wrote an evaluation summary (an `evaluator` node): the

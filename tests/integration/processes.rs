@@ -1,5 +1,6 @@
 //! Flows of real processes: shared-memory frames, record → replay, kill -9 recovery (the killed
-//! node holds iceoryx2 resources, which the next run must clean up).
+//! node holds iceoryx2 resources, which the next run must clean up), a signal during the
+//! end-of-run evaluation.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -198,4 +199,71 @@ fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
         Duration::from_secs(120),
     );
     assert!(out.status.success(), "second run failed:\n{}", out.stderr);
+}
+
+/// A SIGTERM during the end-of-run evaluation ends `activemap run` at once (exit 130) with
+/// the run folder complete and unevaluated (no `metrics.json`), instead of being held until
+/// the evaluation ends (an hour at the paper's profile).
+#[test]
+fn a_signal_during_the_evaluation_ends_the_run_with_its_folder_intact() {
+    use std::io::{BufRead as _, BufReader};
+    let tmp = tempfile::tempdir().unwrap();
+    let flow = tmp.path().join("small.yaml");
+    std::fs::write(
+        &flow,
+        super::harness::small_house_flow("dataflow.yaml", 10, &[]),
+    )
+    .unwrap();
+    let out_dir = tmp.path().join("run");
+    let mut child = spawn(
+        &[
+            "run",
+            flow.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+            "--no-record",
+            // Long enough that the signal lands inside it.
+            "--eval-views",
+            "200000",
+        ],
+        &root(),
+    );
+    let stderr = child.stderr.take().expect("piped");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if line.contains("evaluating the run") {
+                let _ = tx.send(());
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
+    });
+    rx.recv_timeout(Duration::from_secs(120))
+        .expect("the run never reached its evaluation");
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: kill(2) on our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the evaluation went on after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let stderr = reader.join().unwrap();
+    assert_eq!(status.code(), Some(130), "stderr:\n{stderr}");
+    assert!(
+        stderr.contains("evaluation stopped by signal") && stderr.contains("activemap eval"),
+        "stderr:\n{stderr}"
+    );
+    let folder = activemap_eval::RunFolder::new(&out_dir);
+    assert!(folder.has_summary(), "the run's own files are kept");
+    assert!(!out_dir.join("metrics.json").exists());
 }
