@@ -49,6 +49,10 @@ pub struct Config {
     /// forward step before the follower replans. 0 disables it.
     #[serde(default = "default_bumps")]
     pub bumps_to_replan: usize,
+    /// Blocked replans in a row at one spot after which the follower asks as stuck (the goal
+    /// failed) instead (3). 0 never does.
+    #[serde(default = "default_blocked_replans_to_stuck")]
+    pub blocked_replans_to_stuck: usize,
     /// While tracking is lost the robot turns on the spot; back after fewer lost frames in a
     /// row than this, it resumes its path, after as many or more it asks for a new one
     /// (`TrackingLost`). 1 always asks.
@@ -80,6 +84,9 @@ fn default_look_skip() -> f64 {
 fn default_bumps() -> usize {
     ExecutorConfig::default().bumps_to_replan
 }
+fn default_blocked_replans_to_stuck() -> usize {
+    ExecutorConfig::default().blocked_replans_to_stuck
+}
 fn default_lost_replan_after() -> usize {
     ExecutorConfig::default().lost_replan_after
 }
@@ -93,6 +100,7 @@ impl Default for Config {
             initial_spin_steps: default_spin(),
             look_skip_half_angle_deg: default_look_skip(),
             bumps_to_replan: default_bumps(),
+            blocked_replans_to_stuck: default_blocked_replans_to_stuck(),
             lost_replan_after: default_lost_replan_after(),
             robot: RobotModel::default(),
         }
@@ -108,6 +116,7 @@ impl Config {
             initial_spin_steps: self.initial_spin_steps,
             look_skip_half_angle_rad: self.look_skip_half_angle_deg.to_radians(),
             bumps_to_replan: self.bumps_to_replan,
+            blocked_replans_to_stuck: self.blocked_replans_to_stuck,
             lost_replan_after: self.lost_replan_after,
             ..ExecutorConfig::default()
         }

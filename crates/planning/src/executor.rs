@@ -12,7 +12,10 @@
 //!   first grid count), when the robot is stuck (no progress along the path over
 //!   [`ExecutorConfig::stuck_window`] steps: the goal then counts as failed), and when
 //!   [`ExecutorConfig::bumps_to_replan`] forward moves in a row left the (tracked) position
-//!   within half a step, as a bumper would notice ([`forward_was_blocked`]);
+//!   within half a step, as a bumper would notice ([`forward_was_blocked`]); when that happens
+//!   [`ExecutorConfig::blocked_replans_to_stuck`] times in a row at one spot (the new paths
+//!   keep running into an obstacle the map does not show), it asks as stuck instead, so the
+//!   goal counts as failed rather than being asked for again and again;
 //! - at the end of the path it turns to face the frontier it came for (the last waypoint's
 //!   yaw) unless that bearing is already within [`ExecutorConfig::look_skip_half_angle_rad`]
 //!   of the heading, then asks ([`ReplanReason::PathDone`]);
@@ -62,11 +65,22 @@ pub struct ExecutorConfig {
     /// Forward moves in a row that leave the position within half of the robot's forward
     /// step before the executor asks for a new path ([`ReplanReason::Blocked`]); 0 disables it.
     pub bumps_to_replan: usize,
+    /// Blocked replans in a row from within one forward step of the same spot after which the
+    /// executor asks as stuck ([`ReplanReason::Stuck`], the goal failed) instead of blocked
+    /// (3); 0 never does. Without it, a path through an obstacle the map does not show (seen
+    /// on the furnished house at 800×800: 380 steps in place, a blocked replan every 2 steps)
+    /// is planned again and again, since each new path resets the stuck window.
+    #[serde(default = "default_blocked_replans_to_stuck")]
+    pub blocked_replans_to_stuck: usize,
     /// While tracking is lost the robot turns on the spot; once it is back after fewer lost
     /// frames in a row than this, the robot resumes its path (a frame the tracker rejected and
     /// kept at the prediction does not cost a new plan), after as many or more it asks for a
     /// new one ([`ReplanReason::TrackingLost`]). 1 always asks.
     pub lost_replan_after: usize,
+}
+
+fn default_blocked_replans_to_stuck() -> usize {
+    3
 }
 
 impl Default for ExecutorConfig {
@@ -83,6 +97,7 @@ impl Default for ExecutorConfig {
             initial_spin_steps: 72,
             look_skip_half_angle_rad: 25f64.to_radians(),
             bumps_to_replan: 2,
+            blocked_replans_to_stuck: default_blocked_replans_to_stuck(),
             lost_replan_after: 3,
         }
     }
@@ -194,6 +209,9 @@ pub struct PathExecutor {
     forward_from: Option<Point2<f64>>,
     /// Forward moves in a row that did not move the robot.
     bumps_in_row: usize,
+    /// Where the last blocked replan was asked for, and how many in a row were asked for
+    /// within one forward step of it.
+    blocked_at: Option<(Point2<f64>, usize)>,
     /// What happened so far.
     pub counters: ExecutorCounters,
 }
@@ -222,6 +240,7 @@ impl PathExecutor {
             occupied_only: None,
             forward_from: None,
             bumps_in_row: 0,
+            blocked_at: None,
             counters: ExecutorCounters::default(),
         })
     }
@@ -312,7 +331,19 @@ impl PathExecutor {
         let here = Point2::new(pose.x, pose.y);
         if self.blocked(here, tracking_lost) && matches!(self.phase, Phase::Follow { .. }) {
             self.counters.blocked_replans += 1;
-            self.phase = Phase::Idle(ReplanReason::Blocked);
+            let in_row = match self.blocked_at {
+                Some((at, n)) if (at - here).norm() < self.robot.forward_step_m => n + 1,
+                _ => 1,
+            };
+            let limit = self.config.blocked_replans_to_stuck;
+            if limit > 0 && in_row >= limit {
+                self.blocked_at = None;
+                self.counters.stuck += 1;
+                self.phase = Phase::Idle(ReplanReason::Stuck);
+            } else {
+                self.blocked_at = Some((here, in_row));
+                self.phase = Phase::Idle(ReplanReason::Blocked);
+            }
         }
         let threshold = self.config.follower.turn_threshold_rad;
         if tracking_lost {
@@ -539,6 +570,66 @@ mod tests {
         assert_eq!(reason, ReplanReason::Stuck);
         assert!(forwards > 40, "{forwards}");
         assert_eq!(counters.blocked_replans, 0);
+    }
+
+    /// The same path into a wall the grid does not show, given again after each blocked
+    /// replan: the first two replans are blocked, the third, still at the wall, is stuck (the
+    /// goal failed). Blocked replans at different spots do not add up; 0 disables it.
+    #[test]
+    fn blocked_again_and_again_at_one_spot_counts_as_stuck() {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let model = RobotModel::default();
+        let path = [
+            PlanarPose::new(0.25, 0.0, 0.0),
+            PlanarPose::new(1.5, 0.0, 0.0),
+        ];
+        // Replan reasons of `replans` requests, the path given again from wherever the robot
+        // is; the wall at `wall_x` moves `shift` metres after each request.
+        let run = |limit: usize, replans: usize, shift: f64| {
+            let mut core = PathExecutor::new(
+                ExecutorConfig {
+                    initial_spin_steps: 0,
+                    blocked_replans_to_stuck: limit,
+                    ..ExecutorConfig::default()
+                },
+                model,
+            )
+            .unwrap();
+            let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+            let mut wall_x = 0.2;
+            let mut reasons = Vec::new();
+            core.set_path(&path).unwrap();
+            for _ in 0..1000 {
+                match core.decide(&pose, &grid, false).unwrap() {
+                    Decision::Replan(reason) => {
+                        reasons.push(reason);
+                        if reasons.len() == replans {
+                            return (reasons, core.counters);
+                        }
+                        wall_x += shift;
+                        core.set_path(&path).unwrap();
+                    }
+                    Decision::Act(a) => {
+                        let next = model.apply(&pose, a);
+                        if next.x <= wall_x + 1e-9 {
+                            pose = next;
+                        }
+                    }
+                }
+            }
+            panic!("{reasons:?}");
+        };
+        let (reasons, counters) = run(3, 4, 0.0);
+        use ReplanReason::{Blocked, Stuck};
+        assert_eq!(reasons, [Blocked, Blocked, Stuck, Blocked]);
+        assert_eq!((counters.blocked_replans, counters.stuck), (4, 1));
+        // The wall gives way by 0.3 m each time: progress, never stuck.
+        let (reasons, _) = run(3, 4, 0.3);
+        assert_eq!(reasons, [Blocked; 4]);
+        let (reasons, counters) = run(0, 4, 0.0);
+        assert_eq!(reasons, [Blocked; 4]);
+        assert_eq!(counters.stuck, 0);
     }
 
     /// At the end of the path the executor turns to the frontier only when it is out of view:
