@@ -1,8 +1,9 @@
 //! Process helpers with timeouts.
 
-use std::io::Read;
+use std::io::{BufRead as _, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 /// The `activemap` binary under test.
@@ -98,39 +99,79 @@ fn die_with_test_thread(command: &mut Command) {
     }
 }
 
-/// Wait for `child` at most `timeout`; kill it and panic on timeout.
-pub fn wait(mut child: Child, timeout: Duration, what: &str) -> Finished {
-    let deadline = Instant::now() + timeout;
-    // Drain pipes on threads so a chatty child never blocks on a full pipe.
+/// A child whose output is drained on threads (a chatty child never blocks on a full pipe),
+/// its stderr read line by line as it comes ([`follow`]).
+pub struct Followed {
+    child: Child,
+    stdout: std::thread::JoinHandle<String>,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+/// Follows `child`'s output: every stderr line that contains `needle` is sent, as it is read,
+/// on the returned receiver (nothing is sent for `None`).
+pub fn follow(mut child: Child, needle: Option<&str>) -> (Followed, Receiver<String>) {
     let mut out = child.stdout.take().expect("piped");
-    let mut err = child.stderr.take().expect("piped");
-    let t_out = std::thread::spawn(move || {
+    let err = child.stderr.take().expect("piped");
+    let needle = needle.map(str::to_string);
+    let (tx, rx) = std::sync::mpsc::channel();
+    let stdout = std::thread::spawn(move || {
         let mut s = String::new();
         let _ = out.read_to_string(&mut s);
         s
     });
-    let t_err = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = err.read_to_string(&mut s);
-        s
+    let stderr = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(err).lines().map_while(Result::ok) {
+            if needle.as_deref().is_some_and(|n| line.contains(n)) {
+                let _ = tx.send(line.clone());
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
     });
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("try_wait") {
-            break status;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            let stderr = t_err.join().unwrap_or_default();
-            panic!("{what}: timed out after {timeout:?}; stderr:\n{stderr}");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    Finished {
-        status,
-        stdout: t_out.join().unwrap_or_default(),
-        stderr: t_err.join().unwrap_or_default(),
+    (
+        Followed {
+            child,
+            stdout,
+            stderr,
+        },
+        rx,
+    )
+}
+
+impl Followed {
+    /// The child's process id.
+    pub fn id(&self) -> u32 {
+        self.child.id()
     }
+
+    /// Waits for the child at most `timeout`; kills it and panics on timeout.
+    pub fn finish(mut self, timeout: Duration, what: &str) -> Finished {
+        let deadline = Instant::now() + timeout;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().expect("try_wait") {
+                break status;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                let stderr = self.stderr.join().unwrap_or_default();
+                panic!("{what}: timed out after {timeout:?}; stderr:\n{stderr}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        Finished {
+            status,
+            stdout: self.stdout.join().unwrap_or_default(),
+            stderr: self.stderr.join().unwrap_or_default(),
+        }
+    }
+}
+
+/// Wait for `child` at most `timeout`; kill it and panic on timeout.
+pub fn wait(child: Child, timeout: Duration, what: &str) -> Finished {
+    follow(child, None).0.finish(timeout, what)
 }
 
 /// Run `activemap args...` to completion under a timeout.

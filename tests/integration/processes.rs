@@ -8,7 +8,7 @@ use std::time::Duration;
 use activemap_runtime::record::{RecordedMessage, Recording, read_recording};
 use activemap_schemas::{Counter, SmallMessage};
 
-use super::harness::{kill9, pids_with, root, run, spawn, wait};
+use super::harness::{follow, kill9, pids_with, root, run, spawn, wait};
 
 /// Runs the dataflow file `flow` (relative to the repository root) into a fresh run folder and
 /// reads its recording back; returns the tempdir (keeps the folder alive), the recording's
@@ -206,7 +206,6 @@ fn kill_9_of_an_operator_is_reported_and_the_next_run_starts_clean() {
 /// the evaluation ends (an hour at the paper's profile).
 #[test]
 fn a_signal_during_the_evaluation_ends_the_run_with_its_folder_intact() {
-    use std::io::{BufRead as _, BufReader};
     let tmp = tempfile::tempdir().unwrap();
     let flow = tmp.path().join("small.yaml");
     std::fs::write(
@@ -215,7 +214,7 @@ fn a_signal_during_the_evaluation_ends_the_run_with_its_folder_intact() {
     )
     .unwrap();
     let out_dir = tmp.path().join("run");
-    let mut child = spawn(
+    let child = spawn(
         &[
             "run",
             flow.to_str().unwrap(),
@@ -228,43 +227,26 @@ fn a_signal_during_the_evaluation_ends_the_run_with_its_folder_intact() {
         ],
         &root(),
     );
-    let stderr = child.stderr.take().expect("piped");
-    let (tx, rx) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        let mut all = String::new();
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if line.contains("evaluating the run") {
-                let _ = tx.send(());
-            }
-            all.push_str(&line);
-            all.push('\n');
-        }
-        all
-    });
-    rx.recv_timeout(Duration::from_secs(120))
+    let (child, evaluating) = follow(child, Some("evaluating the run"));
+    evaluating
+        .recv_timeout(Duration::from_secs(120))
         .expect("the run never reached its evaluation");
     std::thread::sleep(Duration::from_millis(500));
     // SAFETY: kill(2) on our own child.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
-    let started = std::time::Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        if started.elapsed() > Duration::from_secs(30) {
-            // Not left running behind the test (it would hold a core for an hour).
-            let _ = child.kill();
-            panic!("the evaluation went on after SIGTERM");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let stderr = reader.join().unwrap();
-    assert_eq!(status.code(), Some(130), "stderr:\n{stderr}");
+    // Killed and failed if it goes on (it would hold a core for an hour).
+    let out = child.finish(Duration::from_secs(30), "the evaluation after SIGTERM");
+    let stderr = out.stderr;
+    assert_eq!(out.status.code(), Some(130), "stderr:\n{stderr}");
     assert!(
         stderr.contains("evaluation stopped by signal") && stderr.contains("activemap eval"),
         "stderr:\n{stderr}"
     );
     let folder = activemap_eval::RunFolder::new(&out_dir);
     assert!(folder.has_summary(), "the run's own files are kept");
-    assert!(!out_dir.join("metrics.json").exists());
+    assert!(
+        !out_dir
+            .join(activemap_eval::RunFolder::METRICS_JSON)
+            .exists()
+    );
 }

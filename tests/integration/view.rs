@@ -5,11 +5,9 @@
 //! every view channel has its Foxglove schema and encoding, and one message of each decodes.
 
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader, Read};
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::Command;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use activemap_view::ViewTopic;
@@ -238,7 +236,7 @@ fn the_view_channels_stream_live_and_decode_from_the_recording_with_both_readers
     let flow = tmp.path().join("view.yaml");
     std::fs::write(&flow, harness::small_house_flow("dataflow.yaml", 250, &[])).unwrap();
     let out = tmp.path().join("run");
-    let mut child = harness::spawn(
+    let child = harness::spawn(
         &[
             "run",
             flow.to_str().unwrap(),
@@ -251,33 +249,17 @@ fn the_view_channels_stream_live_and_decode_from_the_recording_with_both_readers
         tmp.path(),
     );
     // Follow stderr for the live view's address; keep all of it for failures.
-    let stderr = child.stderr.take().unwrap();
-    let (url_tx, url_rx) = mpsc::channel();
-    let lines = std::thread::spawn(move || {
-        let mut all = String::new();
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if let Some(at) = line.find("live view at ws://") {
-                let url = line[at + "live view at ".len()..]
-                    .split_whitespace()
-                    .next()
-                    .unwrap()
-                    .to_string();
-                let _ = url_tx.send(url);
-            }
-            all.push_str(&line);
-            all.push('\n');
-        }
-        all
-    });
-    let mut stdout = child.stdout.take().unwrap();
-    let drain = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = stdout.read_to_string(&mut s);
-    });
+    let (child, url_lines) = harness::follow(child, Some("live view at ws://"));
     let deadline = Instant::now() + Duration::from_secs(300);
-    let url = url_rx
+    let line = url_lines
         .recv_timeout(Duration::from_secs(120))
         .expect("the run never printed its live view address");
+    let at = line.find("live view at ws://").expect("the needle");
+    let url = line[at + "live view at ".len()..]
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string();
     assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
     let live = live_client(
         &url,
@@ -288,18 +270,11 @@ fn the_view_channels_stream_live_and_decode_from_the_recording_with_both_readers
     assert!(color.starts_with("jpeg 64x64"), "{color}");
     let pose = decode_view(ViewTopic::EstimatedPose, &live[&ViewTopic::EstimatedPose]).unwrap();
     assert!(pose.starts_with("world"), "{pose}");
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("the run did not end in time");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let _ = drain.join();
-    let stderr = lines.join().unwrap();
+    let finished = child.finish(
+        deadline.saturating_duration_since(Instant::now()),
+        "the run with a live view",
+    );
+    let (status, stderr) = (finished.status, finished.stderr);
     assert!(status.success(), "run failed:\n{stderr}");
 
     // The recording, read back with the MCAP crate.
