@@ -8,11 +8,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use activemap_runtime::dataflow::{Dataflow, NodeImpl, NodeSpec, Override};
+use activemap_runtime::bench;
+use activemap_runtime::dataflow::{Dataflow, NodeImpl, Override};
 use activemap_runtime::graph::{GraphFormat, render};
 use activemap_runtime::launch::{LaunchOptions, NodeExit, run_local};
 use activemap_runtime::node::{NodeSetup, RunInfo, install_stop_signals};
-use activemap_runtime::{bench, record};
 use activemap_schemas::MessageKind;
 use anyhow::{Context as _, bail};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -24,6 +24,7 @@ mod bench_results;
 mod benches;
 mod daemons;
 mod evaluate;
+mod replay;
 mod scene_inspect;
 mod view;
 
@@ -217,13 +218,16 @@ enum Command {
         #[command(flatten)]
         tls: daemons::Tls,
     },
-    /// Run one operator alone on its recorded inputs and compare its outputs with the recording.
+    /// Run one operator alone on its recorded inputs and compare its outputs with the recording;
+    /// with `--set`, under another configuration, and with `--out`, keep its map as a run folder.
     Replay {
         /// Recording (recording.mcap of a run folder).
         recording: PathBuf,
         /// Node to replay.
         #[arg(long)]
         node: String,
+        #[command(flatten)]
+        args: replay::ReplayArgs,
     },
     /// List the operators of this build.
     Operators,
@@ -577,7 +581,11 @@ fn real_main() -> anyhow::Result<ExitCode> {
             (None, None) => bail!("give a run folder, or --run-id with --connect"),
         },
         Command::Node { run_dir, node } => run_node(&run_dir, &node)?,
-        Command::Replay { recording, node } => return replay(&recording, &node),
+        Command::Replay {
+            recording,
+            node,
+            args,
+        } => return replay::replay(&recording, &node, &args),
         Command::Scene { which } => match which {
             SceneCommand::Inspect(args) => scene_inspect::run(&args)?,
         },
@@ -765,7 +773,7 @@ fn exit_on_stop_during_evaluation(stop: Arc<AtomicBool>, run_dir: &Path) {
 
 /// After a successful run whose flow wrote an evaluation summary (an `evaluator` node): the
 /// metrics of SPEC §8 (unless disabled) and report.html, so one command leaves a report.
-fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Result<()> {
+pub(crate) fn finish_run(run_dir: &Path, eval: Option<evaluate::EvalArgs>) -> anyhow::Result<()> {
     if !activemap_eval::RunFolder::new(run_dir).has_summary() {
         return Ok(());
     }
@@ -822,97 +830,6 @@ fn run_node(run_dir: &Path, node: &str) -> anyhow::Result<()> {
         stop,
     })?;
     Ok(())
-}
-
-fn replay(recording_path: &Path, node: &str) -> anyhow::Result<ExitCode> {
-    // Streamed: the recording is read input by input, never held whole.
-    let reader = record::RecordingReader::open(recording_path)?;
-    if reader.dataflow_yaml().is_empty() {
-        bail!(
-            "{}: no embedded dataflow (not an activemap recording?)",
-            recording_path.display()
-        );
-    }
-    let name = format!("{} (embedded dataflow)", recording_path.display());
-    let flow = Dataflow::parse(
-        &name,
-        reader.dataflow_yaml(),
-        PathBuf::new(),
-        &activemap_operators::catalog(),
-    )
-    .map_err(|d| anyhow::anyhow!("{d}"))?;
-    let spec = flow
-        .node(node)
-        .with_context(|| format!("node `{node}` is not in the recorded dataflow"))?;
-    let NodeImpl::Operator(op) = &spec.implementation else {
-        bail!("node `{node}` is an external executable; replay runs built-in operators");
-    };
-    let implementation = activemap_operators::find(op)
-        .and_then(|r| r.implementation)
-        .with_context(|| format!("operator `{op}` is not built in this version"))?;
-    let spec = replay_spec(spec, op, recording_path);
-    let producers = replay_producers(&flow, recording_path);
-    let record::StreamedReplay {
-        report,
-        inputs,
-        truncated,
-    } = record::replay_recording(reader, &spec, implementation.replay, &producers)?;
-    if truncated {
-        eprintln!(
-            "warning: the recording ends early (its writer was killed); replaying what it holds"
-        );
-    }
-    for (port, (matched, recorded, made)) in &report.per_port {
-        println!("  {node}/{port}: {matched} matched, {recorded} recorded, {made} produced");
-    }
-    println!(
-        "replay {node}: {} inputs, {}/{} outputs matched",
-        inputs,
-        report.matched(),
-        report.recorded()
-    );
-    Ok(if report.all_match() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    })
-}
-
-/// Node `node` (operator `op`) as replay runs it: a node that talks to the outside world (the
-/// LLM planner) is served the recorded answers.
-fn replay_spec(node: &NodeSpec, op: &str, recording_path: &Path) -> NodeSpec {
-    let mut spec = node.clone();
-    spec.config = activemap_operators::replay_config(op, &node.config, recording_path, &node.id);
-    spec
-}
-
-/// Every built-in operator output of `flow`, as a producer that can remake the payloads the
-/// recording holds as digests (the maps of `--record-maps regenerated`).
-fn replay_producers(flow: &Dataflow, recording_path: &Path) -> record::Producers {
-    let mut producers = record::Producers::new();
-    for node in &flow.nodes {
-        let NodeImpl::Operator(op) = &node.implementation else {
-            continue;
-        };
-        let Some(replay) = activemap_operators::find(op)
-            .and_then(|r| r.implementation)
-            .map(|i| i.replay)
-        else {
-            continue;
-        };
-        let spec = replay_spec(node, op, recording_path);
-        for output in &node.outputs {
-            producers.insert(
-                format!("{}/{}", node.id, output.name),
-                record::Producer {
-                    spec: spec.clone(),
-                    port: output.name.clone(),
-                    replay,
-                },
-            );
-        }
-    }
-    producers
 }
 
 fn bench_transport(args: &TransportArgs) -> anyhow::Result<()> {

@@ -81,6 +81,9 @@ pub struct MapperTuning {
     /// Initial opacity of the re-inserted Gaussians.
     #[serde(default)]
     pub refresh_opacity: Option<f64>,
+    /// Whether readings behind the map's surface are a source of new Gaussians.
+    #[serde(default)]
+    pub insert_behind_map: Option<bool>,
     /// Initial scale of an inserted Gaussian as a multiple of the sample spacing.
     #[serde(default)]
     pub scale_factor: Option<f64>,
@@ -90,6 +93,12 @@ pub struct MapperTuning {
     /// Also move the centres in front of the readings, within the band.
     #[serde(default)]
     pub snap_in_front: Option<bool>,
+    /// Free-space carving margin, metres (0 = off).
+    #[serde(default)]
+    pub carve_margin_m: Option<f64>,
+    /// The relative part of the carving margin, a share of the reading.
+    #[serde(default)]
+    pub carve_margin_fraction: Option<f64>,
     /// Densification threshold on the mean NDC-space gradient of the projected mean.
     #[serde(default)]
     pub densify_grad: Option<f64>,
@@ -114,9 +123,15 @@ impl MapperTuning {
         set(self.insert_opacity, &mut mapper.insert.opacity);
         set(self.refresh_fraction, &mut mapper.insert.refresh_fraction);
         set(self.refresh_opacity, &mut mapper.insert.refresh_opacity);
+        set(self.insert_behind_map, &mut mapper.insert.insert_behind_map);
         set(self.scale_factor, &mut mapper.insert.scale_factor);
         set(self.snap_behind_m, &mut mapper.snap_behind_m);
         set(self.snap_in_front, &mut mapper.snap_in_front);
+        set(self.carve_margin_m, &mut mapper.carve_margin_m);
+        set(
+            self.carve_margin_fraction,
+            &mut mapper.carve_margin_fraction,
+        );
         set(self.densify_grad, &mut mapper.densify_grad);
         set(self.depth_model, &mut mapper.depth_model);
     }
@@ -235,14 +250,19 @@ impl Mapper {
                 let r = k.report;
                 eprintln!(
                     "mapper: keyframe {} at frame {}: {:.0} ms, {} Gaussians \
-                     (+{} inserted, +{} densified, -{} pruned)",
+                     (+{} inserted from {} transparent / {} nearer / {} farther px, \
+                     +{} densified, -{} pruned, -{} carved)",
                     k.keyframe,
                     s.frame_id,
                     1e3 * k.seconds,
                     s.map.len(),
                     r.inserted,
+                    r.unobserved.transparent,
+                    r.unobserved.nearer,
+                    r.unobserved.farther,
                     r.densified,
-                    r.pruned
+                    r.pruned,
+                    r.carved
                 );
                 if r.dropped_non_finite > 0 {
                     eprintln!(

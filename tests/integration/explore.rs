@@ -85,9 +85,9 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
             .find(|l| l.starts_with(&format!("replay {node}:")))
             .unwrap_or_default();
         let counts = line
-            .rsplit_once(", ")
-            .and_then(|(_, c)| c.strip_suffix(" outputs matched"))
-            .and_then(|c| c.split_once('/'))
+            .split_once(" outputs matched")
+            .and_then(|(head, _)| head.rsplit_once(", "))
+            .and_then(|(_, c)| c.split_once('/'))
             .map(|(m, r)| (m.parse::<usize>().unwrap(), r.parse::<usize>().unwrap()));
         let per_frame = if node == "sim" { 3 } else { 1 };
         assert!(
@@ -98,6 +98,7 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
             done.stderr
         );
     }
+    replay_with_another_mapper_setting(tmp.path(), &out);
     let steps = summary.steps;
     assert!(steps > 50, "the loop stopped early: {summary:?}");
     assert_eq!(summary.scene.as_deref(), Some("house:3"));
@@ -114,6 +115,80 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
         metrics.is_valid(),
         "metrics warnings: {:?}",
         metrics.warnings
+    );
+}
+
+/// `activemap replay --out`: the mapper replayed on the run's inputs writes a run folder whose
+/// map is the run's map, bit for bit, and whose evaluation is the run's; under `--set` the
+/// replay succeeds though its maps differ, and the folder holds the effective dataflow and the
+/// new map's size. A folder that exists, or a node without a map output, is refused up front.
+fn replay_with_another_mapper_setting(dir: &std::path::Path, run: &std::path::Path) {
+    let recording = run.join(RunFolder::RECORDING);
+    let replay = |extra: &[&str]| {
+        let mut args = vec!["replay", recording.to_str().unwrap(), "--node", "mapper"];
+        args.extend_from_slice(extra);
+        harness::run(&args, dir, Duration::from_secs(600))
+    };
+    let same = dir.join("replay-same");
+    let done = replay(&["--out", same.to_str().unwrap(), "--eval-views", "20"]);
+    assert!(done.status.success(), "{}\n{}", done.stdout, done.stderr);
+    assert_eq!(
+        std::fs::read(same.join(RunFolder::MAP)).unwrap(),
+        std::fs::read(run.join(RunFolder::MAP)).unwrap(),
+        "the replayed map differs from the run's"
+    );
+    let original = RunFolder::new(run).read_metrics().unwrap().unwrap();
+    let replayed = RunFolder::new(&same).read_metrics().unwrap().unwrap();
+    assert_eq!(replayed.psnr_db, original.psnr_db);
+    assert_eq!(replayed.completeness, original.completeness);
+
+    let other = dir.join("replay-other");
+    let done = replay(&[
+        "--out",
+        other.to_str().unwrap(),
+        "--no-eval",
+        "--set",
+        "mapper.tuning.insert_behind_map=false",
+        "--set",
+        "mapper.tuning.carve_margin_m=0.02",
+    ]);
+    assert!(done.status.success(), "{}\n{}", done.stdout, done.stderr);
+    assert!(
+        done.stdout.contains("differences are expected"),
+        "{}",
+        done.stdout
+    );
+    let folder = RunFolder::new(&other);
+    let map = folder.read_map().unwrap();
+    assert_eq!(folder.read_summary().unwrap().map_gaussians, map.len());
+    let flow = std::fs::read_to_string(other.join(RunFolder::DATAFLOW)).unwrap();
+    assert!(flow.contains("carve_margin_m: 0.02"), "{flow}");
+    assert!(folder.read_metrics().unwrap().is_none());
+
+    let refused = replay(&["--out", same.to_str().unwrap()]);
+    assert!(!refused.status.success());
+    assert!(
+        refused.stderr.contains("already exists"),
+        "{}",
+        refused.stderr
+    );
+    let no_map = harness::run(
+        &[
+            "replay",
+            recording.to_str().unwrap(),
+            "--node",
+            "occupancy",
+            "--out",
+            dir.join("replay-grid").to_str().unwrap(),
+        ],
+        dir,
+        Duration::from_secs(600),
+    );
+    assert!(!no_map.status.success());
+    assert!(
+        no_map.stderr.contains("replay the mapper"),
+        "{}",
+        no_map.stderr
     );
 }
 

@@ -7,7 +7,11 @@
 //! current map, rendered at the keyframe pose without unknown-space Gaussians, covers it with
 //! opacity below `min_opacity` (0.5), or when the map's normalised depth `D̂/o` disagrees with
 //! the reading by more than `max(depth_tolerance, depth_tolerance_fraction·D)` (5 cm, 5 %):
-//! then the map shows a different surface there (new geometry in front, or a gap behind).
+//! then the map shows a different surface there, either behind the reading (new geometry in
+//! front of what the map shows, [`PixelCoverage::Nearer`]) or in front of it (the map shows
+//! something the camera sees through, [`PixelCoverage::Farther`]; a source of new Gaussians
+//! unless [`InsertConfig::insert_behind_map`] is off, SplaTAM's choice). The mapper logs each
+//! keyframe's unexplained pixels by cause.
 //!
 //! Scale (default): `scale_factor` (0.5) × the depth-based pixel footprint `z/f` × the expected
 //! sample spacing `1/√fraction` pixels (`fraction` from [`effective_fraction`]).
@@ -67,6 +71,10 @@ pub struct InsertConfig {
     pub refresh_fraction: f64,
     /// Initial opacity of the refresh Gaussians (SPEC §4: 0.5).
     pub refresh_opacity: f64,
+    /// Whether a reading behind the map's surface ([`PixelCoverage::Farther`]) is a source of
+    /// new Gaussians (true: the rule is symmetric). SplaTAM inserts only where the reading lies
+    /// in front of the rendered surface.
+    pub insert_behind_map: bool,
 }
 
 impl Default for InsertConfig {
@@ -85,31 +93,105 @@ impl Default for InsertConfig {
             max_per_keyframe: 8000,
             refresh_fraction: 0.0,
             refresh_opacity: 0.5,
+            insert_behind_map: true,
         }
     }
 }
 
-/// Per pixel: true where the frame has depth that the rendered map does not explain.
-pub fn unobserved_mask(render: &Render<f32>, frame: &Frame, config: &InsertConfig) -> Vec<bool> {
+/// Why a pixel with a depth reading is (or is not) explained by the rendered map (see the
+/// module doc): the insertion decision, per pixel, with its cause.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PixelCoverage {
+    /// No depth reading: never a source of new Gaussians.
+    NoReading,
+    /// The map covers the pixel and its normalised depth agrees with the reading.
+    Explained,
+    /// Rendered opacity below `min_opacity`: the map has nothing there yet.
+    Transparent,
+    /// The reading lies in front of the map's surface by more than the tolerance: new geometry
+    /// in front of what the map shows.
+    Nearer,
+    /// The reading lies behind the map's surface by more than the tolerance: the map shows
+    /// something (a floater, a surface that is not there) in front of the real one.
+    Farther,
+}
+
+impl PixelCoverage {
+    /// Whether the pixel is a source of new Gaussians under `config`
+    /// ([`InsertConfig::insert_behind_map`] decides for [`PixelCoverage::Farther`]).
+    pub fn unobserved(self, config: &InsertConfig) -> bool {
+        match self {
+            Self::NoReading | Self::Explained => false,
+            Self::Transparent | Self::Nearer => true,
+            Self::Farther => config.insert_behind_map,
+        }
+    }
+}
+
+/// Per pixel: how the rendered map explains the frame's depth (see [`PixelCoverage`]).
+pub fn pixel_coverage(
+    render: &Render<f32>,
+    frame: &Frame,
+    config: &InsertConfig,
+) -> Vec<PixelCoverage> {
     frame
         .depth
         .iter()
         .enumerate()
         .map(|(p, &d)| {
             if d <= 0.0 {
-                return false;
+                return PixelCoverage::NoReading;
             }
             let o = render.opacity[p];
             if o < config.min_opacity {
-                return true;
+                return PixelCoverage::Transparent;
             }
             let rendered = render.depth[p] / o;
-            (rendered - d).abs()
-                > config
-                    .depth_tolerance
-                    .max(config.depth_tolerance_fraction * d)
+            let tolerance = config
+                .depth_tolerance
+                .max(config.depth_tolerance_fraction * d);
+            if d < rendered - tolerance {
+                PixelCoverage::Nearer
+            } else if d > rendered + tolerance {
+                PixelCoverage::Farther
+            } else {
+                PixelCoverage::Explained
+            }
         })
         .collect()
+}
+
+/// How many pixels of each insertion cause a keyframe had (see [`PixelCoverage`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CoverageCounts {
+    /// [`PixelCoverage::Transparent`] pixels.
+    pub transparent: usize,
+    /// [`PixelCoverage::Nearer`] pixels.
+    pub nearer: usize,
+    /// [`PixelCoverage::Farther`] pixels.
+    pub farther: usize,
+}
+
+impl CoverageCounts {
+    /// Counts the causes of `coverage`.
+    pub fn of(coverage: &[PixelCoverage]) -> Self {
+        let mut counts = Self::default();
+        for c in coverage {
+            match c {
+                PixelCoverage::Transparent => counts.transparent += 1,
+                PixelCoverage::Nearer => counts.nearer += 1,
+                PixelCoverage::Farther => counts.farther += 1,
+                PixelCoverage::NoReading | PixelCoverage::Explained => {}
+            }
+        }
+        counts
+    }
+}
+
+/// Per pixel: true where the frame has depth that the rendered map does not explain, from the
+/// pixels' [`pixel_coverage`] (the sources of new Gaussians under `config`).
+pub fn unobserved_mask(coverage: &[PixelCoverage], config: &InsertConfig) -> Vec<bool> {
+    coverage.iter().map(|c| c.unobserved(config)).collect()
 }
 
 /// Per pixel: true where the frame has depth that [`unobserved_mask`]'s `unobserved` leaves

@@ -34,7 +34,10 @@
 
 use crate::error::SlamError;
 use crate::frame::Frame;
-use crate::insert::{InsertConfig, explained_mask, sample_new_gaussians, unobserved_mask};
+use crate::insert::{
+    CoverageCounts, InsertConfig, explained_mask, pixel_coverage, sample_new_gaussians,
+    unobserved_mask,
+};
 use crate::loss::{MappingDepth, mapping_loss, rgb_mask};
 use activemap_geometry::Isometry3;
 use activemap_splat::{
@@ -45,6 +48,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
 
 /// Mapper settings; defaults follow SPEC §4 where it names a value.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,6 +120,15 @@ pub struct MapperConfig {
     /// reading by less than the band (`D − band < z < D`) onto it: free space the view sees
     /// through. (Measured at 0.15 m on 200x250: −2.18 cm, worse than behind only.)
     pub snap_in_front: bool,
+    /// Free-space carving margin, metres (0 = off): after each keyframe's optimisation, a
+    /// Gaussian whose centre projects into the newest keyframe in front of every reading of the
+    /// 3×3 pixels around it by more than `max(margin, carve_margin_fraction · D)` is removed: the keyframe saw through the place where it sits, so it is a floater. The
+    /// 3×3 minimum (all nine readings valid) keeps thin structures and silhouettes that a
+    /// pixel of pose or projection error would otherwise carve.
+    pub carve_margin_m: f64,
+    /// The relative part of the carving margin ([`MapperConfig::carve_margin_m`]): a share of
+    /// the nearest reading, so that depth noise growing with distance carves nothing real.
+    pub carve_margin_fraction: f64,
     /// The per-pixel depth of a Gaussian in the mapping renders, and so the model the map is
     /// fitted under; every render of the map should use the same (the default,
     /// [`DepthModel::Plane`]; SPEC §3 is [`DepthModel::Centre`]). Against the centre model,
@@ -161,6 +174,8 @@ impl Default for MapperConfig {
             max_gaussians: 150_000,
             snap_behind_m: 0.0,
             snap_in_front: false,
+            carve_margin_m: 0.0,
+            carve_margin_fraction: 0.05,
             depth_model: DepthModel::default(),
             seed: 0,
         }
@@ -190,6 +205,20 @@ impl MapperConfig {
                 field: "alpha",
                 value: self.alpha.to_string(),
                 reason: "must be in [0, 1]",
+            });
+        }
+        if !self.carve_margin_m.is_finite() {
+            return Err(SlamError::Config {
+                field: "carve_margin_m",
+                value: self.carve_margin_m.to_string(),
+                reason: "must be finite (0 or less: no carving)",
+            });
+        }
+        if !(0.0..1.0).contains(&self.carve_margin_fraction) {
+            return Err(SlamError::Config {
+                field: "carve_margin_fraction",
+                value: self.carve_margin_fraction.to_string(),
+                reason: "must be in [0, 1)",
             });
         }
         Ok(())
@@ -246,8 +275,14 @@ pub fn far_plane(frame: &Frame) -> f64 {
 pub struct MappingReport {
     /// Gaussians inserted from depth.
     pub inserted: usize,
+    /// The keyframe's pixels the map did not explain before insertion, by cause: the
+    /// population `inserted` was sampled from (without `insert.insert_behind_map`, the
+    /// `farther` ones are counted but not sampled).
+    pub unobserved: CoverageCounts,
     /// Gaussians pruned.
     pub pruned: usize,
+    /// Gaussians removed by free-space carving ([`MapperConfig::carve_margin_m`]).
+    pub carved: usize,
     /// Gaussians added by densification.
     pub densified: usize,
     /// Views in the optimisation window.
@@ -439,12 +474,21 @@ impl Mapper {
     }
 
     /// Inserts Gaussians from `frame` at `pose` where the map does not explain the depth;
-    /// fails on a non-finite pose.
+    /// fails on a non-finite pose. Returns how many.
     pub fn insert_from(
         &mut self,
         frame: &Frame,
         pose: &Isometry3<f64>,
     ) -> Result<usize, SlamError> {
+        Ok(self.insert_with_causes(frame, pose)?.0)
+    }
+
+    /// [`Mapper::insert_from`], also returning the unexplained pixels by cause.
+    pub fn insert_with_causes(
+        &mut self,
+        frame: &Frame,
+        pose: &Isometry3<f64>,
+    ) -> Result<(usize, CoverageCounts), SlamError> {
         require_finite_pose(pose)?;
         let camera = Camera::from_world_pose(frame.intrinsics, pose).with_far(far_plane(frame));
         let options = RenderOptions {
@@ -454,7 +498,9 @@ impl Mapper {
         };
         let rendered = render(&self.map, &camera, &options)?;
         let insert = &self.config.insert;
-        let mask = unobserved_mask(&rendered, frame, insert);
+        let coverage = pixel_coverage(&rendered, frame, insert);
+        let counts = CoverageCounts::of(&coverage);
+        let mask = unobserved_mask(&coverage, insert);
         let new = sample_new_gaussians(frame, pose, &mask, insert, &mut self.rng);
         let mut added = Gaussians::new();
         let mut push = |new: &[crate::insert::NewGaussian], opacity: f64| {
@@ -477,7 +523,7 @@ impl Mapper {
         }
         let anchor = self.keyframes.len() as u32;
         self.append(&added, &vec![anchor; added.len()]);
-        Ok(count)
+        Ok((count, counts))
     }
 
     /// Processes a keyframe: insertion, window optimisation, pruning, densification. Fails on
@@ -495,8 +541,10 @@ impl Mapper {
                 reason: format!("not finite: {exposure:?}"),
             });
         }
+        let (inserted, unobserved) = self.insert_with_causes(&frame, &pose)?;
         let mut report = MappingReport {
-            inserted: self.insert_from(&frame, &pose)?,
+            inserted,
+            unobserved,
             ..Default::default()
         };
         let mask = rgb_mask(&frame, self.config.rgb_boundary, 0.0);
@@ -515,9 +563,11 @@ impl Mapper {
         });
         let refined = self.optimise(self.config.iterations)?;
         self.snap_to_newest();
+        let carved = self.carve_free_space()?;
         report.window_views = refined.window_views;
         report.final_loss = refined.final_loss;
         report.pruned = refined.pruned;
+        report.carved = carved;
         report.densified = refined.densified;
         report.dropped_non_finite = refined.dropped_non_finite;
         report.gaussians = self.map.len();
@@ -722,6 +772,53 @@ impl Mapper {
             moved += 1;
         }
         moved
+    }
+
+    /// Removes the Gaussians that the newest keyframe sees through
+    /// ([`MapperConfig::carve_margin_m`]); returns how many.
+    fn carve_free_space(&mut self) -> Result<usize, SlamError> {
+        let margin = self.config.carve_margin_m;
+        let Some(keyframe) = self.keyframes.last() else {
+            return Ok(0);
+        };
+        if margin <= 0.0 {
+            return Ok(0);
+        }
+        let fraction = self.config.carve_margin_fraction;
+        let frame = &keyframe.frame;
+        let (w, h) = (frame.width(), frame.height());
+        let camera_from_world = keyframe.pose.inverse();
+        let keep: Vec<bool> = self
+            .map
+            .means
+            .par_iter()
+            .zip(&self.map.flags)
+            .map(|(mean, &flags)| {
+                if flags & FLAG_UNKNOWN_SPACE != 0 {
+                    return true;
+                }
+                let p = camera_from_world * nalgebra::Point3::from(mean.map(f64::from));
+                let Some(uv) = frame.intrinsics.project(&p) else {
+                    return true;
+                };
+                let (u, v) = (uv.x.round(), uv.y.round());
+                if u < 1.0 || v < 1.0 || u + 1.0 >= w as f64 || v + 1.0 >= h as f64 {
+                    return true;
+                }
+                let (u, v) = (u as usize, v as usize);
+                let mut nearest = f64::INFINITY;
+                for row in v - 1..=v + 1 {
+                    for d in &frame.depth[row * w + u - 1..=row * w + u + 1] {
+                        if *d <= crate::loss::MIN_DEPTH {
+                            return true;
+                        }
+                        nearest = nearest.min(f64::from(*d));
+                    }
+                }
+                p.z >= nearest - margin.max(fraction * nearest)
+            })
+            .collect();
+        self.retain(&keep)
     }
 
     /// Adds ∂/∂log-scale of `w·mean_i min_k s_ik` over the active Gaussians (the flat
@@ -942,6 +1039,99 @@ mod tests {
         depth[6] = 0.0;
         let two = Frame::new(k, vec![[0.5; 3]; 100], depth, 0.0).unwrap();
         assert_eq!(far_plane(&two), f64::INFINITY);
+    }
+
+    /// The causes of an unexplained pixel: a reading in front of the map's surface (Nearer),
+    /// behind it (Farther, inserted only with `insert_behind_map`), or where the map has
+    /// nothing (Transparent).
+    #[test]
+    fn unexplained_pixels_are_counted_by_cause_and_readings_behind_the_map_can_be_left_out() {
+        let wall = plane_frame(|_, _| 2.0);
+        // Left third nearer than the wall, right third behind it, middle unchanged.
+        let moved = plane_frame(|x, _| match x {
+            0..=9 => 1.5,
+            10..=21 => 2.0,
+            _ => 3.0,
+        });
+        for behind in [true, false] {
+            let mut config = dense_config();
+            config.insert.insert_behind_map = behind;
+            let mut mapper = Mapper::new(config).unwrap();
+            let (_, first) = mapper
+                .insert_with_causes(&wall, &Isometry3::identity())
+                .unwrap();
+            assert_eq!(first.transparent, 32 * 32);
+            assert_eq!((first.nearer, first.farther), (0, 0));
+            let before = mapper.map().len();
+            let (added, counts) = mapper
+                .insert_with_causes(&moved, &Isometry3::identity())
+                .unwrap();
+            // Away from the borders of the regions (where the rendered blobs blend), every
+            // pixel of a region has its region's cause.
+            assert!(
+                counts.nearer >= 32 * 8 && counts.nearer <= 32 * 11,
+                "{counts:?}"
+            );
+            assert!(
+                counts.farther >= 32 * 8 && counts.farther <= 32 * 11,
+                "{counts:?}"
+            );
+            assert!(counts.transparent < 32, "{counts:?}");
+            let depths: Vec<f32> = mapper.map().means[before..].iter().map(|m| m[2]).collect();
+            assert_eq!(depths.len(), added);
+            assert!(depths.iter().any(|&z| (z - 1.5).abs() < 1e-3));
+            assert_eq!(
+                depths.iter().any(|&z| (z - 3.0).abs() < 1e-3),
+                behind,
+                "readings behind the map inserted: {behind}"
+            );
+        }
+    }
+
+    /// Free-space carving removes a Gaussian the newest keyframe sees through, keeps those on
+    /// or just in front of the surface (within the margin) and those next to a thin structure
+    /// the 3×3 window contains, and is off at margin 0.
+    #[test]
+    fn carving_removes_what_the_newest_keyframe_sees_through() {
+        // A wall at 2 m with a one-pixel-wide pole at 1 m in column 16.
+        let view = plane_frame(|x, _| if x == 16 { 1.0 } else { 2.0 });
+        let k = view.intrinsics;
+        let at = |u: f64, v: f64, z: f64| {
+            let p = k.unproject(u, v, z);
+            [p.x, p.y, p.z]
+        };
+        let floaters = [
+            at(8.0, 8.0, 1.0),    // 1 m in front of the wall: carved
+            at(24.0, 20.0, 1.85), // 15 cm in front: carved (margin max(5 cm, 5 % of 2 m))
+            at(8.0, 20.0, 1.93),  // 7 cm in front: within the margin, kept
+            at(17.0, 12.0, 1.0),  // beside the pole at the pole's depth: kept
+            at(0.0, 12.0, 1.0),   // on the border (no full 3×3 window): kept
+        ];
+        let kept = [false, false, true, true, true];
+        for margin in [0.05, 0.0] {
+            let mut config = dense_config();
+            config.carve_margin_m = margin;
+            let mut mapper = Mapper::new(config).unwrap();
+            let mut extra = Gaussians::<f32>::new();
+            for f in floaters {
+                extra.push(f, [0.5; 3], [1.0, 0.0, 0.0, 0.0], 0.9, [0.01; 3]);
+            }
+            mapper.append(&extra, &[0; 5]);
+            let ids = mapper.ids().to_vec();
+            let report = mapper
+                .add_keyframe(view.clone(), Isometry3::identity(), [0.0, 0.0])
+                .unwrap();
+            let survivors: Vec<bool> = ids.iter().map(|id| mapper.ids().contains(id)).collect();
+            if margin > 0.0 {
+                assert_eq!(survivors, kept);
+                assert_eq!(report.carved, 2);
+                // The Gaussians the keyframe inserted sit on its readings: none is carved.
+                assert_eq!(mapper.map().len(), 3 + report.inserted);
+            } else {
+                assert_eq!(survivors, vec![true; 5]);
+                assert_eq!(report.carved, 0);
+            }
+        }
     }
 
     #[test]

@@ -188,10 +188,23 @@ pub(super) fn feed_inputs(
 /// [`RecordingReader::regenerate_with`]). Memory holds the current message of each read channel
 /// and the hashes of outputs not yet paired, never the recording's payloads.
 pub fn replay_recording(
+    reader: RecordingReader,
+    spec: &crate::dataflow::NodeSpec,
+    replay: crate::node::ReplayFn,
+    producers: &Producers,
+) -> Result<StreamedReplay, RuntimeError> {
+    replay_recording_observed(reader, spec, replay, producers, &mut |_, _| {})
+}
+
+/// [`replay_recording`], handing every output the operator produces (port, payload) to
+/// `observe` as it is produced: for a replay whose outputs are kept rather than only compared
+/// (e.g. the last map of a mapper replayed with another configuration).
+pub fn replay_recording_observed(
     mut reader: RecordingReader,
     spec: &crate::dataflow::NodeSpec,
     replay: crate::node::ReplayFn,
     producers: &Producers,
+    observe: &mut dyn FnMut(&str, &[u8]),
 ) -> Result<StreamedReplay, RuntimeError> {
     let prefix = format!("{}/", spec.id);
     let own_outputs: BTreeSet<String> = spec
@@ -226,6 +239,7 @@ pub fn replay_recording(
         Ok(())
     };
     let mut emit = |port: &str, bytes: &[u8]| {
+        observe(port, bytes);
         let mut matches = matches.borrow_mut();
         let m = matches.entry(port.to_string()).or_default();
         m.produced.push_back(digest(bytes));

@@ -1,0 +1,273 @@
+//! `activemap replay`: one operator alone on its recorded inputs.
+//!
+//! Without options the replay checks the recording: every output the operator produces is
+//! compared with the recorded one (length and 128-bit hash). With `--set` the operator runs
+//! under another configuration on the very same inputs, so its outputs are expected to differ;
+//! with `--out` the last map it produced becomes the `map.ply` of a new run folder that holds
+//! the recorded run's trajectories and summary, and `activemap eval` measures it. That is a
+//! paired experiment on a fixed trajectory: a mapper setting judged on the frames and poses of a
+//! real episode (Fisher revisits included), without the policy taking another path because the
+//! map changed.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use activemap_eval::run_folder::RunFolder;
+use activemap_eval::step_metrics::observed_only;
+use activemap_runtime::dataflow::{NodeImpl, NodeSpec, Override};
+use activemap_runtime::record;
+use activemap_schemas::MessageKind;
+use anyhow::{Context as _, bail};
+
+use crate::evaluate::EvalArgs;
+
+/// Options of `activemap replay` beyond the recording and the node.
+#[derive(clap::Args)]
+pub(crate) struct ReplayArgs {
+    /// Set a key of a node's `config:` in the recorded dataflow before replaying
+    /// (repeatable, as `activemap run --set`): the node then runs under another configuration on
+    /// the same inputs, and its outputs are reported, not required to match.
+    #[arg(long = "set", value_name = "NODE.KEY=VALUE", value_parser = Override::parse)]
+    pub(crate) set: Vec<Override>,
+    /// Write a run folder of the replay: the recorded run's trajectories, coverage, summary and
+    /// bird's-eye view (copied from the recording's folder), the effective dataflow.yaml, and the
+    /// replayed node's last map as `map.ply`; then evaluate it as `activemap run` does. Only
+    /// for a node with a map output (the mapper). The folder must not exist yet.
+    #[arg(long, value_name = "DIR")]
+    pub(crate) out: Option<PathBuf>,
+    /// With `--out`: write the folder but do not evaluate it (`activemap eval DIR` later).
+    #[arg(long, requires = "out")]
+    pub(crate) no_eval: bool,
+    /// With `--out`: test views of the evaluation, rendered at the run's own camera as
+    /// `activemap run` does (SPEC §8: 2000).
+    #[arg(long, default_value_t = 2000, requires = "out")]
+    pub(crate) eval_views: usize,
+}
+
+/// The files of the recorded run folder a replay folder takes over unchanged (what the
+/// replayed mapper does not make); the optional ones are copied when present.
+const COPIED: [(&str, bool); 6] = [
+    (RunFolder::TRAJECTORY_EST, true),
+    (RunFolder::TRAJECTORY_TRUE, true),
+    (RunFolder::SUMMARY, true),
+    (RunFolder::TRAJECTORY_FINAL, false),
+    (RunFolder::COVERAGE, false),
+    (RunFolder::BEV, false),
+];
+
+/// Runs `activemap replay` (see the module doc); exit status failure when a plain replay's
+/// outputs differ from the recording.
+pub(crate) fn replay(
+    recording_path: &Path,
+    node: &str,
+    args: &ReplayArgs,
+) -> anyhow::Result<ExitCode> {
+    let source_dir = recording_path
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    if let Some(out) = &args.out {
+        check_out_folder(out, &source_dir)?;
+    }
+    // Streamed: the recording is read input by input, never held whole.
+    let reader = record::RecordingReader::open(recording_path)?;
+    if reader.dataflow_yaml().is_empty() {
+        bail!(
+            "{}: no embedded dataflow (not an activemap recording?)",
+            recording_path.display()
+        );
+    }
+    let name = format!("{} (embedded dataflow)", recording_path.display());
+    // The recording's own flow makes the producers that regenerate its digest-only inputs
+    // (they must compute what was recorded); the replayed node runs under the overrides.
+    let recorded = activemap_operators::checks::parse(&name, reader.dataflow_yaml(), Path::new(""))
+        .map_err(|d| anyhow::anyhow!("{d}"))?;
+    let flow = if args.set.is_empty() {
+        recorded.clone()
+    } else {
+        activemap_operators::checks::parse_with(
+            &name,
+            reader.dataflow_yaml(),
+            Path::new(""),
+            &args.set,
+        )
+        .map_err(|d| anyhow::anyhow!("{d}"))?
+    };
+    let spec = flow
+        .node(node)
+        .with_context(|| format!("node `{node}` is not in the recorded dataflow"))?;
+    let NodeImpl::Operator(op) = &spec.implementation else {
+        bail!("node `{node}` is an external executable; replay runs built-in operators");
+    };
+    let implementation = activemap_operators::find(op)
+        .and_then(|r| r.implementation)
+        .with_context(|| format!("operator `{op}` is not built in this version"))?;
+    let map_ports: Vec<String> = spec
+        .outputs
+        .iter()
+        .filter(|o| o.kind == MessageKind::GaussianMap)
+        .map(|o| o.name.clone())
+        .collect();
+    if args.out.is_some() && map_ports.len() != 1 {
+        bail!(
+            "--out keeps the replayed node's map, and node `{node}` (operator `{op}`) has {} map \
+             outputs; replay the mapper",
+            map_ports.len()
+        );
+    }
+    let spec = replay_spec(spec, op, recording_path);
+    let producers = replay_producers(&recorded, recording_path);
+    let mut last_map: Option<Vec<u8>> = None;
+    let mut observe = |port: &str, bytes: &[u8]| {
+        if args.out.is_some() && map_ports.iter().any(|p| p == port) && !bytes.is_empty() {
+            last_map = Some(bytes.to_vec());
+        }
+    };
+    let started = std::time::Instant::now();
+    let record::StreamedReplay {
+        report,
+        inputs,
+        truncated,
+    } = record::replay_recording_observed(
+        reader,
+        &spec,
+        implementation.replay,
+        &producers,
+        &mut observe,
+    )?;
+    if truncated {
+        eprintln!(
+            "warning: the recording ends early (its writer was killed); replaying what it holds"
+        );
+    }
+    for (port, (matched, recorded, made)) in &report.per_port {
+        println!("  {node}/{port}: {matched} matched, {recorded} recorded, {made} produced");
+    }
+    println!(
+        "replay {node}: {} inputs, {}/{} outputs matched{} in {:.1} s",
+        inputs,
+        report.matched(),
+        report.recorded(),
+        if args.set.is_empty() {
+            ""
+        } else {
+            " (under --set: differences are expected)"
+        },
+        started.elapsed().as_secs_f64()
+    );
+    if let Some(out) = &args.out {
+        let bytes = last_map.with_context(|| {
+            format!("node `{node}` produced no map in the replay: nothing to write to --out")
+        })?;
+        write_folder(out, &source_dir, &flow, &bytes)?;
+        println!("replay {node}: run folder {}", out.display());
+        let eval = (!args.no_eval).then(|| EvalArgs {
+            views: args.eval_views,
+            ..EvalArgs::default()
+        });
+        crate::finish_run(out, eval)?;
+    }
+    Ok(if report.all_match() || !args.set.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+/// Refuses an `--out` that exists already, or a recording outside a run folder (whose
+/// trajectories and summary the replay folder needs), before the replay spends its time.
+fn check_out_folder(out: &Path, source_dir: &Path) -> anyhow::Result<()> {
+    if out.exists() {
+        bail!(
+            "{}: already exists; --out writes a new run folder",
+            out.display()
+        );
+    }
+    for (file, required) in COPIED {
+        let path = source_dir.join(file);
+        if required && !path.is_file() {
+            bail!(
+                "{}: missing; --out needs the recording inside its run folder (with the \
+                 recorded run's {file})",
+                path.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Writes the replay's run folder (see [`ReplayArgs::out`]): copies of the recorded run's
+/// files, the effective dataflow, the map, and the summary with the new map's size.
+fn write_folder(
+    out: &Path,
+    source_dir: &Path,
+    flow: &activemap_runtime::Dataflow,
+    map_bytes: &[u8],
+) -> anyhow::Result<()> {
+    let folder = RunFolder::new(out);
+    folder.create()?;
+    for (file, required) in COPIED {
+        let from = source_dir.join(file);
+        if !required && !from.is_file() {
+            continue;
+        }
+        std::fs::copy(&from, out.join(file))
+            .with_context(|| format!("copying {} to {}", from.display(), out.display()))?;
+    }
+    std::fs::write(out.join(RunFolder::DATAFLOW), &flow.source)
+        .with_context(|| format!("writing {}", out.join(RunFolder::DATAFLOW).display()))?;
+    let (_, map) = activemap_operators::convert::read_map(map_bytes)
+        .context("decoding the replayed node's last map")?;
+    let map = observed_only(&map)?;
+    folder.write_map(&map)?;
+    let mut summary = folder.read_summary()?;
+    summary.map_gaussians = map.len();
+    if let Ok(evaluator) = activemap_operators::single_node_config::<
+        activemap_operators::evaluator::Config,
+    >(flow, "evaluator")
+    {
+        summary.map_depth_model = Some(evaluator.depth_model.unwrap_or_default());
+    }
+    folder.write_summary(&summary)?;
+    Ok(())
+}
+
+/// Node `node` (operator `op`) as replay runs it: a node that talks to the outside world (the
+/// LLM planner) is served the recorded answers.
+fn replay_spec(node: &NodeSpec, op: &str, recording_path: &Path) -> NodeSpec {
+    let mut spec = node.clone();
+    spec.config = activemap_operators::replay_config(op, &node.config, recording_path, &node.id);
+    spec
+}
+
+/// Every built-in operator output of `flow`, as a producer that can remake the payloads the
+/// recording holds as digests (the maps of `--record-maps regenerated`).
+fn replay_producers(
+    flow: &activemap_runtime::Dataflow,
+    recording_path: &Path,
+) -> record::Producers {
+    let mut producers = record::Producers::new();
+    for node in &flow.nodes {
+        let NodeImpl::Operator(op) = &node.implementation else {
+            continue;
+        };
+        let Some(replay) = activemap_operators::find(op)
+            .and_then(|r| r.implementation)
+            .map(|i| i.replay)
+        else {
+            continue;
+        };
+        let spec = replay_spec(node, op, recording_path);
+        for output in &node.outputs {
+            producers.insert(
+                format!("{}/{}", node.id, output.name),
+                record::Producer {
+                    spec: spec.clone(),
+                    port: output.name.clone(),
+                    replay,
+                },
+            );
+        }
+    }
+    producers
+}
