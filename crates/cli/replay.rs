@@ -14,7 +14,7 @@ use std::process::ExitCode;
 
 use activemap_eval::run_folder::RunFolder;
 use activemap_eval::step_metrics::observed_only;
-use activemap_runtime::dataflow::{NodeImpl, NodeSpec, Override};
+use activemap_runtime::dataflow::{Dataflow, NodeImpl, NodeSpec, Override};
 use activemap_runtime::record;
 use activemap_schemas::MessageKind;
 use anyhow::{Context as _, bail};
@@ -78,20 +78,25 @@ pub(crate) fn replay(
         );
     }
     let name = format!("{} (embedded dataflow)", recording_path.display());
-    // The recording's own flow makes the producers that regenerate its digest-only inputs
-    // (they must compute what was recorded); the replayed node runs under the overrides.
-    let recorded = activemap_operators::checks::parse(&name, reader.dataflow_yaml(), Path::new(""))
-        .map_err(|d| anyhow::anyhow!("{d}"))?;
+    // The recording's own flow, as recorded, makes the producers that regenerate its
+    // digest-only inputs (they must compute what was recorded); the replayed node runs under
+    // the overrides (an unknown key is refused when the node reads its config).
+    let catalog = activemap_operators::catalog();
+    let parse = |overrides: &[Override]| {
+        Dataflow::parse_with(
+            &name,
+            reader.dataflow_yaml(),
+            PathBuf::new(),
+            &catalog,
+            overrides,
+        )
+        .map_err(|d| anyhow::anyhow!("{d}"))
+    };
+    let recorded = parse(&[])?;
     let flow = if args.set.is_empty() {
         recorded.clone()
     } else {
-        activemap_operators::checks::parse_with(
-            &name,
-            reader.dataflow_yaml(),
-            Path::new(""),
-            &args.set,
-        )
-        .map_err(|d| anyhow::anyhow!("{d}"))?
+        parse(&args.set)?
     };
     let spec = flow
         .node(node)
@@ -201,7 +206,7 @@ fn check_out_folder(out: &Path, source_dir: &Path) -> anyhow::Result<()> {
 fn write_folder(
     out: &Path,
     source_dir: &Path,
-    flow: &activemap_runtime::Dataflow,
+    flow: &Dataflow,
     map_bytes: &[u8],
 ) -> anyhow::Result<()> {
     let folder = RunFolder::new(out);
@@ -242,10 +247,7 @@ fn replay_spec(node: &NodeSpec, op: &str, recording_path: &Path) -> NodeSpec {
 
 /// Every built-in operator output of `flow`, as a producer that can remake the payloads the
 /// recording holds as digests (the maps of `--record-maps regenerated`).
-fn replay_producers(
-    flow: &activemap_runtime::Dataflow,
-    recording_path: &Path,
-) -> record::Producers {
+fn replay_producers(flow: &Dataflow, recording_path: &Path) -> record::Producers {
     let mut producers = record::Producers::new();
     for node in &flow.nodes {
         let NodeImpl::Operator(op) = &node.implementation else {

@@ -455,23 +455,11 @@ pub fn load_with(path: &Path, overrides: &[Override]) -> Result<Dataflow, Diagno
 
 /// As [`load`], for dataflow text (`file` only names it in messages).
 pub fn parse(file: &str, source: &str, base_dir: &Path) -> Result<Dataflow, Diagnostics> {
-    parse_with(file, source, base_dir, &[])
-}
-
-/// [`parse`] with `--set` overrides applied first (e.g. a recording's dataflow replayed under
-/// another configuration); the flow's source is then the effective YAML.
-pub fn parse_with(
-    file: &str,
-    source: &str,
-    base_dir: &Path,
-    overrides: &[Override],
-) -> Result<Dataflow, Diagnostics> {
     let catalog = crate::catalog();
-    let mut flow = Dataflow::parse_with(file, source, base_dir.to_path_buf(), &catalog, overrides)?;
+    let mut flow = Dataflow::parse(file, source, base_dir.to_path_buf(), &catalog)?;
     let implied = implied_overrides(&flow);
     if !implied.is_empty() {
-        let all = [overrides, &implied].concat();
-        flow = Dataflow::parse_with(file, source, base_dir.to_path_buf(), &catalog, &all)?;
+        flow = Dataflow::parse_with(file, source, base_dir.to_path_buf(), &catalog, &implied)?;
     }
     check_flow(&flow)?;
     Ok(flow)
