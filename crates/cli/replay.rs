@@ -93,11 +93,12 @@ pub(crate) fn replay(
         .map_err(|d| anyhow::anyhow!("{d}"))
     };
     let recorded = parse(&[])?;
-    let flow = if args.set.is_empty() {
-        recorded.clone()
+    let changed = if args.set.is_empty() {
+        None
     } else {
-        parse(&args.set)?
+        Some(parse(&args.set)?)
     };
+    let flow = changed.as_ref().unwrap_or(&recorded);
     let spec = flow
         .node(node)
         .with_context(|| format!("node `{node}` is not in the recorded dataflow"))?;
@@ -122,10 +123,12 @@ pub(crate) fn replay(
     }
     let spec = replay_spec(spec, op, recording_path);
     let producers = replay_producers(&recorded, recording_path);
-    let mut last_map: Option<Vec<u8>> = None;
+    // One buffer, overwritten by each map: only the last one is kept.
+    let mut last_map: Vec<u8> = Vec::new();
     let mut observe = |port: &str, bytes: &[u8]| {
         if args.out.is_some() && map_ports.iter().any(|p| p == port) && !bytes.is_empty() {
-            last_map = Some(bytes.to_vec());
+            last_map.clear();
+            last_map.extend_from_slice(bytes);
         }
     };
     let started = std::time::Instant::now();
@@ -161,10 +164,10 @@ pub(crate) fn replay(
         started.elapsed().as_secs_f64()
     );
     if let Some(out) = &args.out {
-        let bytes = last_map.with_context(|| {
-            format!("node `{node}` produced no map in the replay: nothing to write to --out")
-        })?;
-        write_folder(out, &source_dir, &flow, &bytes)?;
+        if last_map.is_empty() {
+            bail!("node `{node}` produced no map in the replay: nothing to write to --out");
+        }
+        write_folder(out, &source_dir, flow, &last_map)?;
         println!("replay {node}: run folder {}", out.display());
         let eval = (!args.no_eval).then(|| EvalArgs {
             views: args.eval_views,

@@ -122,9 +122,10 @@ pub struct MapperConfig {
     pub snap_in_front: bool,
     /// Free-space carving margin, metres (0 = off): after each keyframe's optimisation, a
     /// Gaussian whose centre projects into the newest keyframe in front of every reading of the
-    /// 3×3 pixels around it by more than `max(margin, carve_margin_fraction · D)` is removed: the keyframe saw through the place where it sits, so it is a floater. The
-    /// 3×3 minimum (all nine readings valid) keeps thin structures and silhouettes that a
-    /// pixel of pose or projection error would otherwise carve.
+    /// 3×3 pixels around it by more than `max(margin, carve_margin_fraction · D)` is removed:
+    /// the keyframe saw through the place where it sits, so it is a floater. The 3×3 minimum
+    /// (all nine readings valid) keeps thin structures and silhouettes that a pixel of pose or
+    /// projection error would otherwise carve.
     pub carve_margin_m: f64,
     /// The relative part of the carving margin ([`MapperConfig::carve_margin_m`]): a share of
     /// the nearest reading, so that depth noise growing with distance carves nothing real.
@@ -745,19 +746,13 @@ impl Mapper {
             return 0;
         }
         let frame = &keyframe.frame;
-        let (w, h) = (frame.width(), frame.height());
         let camera_from_world = keyframe.pose.inverse();
         let mut moved = 0;
         for mean in &mut self.map.means {
-            let p = camera_from_world * nalgebra::Point3::from(mean.map(f64::from));
-            let Some(uv) = frame.intrinsics.project(&p) else {
+            let Some((p, u, v)) = pixel_of(frame, &camera_from_world, mean, 0) else {
                 continue;
             };
-            let (u, v) = (uv.x.round(), uv.y.round());
-            if u < 0.0 || v < 0.0 || u >= w as f64 || v >= h as f64 {
-                continue;
-            }
-            let d = f64::from(frame.depth[v as usize * w + u as usize]);
+            let d = f64::from(frame.depth[v * frame.width() + u]);
             let low = if self.config.snap_in_front {
                 d - band
             } else {
@@ -786,7 +781,7 @@ impl Mapper {
         }
         let fraction = self.config.carve_margin_fraction;
         let frame = &keyframe.frame;
-        let (w, h) = (frame.width(), frame.height());
+        let w = frame.width();
         let camera_from_world = keyframe.pose.inverse();
         let keep: Vec<bool> = self
             .map
@@ -797,15 +792,9 @@ impl Mapper {
                 if flags & FLAG_UNKNOWN_SPACE != 0 {
                     return true;
                 }
-                let p = camera_from_world * nalgebra::Point3::from(mean.map(f64::from));
-                let Some(uv) = frame.intrinsics.project(&p) else {
+                let Some((p, u, v)) = pixel_of(frame, &camera_from_world, mean, 1) else {
                     return true;
                 };
-                let (u, v) = (uv.x.round(), uv.y.round());
-                if u < 1.0 || v < 1.0 || u + 1.0 >= w as f64 || v + 1.0 >= h as f64 {
-                    return true;
-                }
-                let (u, v) = (u as usize, v as usize);
                 let mut nearest = f64::INFINITY;
                 for row in v - 1..=v + 1 {
                     for d in &frame.depth[row * w + u - 1..=row * w + u + 1] {
@@ -904,6 +893,25 @@ impl Mapper {
         self.append(&added, &added_anchors);
         Ok((pruned, densified))
     }
+}
+
+/// A map point `mean` (world) in `frame`'s camera (`camera_from_world`), and the pixel it falls
+/// on (rounded), when it projects at least `border` pixels inside the image: what the newest
+/// keyframe's snapping and carving compare with that keyframe's readings.
+fn pixel_of(
+    frame: &Frame,
+    camera_from_world: &Isometry3<f64>,
+    mean: &[f32; 3],
+    border: usize,
+) -> Option<(nalgebra::Point3<f64>, usize, usize)> {
+    let p = camera_from_world * nalgebra::Point3::from(mean.map(f64::from));
+    let uv = frame.intrinsics.project(&p)?;
+    let (u, v) = (uv.x.round(), uv.y.round());
+    let (b, w, h) = (border as f64, frame.width() as f64, frame.height() as f64);
+    if u < b || v < b || u + b >= w || v + b >= h {
+        return None;
+    }
+    Some((p, u as usize, v as usize))
 }
 
 /// Largest per-axis scale of Gaussian `i`, metres.
