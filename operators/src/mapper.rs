@@ -87,6 +87,13 @@ pub struct MapperTuning {
     /// Initial scale of an inserted Gaussian as a multiple of the sample spacing.
     #[serde(default)]
     pub scale_factor: Option<f64>,
+    /// Thickness of an inserted Gaussian along the surface normal, a share of its scale
+    /// (0 = isotropic insertion).
+    #[serde(default)]
+    pub normal_thickness: Option<f64>,
+    /// Largest stretch of an oriented Gaussian along the viewing direction (1 = round discs).
+    #[serde(default)]
+    pub max_grazing_stretch: Option<f64>,
     /// Band behind the newest keyframe's readings whose centres are moved onto them, metres.
     #[serde(default)]
     pub snap_behind_m: Option<f64>,
@@ -125,6 +132,11 @@ impl MapperTuning {
         set(self.refresh_opacity, &mut mapper.insert.refresh_opacity);
         set(self.insert_behind_map, &mut mapper.insert.insert_behind_map);
         set(self.scale_factor, &mut mapper.insert.scale_factor);
+        set(self.normal_thickness, &mut mapper.insert.normal_thickness);
+        set(
+            self.max_grazing_stretch,
+            &mut mapper.insert.max_grazing_stretch,
+        );
         set(self.snap_behind_m, &mut mapper.snap_behind_m);
         set(self.snap_in_front, &mut mapper.snap_in_front);
         set(self.carve_margin_m, &mut mapper.carve_margin_m);
@@ -392,6 +404,28 @@ pub(crate) mod tests {
                 (frame, estimate)
             })
             .collect()
+    }
+
+    /// The disc-insertion keys of `tuning` reach the mapping session, and out-of-range values
+    /// are refused with the field's name.
+    #[test]
+    fn disc_insertion_keys_reach_the_mapper_and_bad_values_are_refused() {
+        let parse = |json: serde_json::Value| -> Config { serde_json::from_value(json).unwrap() };
+        let config = parse(serde_json::json!({
+            "tuning": { "normal_thickness": 0.2, "max_grazing_stretch": 2.0 }
+        }));
+        let mapping = config.mapping_config().unwrap();
+        assert_eq!(mapping.mapper.insert.normal_thickness, 0.2);
+        assert_eq!(mapping.mapper.insert.max_grazing_stretch, 2.0);
+        for (key, value, field) in [
+            ("normal_thickness", 1.5, "insert.normal_thickness"),
+            ("normal_thickness", -0.1, "insert.normal_thickness"),
+            ("max_grazing_stretch", 0.5, "insert.max_grazing_stretch"),
+        ] {
+            let config = parse(serde_json::json!({ "tuning": { key: value } }));
+            let error = config.mapping_config().unwrap_err().to_string();
+            assert!(error.contains(field), "{key}={value}: {error}");
+        }
     }
 
     /// The background worker hands out one snapshot per frame, in frame order; once frame k has

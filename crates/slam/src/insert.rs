@@ -1,7 +1,9 @@
 //! Gaussian insertion from a keyframe's depth (SPEC §4): back-project a seeded random
 //! fraction of the depth pixels that lie in UNOBSERVED areas (SPEC's 1/64 at 640×480; at other
 //! resolutions the same number of samples per full image, see [`InsertConfig`]), colour from the
-//! pixel, opacity 0.8 (see [`InsertConfig::opacity`]), identity rotation, isotropic scale.
+//! pixel, opacity 0.8 (see [`InsertConfig::opacity`]), identity rotation and isotropic scale,
+//! or, with [`InsertConfig::normal_thickness`], a flat disc lying in the surface whose normal
+//! the depth image shows around the pixel ([`surface_normal`]).
 //!
 //! Unobserved (decision documented here): a pixel with a depth reading is unobserved when the
 //! current map, rendered at the keyframe pose without unknown-space Gaussians, covers it with
@@ -75,6 +77,26 @@ pub struct InsertConfig {
     /// new Gaussians (true: the rule is symmetric). SplaTAM inserts only where the reading lies
     /// in front of the rendered surface.
     pub insert_behind_map: bool,
+    /// Thickness of an inserted Gaussian along the surface normal, as a share of its in-plane
+    /// scale (issue 33; 0.1, a deviation from SPEC §4); 0 = off: isotropic, identity rotation
+    /// (SPEC §4). When on, each sample whose depth neighbourhood is locally planar
+    /// ([`surface_normal`]) becomes a disc lying in the surface: its third axis along the normal
+    /// estimated from the depth image, this share of the scale thick, and its in-plane axis
+    /// along the viewing direction stretched by
+    /// `1/cos(incidence)` (at most [`InsertConfig::max_grazing_stretch`]) so that the samples,
+    /// evenly spaced in pixels, still cover a surface seen at a grazing angle. A round Gaussian
+    /// that a grazing ray meets renders the surface in front of the reading, and ten iterations
+    /// per keyframe cannot flatten it; a disc renders the surface where it is (measured in
+    /// `docs/src/slam.md`, "Discs in the surface": on `benchmarks/disc-insertion*.yaml`, FBE on
+    /// three houses and two seeds, noise-free, every pair gained PSNR, SSIM, LPIPS, depth MAE
+    /// and completeness). Use it with the mapper's `isotropic_weight` at 0 (its default), which
+    /// would pull the discs round again.
+    pub normal_thickness: f64,
+    /// Largest stretch of an oriented Gaussian's in-plane axis along the viewing direction
+    /// (3: the `1/cos(incidence)` of [`InsertConfig::normal_thickness`] reaches 3 at about 70°
+    /// incidence); 1 = round discs. The stretched scale may exceed `max_scale` (the mapper's
+    /// `prune_max_scale` still bounds it).
+    pub max_grazing_stretch: f64,
 }
 
 impl Default for InsertConfig {
@@ -94,6 +116,8 @@ impl Default for InsertConfig {
             refresh_fraction: 0.0,
             refresh_opacity: 0.5,
             insert_behind_map: true,
+            normal_thickness: 0.1,
+            max_grazing_stretch: 3.0,
         }
     }
 }
@@ -218,8 +242,92 @@ pub struct NewGaussian {
     pub mean: [f64; 3],
     /// RGB in [0, 1].
     pub rgb: [f64; 3],
-    /// Isotropic scale, metres.
-    pub scale: f64,
+    /// Rotation `[w, x, y, z]` (world from Gaussian axes); identity when isotropic.
+    pub rotation: [f64; 4],
+    /// Scales along the Gaussian's three axes, metres (equal when isotropic; the third is the
+    /// surface normal's when [`InsertConfig::normal_thickness`] oriented it).
+    pub scales: [f64; 3],
+}
+
+/// Pixels on each side of a sample that [`surface_normal`] differences over (2: at 160² the
+/// stencil spans 4 pixels, which averages sensor noise while staying on one surface).
+pub const NORMAL_STENCIL_PX: usize = 2;
+
+/// Largest second difference of inverse depth across the stencil, relative to the sample's,
+/// that still counts as one plane: the inverse depth of a plane is affine in the pixel
+/// coordinates, so its second difference vanishes; a step or a corner breaks it.
+pub const PLANARITY_TOLERANCE: f64 = 0.05;
+
+/// The unit normal, in the camera frame and facing the camera, of the surface the depth
+/// image shows around pixel `(u, v)`: the cross product of the back-projected central
+/// differences over [`NORMAL_STENCIL_PX`] along each image axis. `None` where a neighbour is
+/// outside the image or has no reading, or where the neighbourhood is not one plane
+/// ([`PLANARITY_TOLERANCE`] on each axis).
+pub fn surface_normal(frame: &Frame, u: usize, v: usize) -> Option<nalgebra::Vector3<f64>> {
+    let d = NORMAL_STENCIL_PX;
+    let (w, h) = (frame.width(), frame.height());
+    if u < d || v < d || u + d >= w || v + d >= h {
+        return None;
+    }
+    let depth = |x: usize, y: usize| {
+        let z = frame.depth[y * w + x] as f64;
+        (z.is_finite() && z > 0.0).then_some(z)
+    };
+    let centre = 1.0 / depth(u, v)?;
+    let point = |x: usize, y: usize| -> Option<nalgebra::Vector3<f64>> {
+        let z = depth(x, y)?;
+        Some(frame.intrinsics.unproject(x as f64, y as f64, z).coords)
+    };
+    let planar = |a: usize, b: usize, c: usize, e: usize| -> Option<()> {
+        let second = 1.0 / depth(a, b)? + 1.0 / depth(c, e)? - 2.0 * centre;
+        (second.abs() <= PLANARITY_TOLERANCE * centre).then_some(())
+    };
+    planar(u - d, v, u + d, v)?;
+    planar(u, v - d, u, v + d)?;
+    let along_u = point(u + d, v)? - point(u - d, v)?;
+    let along_v = point(u, v + d)? - point(u, v - d)?;
+    let normal = along_u.cross(&along_v).try_normalize(1e-12)?;
+    let ray = point(u, v)?;
+    Some(if normal.dot(&ray) > 0.0 {
+        -normal
+    } else {
+        normal
+    })
+}
+
+/// The rotation `[w, x, y, z]` and scales of a disc of in-plane scale `scale` lying in the
+/// surface of camera-frame normal `normal` at camera-frame point `point`, in the world of
+/// `pose` (see [`InsertConfig::normal_thickness`]).
+fn oriented_disc(
+    pose: &Isometry3<f64>,
+    point: &nalgebra::Vector3<f64>,
+    normal: &nalgebra::Vector3<f64>,
+    scale: f64,
+    config: &InsertConfig,
+) -> ([f64; 4], [f64; 3]) {
+    let ray = point.normalize();
+    let cos_incidence = normal.dot(&ray).abs();
+    // The in-plane direction the viewing ray leans along; any in-plane axis when head-on.
+    let lean = ray - normal * normal.dot(&ray);
+    let first = lean.try_normalize(1e-9).unwrap_or_else(|| {
+        let helper = if normal.x.abs() < 0.9 {
+            nalgebra::Vector3::x()
+        } else {
+            nalgebra::Vector3::y()
+        };
+        normal.cross(&helper).normalize()
+    });
+    let second = normal.cross(&first);
+    let camera_axes = nalgebra::Matrix3::from_columns(&[first, second, *normal]);
+    let world_axes = pose.rotation.to_rotation_matrix().matrix() * camera_axes;
+    let rotation = nalgebra::UnitQuaternion::from_rotation_matrix(
+        &nalgebra::Rotation3::from_matrix_unchecked(world_axes),
+    );
+    let stretch = (1.0 / cos_incidence.max(1e-9)).min(config.max_grazing_stretch);
+    (
+        [rotation.w, rotation.i, rotation.j, rotation.k],
+        [scale * stretch, scale, scale * config.normal_thickness],
+    )
 }
 
 /// Samples the new Gaussians of a keyframe at `T_world_camera = pose` (see the module doc).
@@ -243,7 +351,16 @@ pub fn sample_new_gaussians(
         let (u, v) = ((p % w) as f64, (p / w) as f64);
         let camera_point: Point3<f64> = k.unproject(u, v, frame.depth[p] as f64);
         let world = pose * camera_point;
-        points.push((world, frame.rgb[p].map(|c| c as f64), frame.depth[p] as f64));
+        let normal = (config.normal_thickness > 0.0)
+            .then(|| surface_normal(frame, p % w, p / w))
+            .flatten()
+            .map(|n| (camera_point.coords, n));
+        points.push((
+            world,
+            frame.rgb[p].map(|c| c as f64),
+            frame.depth[p] as f64,
+            normal,
+        ));
     }
     if points.len() > config.max_per_keyframe {
         // Uniform random subset (partial Fisher–Yates), so the cap does not favour any region.
@@ -253,25 +370,36 @@ pub fn sample_new_gaussians(
         }
         points.truncate(config.max_per_keyframe);
     }
-    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _, _)| [p.x, p.y, p.z]).collect();
+    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _, _, _)| [p.x, p.y, p.z]).collect();
     let scales = if config.footprint_scale {
         let focal = 0.5 * (k.fx.abs() + k.fy.abs());
         let spacing = 1.0 / fraction.sqrt();
-        points.iter().map(|(_, _, z)| z / focal * spacing).collect()
+        points
+            .iter()
+            .map(|(_, _, z, _)| z / focal * spacing)
+            .collect()
     } else {
         nearest_neighbour_scales(&positions, 3)
     };
     points
         .iter()
         .zip(scales)
-        .map(|((p, rgb, _), s)| NewGaussian {
-            mean: [p.x, p.y, p.z],
-            rgb: *rgb,
-            scale: if s.is_finite() {
+        .map(|((p, rgb, _, normal), s)| {
+            let scale = if s.is_finite() {
                 (s * config.scale_factor).clamp(config.min_scale, config.max_scale)
             } else {
                 config.max_scale
-            },
+            };
+            let (rotation, scales) = match normal {
+                Some((point, n)) => oriented_disc(pose, point, n, scale, config),
+                None => ([1.0, 0.0, 0.0, 0.0], [scale; 3]),
+            };
+            NewGaussian {
+                mean: [p.x, p.y, p.z],
+                rgb: *rgb,
+                rotation,
+                scales,
+            }
         })
         .collect()
 }
@@ -306,6 +434,121 @@ pub fn nearest_neighbour_scales(points: &[[f64; 3]], k: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use activemap_geometry::Intrinsics;
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use rand::SeedableRng;
+
+    /// A 32² frame (90° hfov) of the plane `n·X = c` in the camera frame (no reading where the
+    /// ray misses it or meets it behind the camera), grey.
+    fn plane_frame(n: Vector3<f64>, c: f64) -> Frame {
+        let k = Intrinsics::from_hfov(32, 32, std::f64::consts::FRAC_PI_2);
+        let mut depth = Vec::new();
+        for v in 0..32 {
+            for u in 0..32 {
+                let ray = k.unproject(u as f64, v as f64, 1.0).coords; // z = 1
+                let t = c / n.dot(&ray);
+                depth.push(if t > 0.0 { t as f32 } else { 0.0 });
+            }
+        }
+        Frame::new(k, vec![[0.5; 3]; 32 * 32], depth, 0.0).unwrap()
+    }
+
+    /// Rotation matrix of a `[w, x, y, z]` quaternion.
+    fn axes(q: [f64; 4]) -> nalgebra::Matrix3<f64> {
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]))
+            .to_rotation_matrix()
+            .into_inner()
+    }
+
+    #[test]
+    fn the_normal_of_a_tilted_plane_is_recovered_and_faces_the_camera() {
+        let n = Vector3::new(0.3, -0.5, -1.0).normalize();
+        let frame = plane_frame(n, -2.0);
+        for (u, v) in [(16, 16), (5, 20), (26, 4)] {
+            let got = surface_normal(&frame, u, v).expect("a plane is planar");
+            assert!((got - n).norm() < 1e-4, "{got} against {n} at ({u}, {v})");
+            let ray = frame.intrinsics.unproject(u as f64, v as f64, 1.0).coords;
+            assert!(got.dot(&ray) < 0.0, "faces the camera");
+        }
+        // The stencil leaves the image at the border.
+        assert!(surface_normal(&frame, 1, 16).is_none());
+        assert!(surface_normal(&frame, 16, 30).is_none());
+    }
+
+    #[test]
+    fn a_depth_step_or_a_missing_reading_gives_no_normal() {
+        let mut frame = plane_frame(-Vector3::z(), -2.0);
+        assert!(surface_normal(&frame, 16, 16).is_some());
+        // A box 20 cm in front of the wall right of column 17: the stencil at 16 straddles it.
+        for v in 0..32 {
+            for u in 18..32 {
+                frame.depth[v * 32 + u] = 1.8;
+            }
+        }
+        assert!(surface_normal(&frame, 16, 16).is_none());
+        assert!(surface_normal(&frame, 10, 16).is_some());
+        frame.depth[16 * 32 + 8] = 0.0;
+        assert!(surface_normal(&frame, 10, 16).is_none());
+    }
+
+    #[test]
+    fn oriented_insertion_lays_discs_in_the_surface_in_the_world_frame() {
+        // A floor 0.88 m below a camera looking level along world +x (camera z = world x,
+        // camera y = world −z): grazing everywhere.
+        let frame = plane_frame(Vector3::y(), 0.88);
+        let camera_to_world = nalgebra::Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0);
+        let pose = Isometry3::from_parts(
+            Translation3::new(1.0, 2.0, 0.88),
+            UnitQuaternion::from_matrix(&camera_to_world),
+        );
+        let mask: Vec<bool> = frame.depth.iter().map(|&d| d > 0.0).collect();
+        let isotropic = InsertConfig {
+            normal_thickness: 0.0,
+            ..InsertConfig::default()
+        };
+        let oriented = InsertConfig {
+            normal_thickness: 0.1,
+            ..InsertConfig::default()
+        };
+        let draw = |config: &InsertConfig| {
+            let mut rng = ChaCha8Rng::seed_from_u64(3);
+            sample_new_gaussians(&frame, &pose, &mask, config, &mut rng)
+        };
+        let (round, discs) = (draw(&isotropic), draw(&oriented));
+        assert_eq!(round.len(), discs.len(), "the same samples either way");
+        let mut oriented_count = 0;
+        for (r, g) in round.iter().zip(&discs) {
+            assert_eq!(r.mean, g.mean);
+            assert!(g.mean[2].abs() < 1e-6, "on the floor: {:?}", g.mean);
+            assert_eq!(r.rotation, [1.0, 0.0, 0.0, 0.0]);
+            assert!(r.scales.iter().all(|&s| s == r.scales[0]));
+            if g.scales[2] == g.scales[1] {
+                continue; // no planar neighbourhood (the image border): left round
+            }
+            oriented_count += 1;
+            let a = axes(g.rotation);
+            assert!(
+                (a.column(2).z.abs() - 1.0).abs() < 1e-6,
+                "third axis vertical: {a}"
+            );
+            assert!(a.column(0).z.abs() < 1e-6, "first axis in the floor");
+            assert!(
+                (g.scales[1] - r.scales[0]).abs() < 1e-12,
+                "in-plane scale kept"
+            );
+            assert!((g.scales[2] - 0.1 * r.scales[0]).abs() < 1e-12, "thickness");
+            // Stretched along the view, 1/cos(incidence) up to the cap.
+            let to_mean = Vector3::from(g.mean) - pose.translation.vector;
+            let cos = (to_mean.z / to_mean.norm()).abs();
+            let stretch = (1.0 / cos).min(oriented.max_grazing_stretch);
+            assert!((g.scales[0] / g.scales[1] - stretch).abs() < 1e-6);
+        }
+        assert!(
+            oriented_count > discs.len() / 2,
+            "{oriented_count} of {}",
+            discs.len()
+        );
+    }
 
     #[test]
     fn nn_scale_on_a_unit_grid() {
