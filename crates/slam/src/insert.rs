@@ -350,17 +350,7 @@ pub fn sample_new_gaussians(
         }
         let (u, v) = ((p % w) as f64, (p / w) as f64);
         let camera_point: Point3<f64> = k.unproject(u, v, frame.depth[p] as f64);
-        let world = pose * camera_point;
-        let normal = (config.normal_thickness > 0.0)
-            .then(|| surface_normal(frame, p % w, p / w))
-            .flatten()
-            .map(|n| (camera_point.coords, n));
-        points.push((
-            world,
-            frame.rgb[p].map(|c| c as f64),
-            frame.depth[p] as f64,
-            normal,
-        ));
+        points.push((p, camera_point, pose * camera_point));
     }
     if points.len() > config.max_per_keyframe {
         // Uniform random subset (partial Fisher–Yates), so the cap does not favour any region.
@@ -370,13 +360,13 @@ pub fn sample_new_gaussians(
         }
         points.truncate(config.max_per_keyframe);
     }
-    let positions: Vec<[f64; 3]> = points.iter().map(|(p, _, _, _)| [p.x, p.y, p.z]).collect();
+    let positions: Vec<[f64; 3]> = points.iter().map(|(_, _, q)| [q.x, q.y, q.z]).collect();
     let scales = if config.footprint_scale {
         let focal = 0.5 * (k.fx.abs() + k.fy.abs());
         let spacing = 1.0 / fraction.sqrt();
         points
             .iter()
-            .map(|(_, _, z, _)| z / focal * spacing)
+            .map(|(p, _, _)| frame.depth[*p] as f64 / focal * spacing)
             .collect()
     } else {
         nearest_neighbour_scales(&positions, 3)
@@ -384,19 +374,22 @@ pub fn sample_new_gaussians(
     points
         .iter()
         .zip(scales)
-        .map(|((p, rgb, _, normal), s)| {
+        .map(|((p, camera_point, world), s)| {
             let scale = if s.is_finite() {
                 (s * config.scale_factor).clamp(config.min_scale, config.max_scale)
             } else {
                 config.max_scale
             };
+            let normal = (config.normal_thickness > 0.0)
+                .then(|| surface_normal(frame, p % w, p / w))
+                .flatten();
             let (rotation, scales) = match normal {
-                Some((point, n)) => oriented_disc(pose, point, n, scale, config),
+                Some(n) => oriented_disc(pose, &camera_point.coords, &n, scale, config),
                 None => ([1.0, 0.0, 0.0, 0.0], [scale; 3]),
             };
             NewGaussian {
-                mean: [p.x, p.y, p.z],
-                rgb: *rgb,
+                mean: [world.x, world.y, world.z],
+                rgb: frame.rgb[*p].map(|c| c as f64),
                 rotation,
                 scales,
             }

@@ -1485,12 +1485,12 @@ mod box_room {
     /// median of the signed distance −2.37 cm (behind the surfaces), of its magnitude 2.42 cm,
     /// held-out PSNR (a view turned 15° from every keyframe, from a point between them)
     /// 31.15 dB, 11 s (round insertion with the isotropic regulariser: −2.31 cm, 30.84 dB).
-    /// Screened here with round insertion (same measures): the centre depth model −2.45 cm; no depth term (α = 1)
-    /// −1.05 cm, so the colour term alone sinks the centres by a centimetre; 30 iterations per
-    /// keyframe −3.42 cm (more optimisation, more sinking); the opacity-weighted depth term
-    /// −1.84 cm; no densification −2.30 cm; `snap_behind_m` 0.15 −0.25 cm and 31.46 dB, which
-    /// on the house loop of `bench slam` costs 0.54 dB of held-out PSNR and 1.5 cm of depth
-    /// MAE (the SLAM chapter of the book).
+    /// Screened here with round insertion (same measures): the centre depth model −2.45 cm; no
+    /// depth term (α = 1) −1.05 cm, so the colour term alone sinks the centres by a centimetre;
+    /// 30 iterations per keyframe −3.42 cm (more optimisation, more sinking); the
+    /// opacity-weighted depth term −1.84 cm; no densification −2.30 cm; `snap_behind_m` 0.15
+    /// −0.25 cm and 31.46 dB, which on the house loop of `bench slam` costs 0.54 dB of held-out
+    /// PSNR and 1.5 cm of depth MAE (the SLAM chapter of the book).
     #[test]
     fn a_box_room_mapped_from_known_poses_stays_within_3_cm_of_its_surfaces() {
         let k = Intrinsics::from_hfov(64, 64, std::f64::consts::FRAC_PI_2);
