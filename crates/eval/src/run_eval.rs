@@ -63,7 +63,9 @@ use activemap_geometry::{
     Intrinsics, Isometry3, PlanarPose, camera_pose_from_planar, frames::planar_from_camera_pose,
 };
 use activemap_sim::{Floor, Placement, Renderer, SimConfig, Simulator, Transform, UpAxis};
-use activemap_splat::{Camera, DepthModel, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, render};
+use activemap_splat::{
+    Camera, DepthModel, FLAG_UNKNOWN_SPACE, Gaussians, RenderOptions, median_depth, render,
+};
 use nalgebra::Point3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -409,7 +411,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             let Some(t_world_camera) = poses.get(job) else {
                 let t_map_camera = track_views[job - poses.len()];
                 let render_started = Instant::now();
-                let out = render_map(&map, depth_model, &k, &t_map_camera)?;
+                let out = render_map(&map, depth_model, &k, &t_map_camera, true)?;
                 track_render_ns.fetch_add(
                     render_started.elapsed().as_nanos() as u64,
                     Ordering::Relaxed,
@@ -421,7 +423,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             let mut renderer = Renderer::new();
             let frame = renderer.render(sim.scene(), &k, t_world_camera, sim.config().depth_range);
             let truth_rgb: Vec<f32> = frame.rgb.iter().map(|&v| v as f32 / 255.0).collect();
-            let out = render_map(&map, depth_model, &k, &(to_map * t_world_camera))?;
+            let out = render_map(&map, depth_model, &k, &(to_map * t_world_camera), false)?;
             let (w, h) = (k.width as usize, k.height as usize);
             let view = evaluate_view(
                 ImageView::rgb(&out.rgb, w, h)?,
@@ -724,11 +726,13 @@ fn load_lpips(source: &LpipsSource, report: &mut MetricsReport) -> Option<LpipsA
     }
 }
 
-/// A render of the map: RGB in [0, 1], composited depth and opacity.
+/// A render of the map: RGB in [0, 1], composited depth and opacity, and the median depth when
+/// asked for (the surface fusion's views).
 struct MapRender {
     rgb: Vec<f32>,
     depth: Vec<f32>,
     opacity: Vec<f32>,
+    median_depth: Option<Vec<f32>>,
 }
 
 impl MapRender {
@@ -739,6 +743,7 @@ impl MapRender {
             t_world_camera,
             depth: self.depth,
             opacity: self.opacity,
+            median_depth: self.median_depth,
         }
     }
 }
@@ -762,12 +767,14 @@ pub fn fusion_track_poses(estimate: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
     kept
 }
 
-/// Renders `map` (without unknown-space Gaussians) at `t_map_camera`.
+/// Renders `map` (without unknown-space Gaussians) at `t_map_camera`, with its median depth if
+/// `with_median`.
 fn render_map(
     map: &Gaussians<f32>,
     depth: DepthModel,
     k: &Intrinsics,
     t_map_camera: &Isometry3<f64>,
+    with_median: bool,
 ) -> Result<MapRender, RunError> {
     let options = RenderOptions {
         exclude_flags: FLAG_UNKNOWN_SPACE,
@@ -781,10 +788,12 @@ fn render_map(
         .iter()
         .flat_map(|c| c.map(|v| v.clamp(0.0, 1.0)))
         .collect();
+    let median_depth = with_median.then(|| median_depth(&out));
     Ok(MapRender {
         rgb,
         depth: out.depth,
         opacity: out.opacity,
+        median_depth,
     })
 }
 

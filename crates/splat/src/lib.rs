@@ -76,7 +76,9 @@ pub use backward::{Gradients, PixelGrads, backward};
 pub use camera::{Camera, DEFAULT_NEAR};
 pub use fisher::{FisherMode, FisherOutput, SparseFisher, fisher, fisher_sparse};
 pub use gaussians::{FLAG_UNKNOWN_SPACE, Gaussians, SH_C0, layout};
-pub use rasterize::{DepthModel, ForwardContext, Render, RenderOptions, render};
+pub use rasterize::{
+    DepthModel, ForwardContext, MEDIAN_TRANSMITTANCE, Render, RenderOptions, median_depth, render,
+};
 pub use real::Real;
 
 /// Errors of the renderer and its file formats.

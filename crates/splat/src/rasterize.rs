@@ -261,6 +261,67 @@ fn raster_tile_impl<T: Real>(
         .copy_from_slice(&contributors[..TILE_PIXELS]);
 }
 
+/// The transmittance at which [`median_depth`] reads a pixel's depth.
+pub const MEDIAN_TRANSMITTANCE: f64 = 0.5;
+
+/// Per pixel of `render` (row-major), its median depth: the depth, under the render's depth
+/// model, of the Gaussian whose compositing first brings the pixel's transmittance to
+/// [`MEDIAN_TRANSMITTANCE`] or below, front to back with the forward pass's alphas; NaN where
+/// the transmittance never falls that far. Where the composited depth `Σ z α T / (1 − T)`
+/// blends surfaces at different depths (a silhouette; the faint tails of Gaussians next to the
+/// camera in front of a far wall), the median is the depth of the one surface that covers most
+/// of the pixel (the depth 2DGS and RaDe-GS fuse meshes from). Not in the SPEC; the evaluation's
+/// surface reconstruction uses it to find such blended pixels.
+pub fn median_depth<T: Real>(render: &Render<T>) -> Vec<T> {
+    let ctx = &render.context;
+    let (width, height) = (render.width, render.height);
+    let half = T::of(MEDIAN_TRANSMITTANCE);
+    let per_tile: Vec<Vec<T>> = (0..ctx.bins.tile_count())
+        .into_par_iter()
+        .map(|t| {
+            let rect = ctx.bins.tile_rect(t, width, height);
+            let list = ctx.bins.tile(t);
+            let mut out = Vec::with_capacity((rect[1] - rect[0]) * (rect[3] - rect[2]));
+            for py in rect[2]..rect[3] {
+                for px in rect[0]..rect[1] {
+                    let mut transmittance = T::one();
+                    let mut median = T::of(f64::NAN);
+                    for &id in list {
+                        let s = &ctx.splats[id as usize];
+                        let Some(_) = clip_box(s, &[px, px + 1, py, py + 1]) else {
+                            continue;
+                        };
+                        let dy = s.mean[1] - T::of(py as f64);
+                        let dx = s.mean[0] - T::of(px as f64);
+                        let row = SigmaRow::new(s, dy);
+                        let (_, _, alpha, composited) = alpha_at(&row, s.opacity, dx);
+                        if !composited {
+                            continue;
+                        }
+                        transmittance *= T::one() - alpha;
+                        if transmittance <= half {
+                            median = pixel_depth(s, row_depth(s, dy), dx);
+                            break;
+                        }
+                    }
+                    out.push(median);
+                }
+            }
+            out
+        })
+        .collect();
+    let mut median = vec![T::of(f64::NAN); width * height];
+    for (t, tile) in per_tile.iter().enumerate() {
+        let rect = ctx.bins.tile_rect(t, width, height);
+        let tw = rect[1] - rect[0];
+        for (r, py) in (rect[2]..rect[3]).enumerate() {
+            median[py * width + rect[0]..py * width + rect[1]]
+                .copy_from_slice(&tile[r * tw..(r + 1) * tw]);
+        }
+    }
+    median
+}
+
 /// Renders colour, depth and opacity of `gaussians` seen by `camera` (SPEC §3).
 pub fn render<T: Real>(
     gaussians: &Gaussians<T>,

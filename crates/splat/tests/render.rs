@@ -110,6 +110,66 @@ fn one_gaussian_renders_to_its_closed_form() {
     assert!(lit > 50, "only {lit} pixels lit");
 }
 
+/// Two isotropic Gaussians on the optical axis, a faint one 2 m ahead in front of a dense one
+/// 4 m ahead: at each pixel the alphas have the closed form of the test above, so the pixel's
+/// median depth is 4 m where the near alpha leaves the transmittance above one half and 2 m where
+/// it does not, NaN where even both leave it above one half; the composited depth blends the two.
+#[test]
+fn the_median_depth_is_the_depth_where_the_transmittance_halves() {
+    let (w, h) = (41u32, 33u32);
+    let cam = camera(w, h, 60.0, [0.0; 3], [0.0; 3]);
+    let k = cam.intrinsics;
+    let mut g = Gaussians::<f64>::new();
+    // Near: opacity 0.7, narrow; far: opacity 0.9, wide.
+    let near = (2.0, 0.2, 0.7);
+    let far = (4.0, 1.5, 0.9);
+    for (z, s, o) in [near, far] {
+        g.push([0.0, 0.0, z], [0.5; 3], [1.0, 0.0, 0.0, 0.0], o, [s; 3]);
+    }
+    let out = render(&g, &cam, &centre_depth()).unwrap();
+    let median = median_depth(&out);
+    let alpha = |(z, s, o): (f64, f64, f64), r2: f64| {
+        let var = (k.fx * s / z).powi(2) + 0.3;
+        let a = o * (-r2 / (2.0 * var)).exp();
+        if a < 1.0 / 255.0 { 0.0 } else { a }
+    };
+    let (mut at_near, mut at_far, mut none) = (0, 0, 0);
+    for v in 0..h as usize {
+        for u in 0..w as usize {
+            let (dx, dy) = (u as f64 - k.cx, v as f64 - k.cy);
+            let r2 = dx * dx + dy * dy;
+            let (a_near, a_far) = (alpha(near, r2), alpha(far, r2));
+            let p = v * w as usize + u;
+            let got = median[p];
+            // Stay clear of pixels whose transmittance is within rounding of one half.
+            let after_near = 1.0 - a_near;
+            let after_both = after_near * (1.0 - a_far);
+            if (after_near - 0.5).abs() < 1e-3 || (after_both - 0.5).abs() < 1e-3 {
+                continue;
+            }
+            if after_near <= 0.5 {
+                assert_eq!(got, 2.0, "pixel ({u},{v})");
+                at_near += 1;
+            } else if after_both <= 0.5 {
+                assert_eq!(got, 4.0, "pixel ({u},{v})");
+                at_far += 1;
+                // The composited depth, normalised, lies between the two surfaces.
+                let mean = out.depth[p] / out.opacity[p];
+                if a_near > 0.05 {
+                    assert!(mean > 2.05 && mean < 3.95, "pixel ({u},{v}): {mean}");
+                }
+            } else {
+                assert!(got.is_nan(), "pixel ({u},{v}): {got}");
+                none += 1;
+            }
+        }
+    }
+    assert!(
+        at_near > 5 && at_far > 50 && none > 50,
+        "{at_near} {at_far} {none}"
+    );
+}
+
 #[test]
 fn gaussians_behind_or_outside_the_camera_contribute_nothing() {
     let cam = camera(48, 40, 60.0, [0.0; 3], [0.0; 3]);
