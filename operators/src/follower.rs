@@ -58,6 +58,10 @@ pub struct Config {
     /// (`TrackingLost`). 1 always asks.
     #[serde(default = "default_lost_replan_after")]
     pub lost_replan_after: usize,
+    /// Losses of tracking in a row that begin at one spot of a path after which the follower
+    /// asks as stuck (the goal failed) once tracking is back (3). 0 never does.
+    #[serde(default = "default_lost_flaps_to_stuck")]
+    pub lost_flaps_to_stuck: usize,
     /// The robot (radius for the clearance, forward step for the bumper; any field left out
     /// keeps its default).
     #[serde(default)]
@@ -90,6 +94,9 @@ fn default_blocked_replans_to_stuck() -> usize {
 fn default_lost_replan_after() -> usize {
     ExecutorConfig::default().lost_replan_after
 }
+fn default_lost_flaps_to_stuck() -> usize {
+    ExecutorConfig::default().lost_flaps_to_stuck
+}
 
 impl Default for Config {
     fn default() -> Self {
@@ -102,6 +109,7 @@ impl Default for Config {
             bumps_to_replan: default_bumps(),
             blocked_replans_to_stuck: default_blocked_replans_to_stuck(),
             lost_replan_after: default_lost_replan_after(),
+            lost_flaps_to_stuck: default_lost_flaps_to_stuck(),
             robot: RobotModel::default(),
         }
     }
@@ -118,6 +126,7 @@ impl Config {
             bumps_to_replan: self.bumps_to_replan,
             blocked_replans_to_stuck: self.blocked_replans_to_stuck,
             lost_replan_after: self.lost_replan_after,
+            lost_flaps_to_stuck: self.lost_flaps_to_stuck,
             ..ExecutorConfig::default()
         }
     }

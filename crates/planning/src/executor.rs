@@ -77,9 +77,21 @@ pub struct ExecutorConfig {
     /// kept at the prediction does not cost a new plan), after as many or more it asks for a
     /// new one ([`ReplanReason::TrackingLost`]). 1 always asks.
     pub lost_replan_after: usize,
+    /// Losses of tracking in a row that begin within one forward step of the same spot while a
+    /// path is followed, after which the executor asks as stuck ([`ReplanReason::Stuck`], the
+    /// goal failed) once tracking is back (3); 0 never does. Without it, a view the tracker
+    /// rejects every other frame makes a livelock: lost, the robot turns left; back after one
+    /// frame, it resumes its path and turns right into the same view (seen on the README's
+    /// main run with discs: 78 steps in place, until the progress monitor's window ran out).
+    #[serde(default = "default_lost_flaps_to_stuck")]
+    pub lost_flaps_to_stuck: usize,
 }
 
 fn default_blocked_replans_to_stuck() -> usize {
+    3
+}
+
+fn default_lost_flaps_to_stuck() -> usize {
     3
 }
 
@@ -99,6 +111,7 @@ impl Default for ExecutorConfig {
             bumps_to_replan: 2,
             blocked_replans_to_stuck: default_blocked_replans_to_stuck(),
             lost_replan_after: 3,
+            lost_flaps_to_stuck: default_lost_flaps_to_stuck(),
         }
     }
 }
@@ -212,6 +225,9 @@ pub struct PathExecutor {
     /// Where the last blocked replan was asked for, and how many in a row were asked for
     /// within one forward step of it.
     blocked_at: Option<(Point2<f64>, usize)>,
+    /// Where the last loss of tracking during a path began, and how many in a row began
+    /// within one forward step of it.
+    lost_at: Option<(Point2<f64>, usize)>,
     /// What happened so far.
     pub counters: ExecutorCounters,
 }
@@ -241,6 +257,7 @@ impl PathExecutor {
             forward_from: None,
             bumps_in_row: 0,
             blocked_at: None,
+            lost_at: None,
             counters: ExecutorCounters::default(),
         })
     }
@@ -352,8 +369,26 @@ impl PathExecutor {
                 Phase::Spin(_) => {}
                 Phase::Lost { steps, .. } => *steps += 1,
                 phase => {
-                    let interrupted =
+                    let mut interrupted =
                         std::mem::replace(phase, Phase::Idle(ReplanReason::TrackingLost));
+                    if matches!(interrupted, Phase::Follow { .. }) {
+                        let in_row = match self.lost_at {
+                            Some((at, n)) if (at - here).norm() < self.robot.forward_step_m => {
+                                n + 1
+                            }
+                            _ => 1,
+                        };
+                        let limit = self.config.lost_flaps_to_stuck;
+                        if limit > 0 && in_row >= limit {
+                            // The path keeps leading into a view the tracker rejects: the
+                            // goal failed (asked once tracking is back).
+                            self.lost_at = None;
+                            self.counters.stuck += 1;
+                            interrupted = Phase::Idle(ReplanReason::Stuck);
+                        } else {
+                            self.lost_at = Some((here, in_row));
+                        }
+                    }
                     self.phase = Phase::Lost {
                         interrupted: Box::new(interrupted),
                         steps: 1,
@@ -629,6 +664,61 @@ mod tests {
         assert_eq!(reasons, [Blocked; 4]);
         let (reasons, counters) = run(0, 4, 0.0);
         assert_eq!(reasons, [Blocked; 4]);
+        assert_eq!(counters.stuck, 0);
+    }
+
+    /// Tracking lost every other frame at one spot of a path (the tracker rejects the view the
+    /// path faces): lost, the robot turns left; back, it resumes the path and turns right into
+    /// the same view. The third loss there makes the executor ask as stuck once tracking is
+    /// back, instead of turning back and forth until the progress window runs out. Losses at
+    /// spots a few steps apart do not add up; 0 disables the rule.
+    #[test]
+    fn tracking_lost_again_and_again_at_one_spot_counts_as_stuck() {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        let grid = OccupancyGrid::filled(geometry, CellState::Free);
+        let model = RobotModel::default();
+        let path = [
+            PlanarPose::new(0.25, 0.0, 0.0),
+            PlanarPose::new(1.5, 0.0, 0.0),
+        ];
+        // Tracking is lost whenever `lost(step, pose)` says so; returns the first replan
+        // reason, the step it came at and the counters.
+        let run = |limit: usize, lost: &dyn Fn(usize, &PlanarPose) -> bool| {
+            let mut core = PathExecutor::new(
+                ExecutorConfig {
+                    initial_spin_steps: 0,
+                    lost_flaps_to_stuck: limit,
+                    ..ExecutorConfig::default()
+                },
+                model,
+            )
+            .unwrap();
+            core.set_path(&path).unwrap();
+            let mut pose = PlanarPose::new(0.0, 0.0, 0.0);
+            for step in 0..200 {
+                match core.decide(&pose, &grid, lost(step, &pose)).unwrap() {
+                    Decision::Replan(reason) => return (reason, step, core.counters),
+                    Decision::Act(a) => pose = model.apply(&pose, a),
+                }
+            }
+            panic!("no replan in 200 steps");
+        };
+        // The view along the path (yaw within 2° of 0) is rejected once the robot is past
+        // x = 0.3.
+        let flapping = |_: usize, p: &PlanarPose| p.x > 0.3 && p.yaw.abs() < 2f64.to_radians();
+        let (reason, step, counters) = run(3, &flapping);
+        assert_eq!(reason, ReplanReason::Stuck);
+        assert!(step < 20, "asked at step {step}");
+        assert_eq!(counters.stuck, 1);
+        // Without the rule the robot turns back and forth until the progress window runs out.
+        let (reason, step, _) = run(0, &flapping);
+        assert_eq!(reason, ReplanReason::Stuck);
+        assert!(step > 40, "asked at step {step}");
+        // One-frame losses every 4th step while the robot moves on: 3 forward steps apart,
+        // never the same spot; it reaches the end of the path.
+        let moving = |step: usize, _: &PlanarPose| step % 4 == 3;
+        let (reason, _, counters) = run(3, &moving);
+        assert_eq!(reason, ReplanReason::PathDone);
         assert_eq!(counters.stuck, 0);
     }
 
