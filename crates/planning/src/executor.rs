@@ -607,18 +607,26 @@ mod tests {
         assert_eq!(counters.blocked_replans, 0);
     }
 
+    /// A free 4 m × 4 m grid around the origin, the default robot and a straight path along +x
+    /// from x = 0.25 to 1.5 m (the robot starts at the origin facing +x).
+    fn open_floor_and_straight_path() -> (OccupancyGrid, RobotModel, [PlanarPose; 2]) {
+        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
+        (
+            OccupancyGrid::filled(geometry, CellState::Free),
+            RobotModel::default(),
+            [
+                PlanarPose::new(0.25, 0.0, 0.0),
+                PlanarPose::new(1.5, 0.0, 0.0),
+            ],
+        )
+    }
+
     /// The same path into a wall the grid does not show, given again after each blocked
     /// replan: the first two replans are blocked, the third, still at the wall, is stuck (the
     /// goal failed). Blocked replans at different spots do not add up; 0 disables it.
     #[test]
     fn blocked_again_and_again_at_one_spot_counts_as_stuck() {
-        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
-        let grid = OccupancyGrid::filled(geometry, CellState::Free);
-        let model = RobotModel::default();
-        let path = [
-            PlanarPose::new(0.25, 0.0, 0.0),
-            PlanarPose::new(1.5, 0.0, 0.0),
-        ];
+        let (grid, model, path) = open_floor_and_straight_path();
         // Replan reasons of `replans` requests, the path given again from wherever the robot
         // is; the wall at `wall_x` moves `shift` metres after each request.
         let run = |limit: usize, replans: usize, shift: f64| {
@@ -674,13 +682,7 @@ mod tests {
     /// spots a few steps apart do not add up; 0 disables the rule.
     #[test]
     fn tracking_lost_again_and_again_at_one_spot_counts_as_stuck() {
-        let geometry = GridGeometry::new(-2.0, -2.0, 0.05, 80, 80).unwrap();
-        let grid = OccupancyGrid::filled(geometry, CellState::Free);
-        let model = RobotModel::default();
-        let path = [
-            PlanarPose::new(0.25, 0.0, 0.0),
-            PlanarPose::new(1.5, 0.0, 0.0),
-        ];
+        let (grid, model, path) = open_floor_and_straight_path();
         // Tracking is lost whenever `lost(step, pose)` says so; returns the first replan
         // reason, the step it came at and the counters.
         let run = |limit: usize, lost: &dyn Fn(usize, &PlanarPose) -> bool| {
