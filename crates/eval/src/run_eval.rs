@@ -47,7 +47,7 @@
 use crate::fog::{FogConfig, coverage_fog};
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
 use crate::observable::{self, ObservabilityConfig, camera_sites};
-use crate::run_folder::{RunError, RunFolder, Summary, ViewImage, ViewRow};
+use crate::run_folder::{RunError, RunFolder, Summary, TestPoseRow, ViewImage, ViewRow};
 use crate::surface::{
     DepthView, SurfaceConfig, accuracy_sample_count, fuse_jobs, surface_complete, surface_metrics,
 };
@@ -490,6 +490,20 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         })
         .collect();
     run.write_views(&rows)?;
+    let pose_rows: Vec<TestPoseRow> = poses
+        .iter()
+        .enumerate()
+        .map(|(view, pose)| {
+            let axis = pose.rotation * nalgebra::Vector3::z();
+            TestPoseRow {
+                view,
+                x_m: pose.translation.vector.x,
+                y_m: pose.translation.vector.y,
+                yaw_deg: axis.y.atan2(axis.x).to_degrees(),
+            }
+        })
+        .collect();
+    run.write_test_poses(&pose_rows)?;
 
     if estimate.len() >= 3 {
         match ate(&truth, &estimate, AteOptions::default()) {
@@ -868,7 +882,23 @@ mod tests {
         };
         let floor_z = sim.navigation().floor_z();
         let (mut psnr_sum, mut depth_sum) = (0.0, 0.0);
-        for p in sample_test_poses(grid, 6, TEST_POSE_SEED).unwrap() {
+        let planar = sample_test_poses(grid, 6, TEST_POSE_SEED).unwrap();
+        // eval/test_poses.csv names the same poses, in order (six decimals).
+        let written = RunFolder::new(dir.path())
+            .read_test_poses()
+            .unwrap()
+            .unwrap();
+        assert_eq!(written.len(), 6);
+        for (row, p) in written.iter().zip(&planar) {
+            let turn = (row.yaw_deg.to_radians() - p.yaw).rem_euclid(std::f64::consts::TAU);
+            assert!(
+                (row.x_m - p.x).abs() < 1e-6
+                    && (row.y_m - p.y).abs() < 1e-6
+                    && turn.min(std::f64::consts::TAU - turn) < 1e-6,
+                "{row:?} against {p:?}"
+            );
+        }
+        for p in planar {
             let frame = sim.render_at(&camera_pose_from_planar(&p, floor_z, 0.88));
             let mse = frame
                 .rgb

@@ -14,6 +14,7 @@
 //! | `dataflow.yaml` | the launcher | the flow that ran |
 //! | `metrics.json`, `metrics.md` | `activemap eval` | [`MetricsReport`] |
 //! | `eval/views.csv`, `eval/view_NN_{map,truth}.png` | `activemap eval` | [`ViewRow`]s; test renders |
+//! | `eval/test_poses.csv` | `activemap eval` | [`TestPoseRow`]s: where each test view was taken |
 //! | `llm.jsonl`, `llm/bev_NNNN_step_K.png` | the evaluator, from the LLM planner's `llm` | [`LlmRecord`] per line; the BEV of each query |
 //! | `report.html` | `activemap report` | the self-contained page |
 //!
@@ -66,6 +67,8 @@ impl RunFolder {
     pub const EVAL_DIR: &'static str = "eval";
     /// Per-view metrics inside [`Self::EVAL_DIR`] ([`ViewRow`]).
     pub const VIEWS: &'static str = "views.csv";
+    /// The test views' camera poses inside [`Self::EVAL_DIR`] ([`TestPoseRow`]).
+    pub const TEST_POSES: &'static str = "test_poses.csv";
     /// Per-stage time breakdown ([`StageTime`]), when the run records it.
     pub const TIMINGS: &'static str = "timings.csv";
     /// LLM exchanges, one [`LlmRecord`] per line, when the run had any.
@@ -343,6 +346,18 @@ impl RunFolder {
     /// Writes `eval/views.csv` (the `eval` folder must exist).
     pub fn write_views(&self, rows: &[ViewRow]) -> Result<(), RunError> {
         write_rows(&self.views_path(), rows)
+    }
+
+    /// Reads `eval/test_poses.csv`; `None` when absent (runs evaluated before it existed).
+    pub fn read_test_poses(&self) -> Result<Option<Vec<TestPoseRow>>, RunError> {
+        let path = self.eval_dir().join(Self::TEST_POSES);
+        let rows = read_rows::<TestPoseRow>(&path, "test view poses")?;
+        Ok(rows.map(|rows| rows.into_iter().map(|(_, r)| r).collect()))
+    }
+
+    /// Writes `eval/test_poses.csv` (the `eval` folder must exist).
+    pub fn write_test_poses(&self, rows: &[TestPoseRow]) -> Result<(), RunError> {
+        write_rows(&self.eval_dir().join(Self::TEST_POSES), rows)
     }
 
     /// Reads `metrics.json`; `None` when `activemap eval` has not written it.
@@ -962,6 +977,28 @@ pub struct ViewRow {
 
 impl CsvRow for ViewRow {
     const HEADER: &'static [&'static str] = &["view", "psnr_db", "ssim", "lpips", "depth_mae_m"];
+}
+
+/// A row of `eval/test_poses.csv`: where test view `view` (the row of the same index in
+/// `eval/views.csv`) was taken, so that a bad view can be found in the scene: the camera's
+/// position on the floor in the world frame and its heading.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TestPoseRow {
+    /// Index of the test view.
+    pub view: usize,
+    /// Camera position, world x, metres.
+    #[serde(serialize_with = "six_decimals")]
+    pub x_m: f64,
+    /// Camera position, world y, metres.
+    #[serde(serialize_with = "six_decimals")]
+    pub y_m: f64,
+    /// Heading of the optical axis from world +x towards +y, degrees in (−180, 180].
+    #[serde(serialize_with = "six_decimals")]
+    pub yaw_deg: f64,
+}
+
+impl CsvRow for TestPoseRow {
+    const HEADER: &'static [&'static str] = &["view", "x_m", "y_m", "yaw_deg"];
 }
 
 /// A row of `fisher.csv`: what one replan of the scorer in `fisher` mode decided (SPEC §5–§6),
@@ -1732,6 +1769,19 @@ mod tests {
             "view,psnr_db,ssim,lpips,depth_mae_m\n0,inf,1.000000,,0.012345\n1,21.500000,0.750000,0.250000,\n"
         );
         assert_eq!(run.read_views().unwrap().unwrap(), views);
+        assert_eq!(
+            run.read_test_poses().unwrap(),
+            None,
+            "absent before it is written"
+        );
+        let poses = vec![TestPoseRow {
+            view: 0,
+            x_m: 1.5,
+            y_m: -2.25,
+            yaw_deg: 90.0,
+        }];
+        run.write_test_poses(&poses).unwrap();
+        assert_eq!(run.read_test_poses().unwrap().unwrap(), poses);
     }
 
     fn fisher_rows() -> Vec<FisherRow> {
