@@ -260,6 +260,12 @@ class Run:
         ``None`` before ``activemap eval``."""
         return _frame(_native.read_views(self.path))
 
+    def test_poses(self) -> "pd.DataFrame | None":
+        """``eval/test_poses.csv`` (where each test view was taken: ``view``, world ``x_m``,
+        ``y_m`` and heading ``yaw_deg``, row for row with :meth:`views`) as a DataFrame,
+        ``None`` before ``activemap eval`` or for runs evaluated before the file existed."""
+        return _frame(_native.read_test_poses(self.path))
+
     def llm_exchanges(self) -> list[dict[str, Any]]:
         """The LLM planner's exchanges (``llm.jsonl``), one dict per query (prompt, reply,
         decision, tokens, latency...); empty when the run made none."""

@@ -22,6 +22,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_fisher, m)?)?;
     m.add_function(wrap_pyfunction!(read_timings, m)?)?;
     m.add_function(wrap_pyfunction!(read_views, m)?)?;
+    m.add_function(wrap_pyfunction!(read_test_poses, m)?)?;
     m.add_function(wrap_pyfunction!(read_llm, m)?)?;
     m.add_function(wrap_pyfunction!(checkpoints, m)?)?;
     Ok(())
@@ -271,6 +272,27 @@ fn read_timings<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Option<Bound<'py
             .collect::<Vec<_>>()
             .into_pyarray(py),
     )?;
+    Ok(Some(out))
+}
+
+/// `eval/test_poses.csv` (per test view: `view`, `x_m`, `y_m`, `yaw_deg`: where it was taken, in
+/// the world frame), `None` before `activemap eval` or for runs evaluated before the file existed.
+#[pyfunction]
+fn read_test_poses<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Option<Bound<'py, PyDict>>> {
+    let run = folder(dir)?;
+    let Some(rows) = py.detach(|| run.read_test_poses()).map_err(to_py)? else {
+        return Ok(None);
+    };
+    let out = PyDict::new(py);
+    let view: Vec<u64> = rows.iter().map(|r| r.view as u64).collect();
+    out.set_item("view", view.into_pyarray(py))?;
+    for (name, value) in [
+        ("x_m", rows.iter().map(|r| r.x_m).collect::<Vec<_>>()),
+        ("y_m", rows.iter().map(|r| r.y_m).collect()),
+        ("yaw_deg", rows.iter().map(|r| r.yaw_deg).collect()),
+    ] {
+        out.set_item(name, value.into_pyarray(py))?;
+    }
     Ok(Some(out))
 }
 

@@ -107,6 +107,14 @@ def test_metrics_fisher_and_llm_files_read_through_the_rust_types(episode: activ
     assert f["actions"][0] == 7 and f["chosen"].dtype == np.int64
     llm = run.llm_exchanges()
     assert [e["step"] for e in llm] == [5, 9] and llm[1]["failure"] == "timeout"
+    assert run.test_poses() is None
+    (copy / "eval").mkdir(exist_ok=True)
+    (copy / "eval" / "test_poses.csv").write_text(
+        "view,x_m,y_m,yaw_deg\n0,1.5,-2.25,90.0\n1,0.0,3.0,-179.5\n"
+    )
+    poses = run.test_poses()
+    assert list(poses["view"]) == [0, 1] and list(poses["yaw_deg"]) == [90.0, -179.5]
+    assert poses["x_m"][0] == 1.5 and poses["y_m"][0] == -2.25
     (copy / "fisher.csv").write_text(
         "step,refine,candidates,paths,chosen,objective,eig_sum,eig_first,c_local_sum,actions,"
         "total_ms,model_reused,fallback\n"
