@@ -384,7 +384,8 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         origin: [cx, cy],
         resolution: nav.frame.cell_size,
     };
-    let poses: Vec<Isometry3<f64>> = sample_test_poses(grid, options.test_views, options.seed)?
+    let planar_poses = sample_test_poses(grid, options.test_views, options.seed)?;
+    let poses: Vec<Isometry3<f64>> = planar_poses
         .iter()
         .map(|p| camera_pose_from_planar(p, floor_z, camera_height))
         .collect();
@@ -490,17 +491,14 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         })
         .collect();
     run.write_views(&rows)?;
-    let pose_rows: Vec<TestPoseRow> = poses
+    let pose_rows: Vec<TestPoseRow> = planar_poses
         .iter()
         .enumerate()
-        .map(|(view, pose)| {
-            let axis = pose.rotation * nalgebra::Vector3::z();
-            TestPoseRow {
-                view,
-                x_m: pose.translation.vector.x,
-                y_m: pose.translation.vector.y,
-                yaw_deg: axis.y.atan2(axis.x).to_degrees(),
-            }
+        .map(|(view, p)| TestPoseRow {
+            view,
+            x_m: p.x,
+            y_m: p.y,
+            yaw_deg: p.yaw.to_degrees(),
         })
         .collect();
     run.write_test_poses(&pose_rows)?;

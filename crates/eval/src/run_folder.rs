@@ -992,7 +992,7 @@ pub struct TestPoseRow {
     /// Camera position, world y, metres.
     #[serde(serialize_with = "six_decimals")]
     pub y_m: f64,
-    /// Heading of the optical axis from world +x towards +y, degrees in (−180, 180].
+    /// Heading of the optical axis from world +x towards +y, degrees in [−180, 180).
     #[serde(serialize_with = "six_decimals")]
     pub yaw_deg: f64,
 }

@@ -95,6 +95,29 @@ fn default_lost_flaps_to_stuck() -> usize {
     3
 }
 
+/// Counts one more occurrence of a trouble (a blocked replan, a loss of tracking) at `here`:
+/// `record` holds where the last one happened and how many in a row happened within `radius`
+/// of it. True when this one makes `limit` in a row (the record is then cleared); `limit` 0
+/// never is.
+fn repeated_at_spot(
+    record: &mut Option<(Point2<f64>, usize)>,
+    here: Point2<f64>,
+    radius: f64,
+    limit: usize,
+) -> bool {
+    let in_row = match *record {
+        Some((at, n)) if (at - here).norm() < radius => n + 1,
+        _ => 1,
+    };
+    if limit > 0 && in_row >= limit {
+        *record = None;
+        true
+    } else {
+        *record = Some((here, in_row));
+        false
+    }
+}
+
 impl Default for ExecutorConfig {
     fn default() -> Self {
         let follower = FollowerConfig::default();
@@ -348,19 +371,17 @@ impl PathExecutor {
         let here = Point2::new(pose.x, pose.y);
         if self.blocked(here, tracking_lost) && matches!(self.phase, Phase::Follow { .. }) {
             self.counters.blocked_replans += 1;
-            let in_row = match self.blocked_at {
-                Some((at, n)) if (at - here).norm() < self.robot.forward_step_m => n + 1,
-                _ => 1,
-            };
-            let limit = self.config.blocked_replans_to_stuck;
-            if limit > 0 && in_row >= limit {
-                self.blocked_at = None;
+            self.phase = if repeated_at_spot(
+                &mut self.blocked_at,
+                here,
+                self.robot.forward_step_m,
+                self.config.blocked_replans_to_stuck,
+            ) {
                 self.counters.stuck += 1;
-                self.phase = Phase::Idle(ReplanReason::Stuck);
+                Phase::Idle(ReplanReason::Stuck)
             } else {
-                self.blocked_at = Some((here, in_row));
-                self.phase = Phase::Idle(ReplanReason::Blocked);
-            }
+                Phase::Idle(ReplanReason::Blocked)
+            };
         }
         let threshold = self.config.follower.turn_threshold_rad;
         if tracking_lost {
@@ -371,23 +392,18 @@ impl PathExecutor {
                 phase => {
                     let mut interrupted =
                         std::mem::replace(phase, Phase::Idle(ReplanReason::TrackingLost));
-                    if matches!(interrupted, Phase::Follow { .. }) {
-                        let in_row = match self.lost_at {
-                            Some((at, n)) if (at - here).norm() < self.robot.forward_step_m => {
-                                n + 1
-                            }
-                            _ => 1,
-                        };
-                        let limit = self.config.lost_flaps_to_stuck;
-                        if limit > 0 && in_row >= limit {
-                            // The path keeps leading into a view the tracker rejects: the
-                            // goal failed (asked once tracking is back).
-                            self.lost_at = None;
-                            self.counters.stuck += 1;
-                            interrupted = Phase::Idle(ReplanReason::Stuck);
-                        } else {
-                            self.lost_at = Some((here, in_row));
-                        }
+                    if matches!(interrupted, Phase::Follow { .. })
+                        && repeated_at_spot(
+                            &mut self.lost_at,
+                            here,
+                            self.robot.forward_step_m,
+                            self.config.lost_flaps_to_stuck,
+                        )
+                    {
+                        // The path keeps leading into a view the tracker rejects: the goal
+                        // failed (asked once tracking is back).
+                        self.counters.stuck += 1;
+                        interrupted = Phase::Idle(ReplanReason::Stuck);
                     }
                     self.phase = Phase::Lost {
                         interrupted: Box::new(interrupted),

@@ -288,9 +288,9 @@ pub fn median_depth<T: Real>(render: &Render<T>) -> Vec<T> {
                     let mut median = T::of(f64::NAN);
                     for &id in list {
                         let s = &ctx.splats[id as usize];
-                        let Some(_) = clip_box(s, &[px, px + 1, py, py + 1]) else {
+                        if clip_box(s, &[px, px + 1, py, py + 1]).is_none() {
                             continue;
-                        };
+                        }
                         let dy = s.mean[1] - T::of(py as f64);
                         let dx = s.mean[0] - T::of(px as f64);
                         let row = SigmaRow::new(s, dy);
