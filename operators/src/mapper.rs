@@ -94,6 +94,14 @@ pub struct MapperTuning {
     /// Largest stretch of an oriented Gaussian along the viewing direction (1 = round discs).
     #[serde(default)]
     pub max_grazing_stretch: Option<f64>,
+    /// How far (in stretched scales) a disc's stretched axis must find its plane in the depth
+    /// image before it is stretched (0 = off).
+    #[serde(default)]
+    pub stretch_support_sigmas: Option<f64>,
+    /// Largest ratio of a Gaussian's largest scale to its middle one during optimisation
+    /// (0 = no limit).
+    #[serde(default)]
+    pub max_in_plane_ratio: Option<f64>,
     /// Band behind the newest keyframe's readings whose centres are moved onto them, metres.
     #[serde(default)]
     pub snap_behind_m: Option<f64>,
@@ -137,6 +145,11 @@ impl MapperTuning {
             self.max_grazing_stretch,
             &mut mapper.insert.max_grazing_stretch,
         );
+        set(
+            self.stretch_support_sigmas,
+            &mut mapper.insert.stretch_support_sigmas,
+        );
+        set(self.max_in_plane_ratio, &mut mapper.max_in_plane_ratio);
         set(self.snap_behind_m, &mut mapper.snap_behind_m);
         set(self.snap_in_front, &mut mapper.snap_in_front);
         set(self.carve_margin_m, &mut mapper.carve_margin_m);
@@ -412,15 +425,28 @@ pub(crate) mod tests {
     fn disc_insertion_keys_reach_the_mapper_and_bad_values_are_refused() {
         let parse = |json: serde_json::Value| -> Config { serde_json::from_value(json).unwrap() };
         let config = parse(serde_json::json!({
-            "tuning": { "normal_thickness": 0.2, "max_grazing_stretch": 2.0 }
+            "tuning": {
+                "normal_thickness": 0.2,
+                "max_grazing_stretch": 2.0,
+                "max_in_plane_ratio": 1.5,
+                "stretch_support_sigmas": 2.5
+            }
         }));
         let mapping = config.mapping_config().unwrap();
         assert_eq!(mapping.mapper.insert.normal_thickness, 0.2);
         assert_eq!(mapping.mapper.insert.max_grazing_stretch, 2.0);
+        assert_eq!(mapping.mapper.max_in_plane_ratio, 1.5);
+        assert_eq!(mapping.mapper.insert.stretch_support_sigmas, 2.5);
         for (key, value, field) in [
             ("normal_thickness", 1.5, "insert.normal_thickness"),
             ("normal_thickness", -0.1, "insert.normal_thickness"),
             ("max_grazing_stretch", 0.5, "insert.max_grazing_stretch"),
+            ("max_in_plane_ratio", 0.5, "max_in_plane_ratio"),
+            (
+                "stretch_support_sigmas",
+                -1.0,
+                "insert.stretch_support_sigmas",
+            ),
         ] {
             let config = parse(serde_json::json!({ "tuning": { key: value } }));
             let error = config.mapping_config().unwrap_err().to_string();
