@@ -165,6 +165,18 @@ impl Frame {
         self.intrinsics.height as usize
     }
 
+    /// The pixel (rounded) that camera-frame point `p` falls on, when it lies in front of the
+    /// camera and at least `border` pixels inside the image.
+    pub fn pixel_of(&self, p: &nalgebra::Point3<f64>, border: usize) -> Option<(usize, usize)> {
+        let uv = self.intrinsics.project(p)?;
+        let (u, v) = (uv.x.round(), uv.y.round());
+        let (b, w, h) = (border as f64, self.width() as f64, self.height() as f64);
+        if u < b || v < b || u + b >= w || v + b >= h {
+            return None;
+        }
+        Some((u as usize, v as usize))
+    }
+
     /// Whether the frame can be tracked; `Err(reason)` means it must be skipped.
     pub fn usability(&self) -> Result<(), SkipReason> {
         let n = self.depth.len().max(1) as f64;

@@ -982,13 +982,8 @@ fn pixel_of(
     border: usize,
 ) -> Option<(nalgebra::Point3<f64>, usize, usize)> {
     let p = camera_from_world * nalgebra::Point3::from(mean.map(f64::from));
-    let uv = frame.intrinsics.project(&p)?;
-    let (u, v) = (uv.x.round(), uv.y.round());
-    let (b, w, h) = (border as f64, frame.width() as f64, frame.height() as f64);
-    if u < b || v < b || u + b >= w || v + b >= h {
-        return None;
-    }
-    Some((p, u as usize, v as usize))
+    let (u, v) = frame.pixel_of(&p, border)?;
+    Some((p, u, v))
 }
 
 /// Largest per-axis scale of Gaussian `i`, metres.
@@ -1053,12 +1048,8 @@ mod tests {
         c
     }
 
-    /// `max_in_plane_ratio` lowers the largest scale of each active Gaussian to at most that
-    /// ratio times its middle one, whichever axis is the largest, and leaves the other axes,
-    /// the inactive Gaussians and (at 0) every Gaussian as they were.
-    #[test]
-    fn the_in_plane_ratio_limit_shortens_the_longest_axis_of_active_gaussians_only() {
-        let scales = [[0.10, 0.02, 0.002], [0.001, 0.03, 0.01], [0.04, 0.005, 0.4]];
+    /// Grey, half-opaque, unrotated Gaussians at x = 0, 1, 2, … (z = 1), with the given scales.
+    fn gaussians_in_a_row(scales: &[[f64; 3]]) -> Gaussians<f32> {
         let mut added = Gaussians::new();
         for (i, s) in scales.iter().enumerate() {
             added.push(
@@ -1069,6 +1060,16 @@ mod tests {
                 *s,
             );
         }
+        added
+    }
+
+    /// `max_in_plane_ratio` lowers the largest scale of each active Gaussian to at most that
+    /// ratio times its middle one, whichever axis is the largest, and leaves the other axes,
+    /// the inactive Gaussians and (at 0) every Gaussian as they were.
+    #[test]
+    fn the_in_plane_ratio_limit_shortens_the_longest_axis_of_active_gaussians_only() {
+        let scales = [[0.10, 0.02, 0.002], [0.001, 0.03, 0.01], [0.04, 0.005, 0.4]];
+        let added = gaussians_in_a_row(&scales);
         let active = [true, true, false];
         let limited = |ratio: f64| {
             let mut mapper = Mapper::new(MapperConfig {
@@ -1117,16 +1118,7 @@ mod tests {
         })
         .unwrap();
         let scales = [[0.05, 0.02, 0.08], [0.01, 0.03, 0.02], [0.04, 0.04, 0.004]];
-        let mut added = Gaussians::new();
-        for (i, s) in scales.iter().enumerate() {
-            added.push(
-                [i as f64, 0.0, 1.0],
-                [0.5; 3],
-                [1.0, 0.0, 0.0, 0.0],
-                0.5,
-                *s,
-            );
-        }
+        let added = gaussians_in_a_row(&scales);
         mapper.append(&added, &[0, 0, 0]);
         let active = [true, true, false];
         let value = |log_scales: &[[f64; 3]]| {
