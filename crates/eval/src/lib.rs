@@ -37,6 +37,7 @@ pub mod completeness;
 pub mod corrected;
 pub mod coverage;
 pub mod depth;
+pub mod depth_breakdown;
 pub mod error;
 pub mod fog;
 pub mod html;
@@ -66,6 +67,7 @@ pub use completeness::{
 pub use corrected::CorrectedTrajectory;
 pub use coverage::coverage_2d;
 pub use depth::depth_mae;
+pub use depth_breakdown::{DepthErrorClass, DepthErrorShare, DepthErrorTally};
 pub use error::EvalError;
 pub use image::ImageView;
 pub use lpips::LpipsAlex;

@@ -6,6 +6,7 @@
 //! its [`RunWarning`]s: `"valid": false` in the JSON, INVALID and struck figures in Markdown.
 
 use crate::completeness::SurfaceCompleteness;
+use crate::depth_breakdown::{DepthErrorClass, DepthErrorShare};
 use crate::validity::RunWarning;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::collections::BTreeMap;
@@ -22,6 +23,12 @@ pub struct MetricsReport {
     pub lpips: Option<f64>,
     /// Mean depth MAE over the test views, metres.
     pub depth_mae_m: Option<f64>,
+    /// Where the depth error comes from (`crate::depth_breakdown`): per class of pixel (unmapped,
+    /// translucent, in front of the truth, behind it, on the surface), its share of the test
+    /// views' valid pixels and of their summed error; empty when not computed (absent in older
+    /// files).
+    #[serde(default)]
+    pub depth_error_breakdown: Vec<DepthErrorShare>,
     /// ATE RMSE after Umeyama SE(3) alignment, metres.
     pub ate_rmse_m: Option<f64>,
     /// Surface completeness at 5 cm over the observable ground-truth samples (SPEC §8, Active
@@ -84,6 +91,16 @@ impl MetricsReport {
     /// Records that `metric` could not be computed and why; its value stays `None`.
     pub fn mark_missing(&mut self, metric: &str, reason: impl Into<String>) {
         self.missing.insert(metric.to_string(), reason.into());
+    }
+
+    /// What one class of pixel adds to the pooled mean depth error, metres: its share of the
+    /// pixels times its mean error (`crate::depth_breakdown`); `None` without a breakdown.
+    pub fn depth_error_contribution_m(&self, class: DepthErrorClass) -> Option<f64> {
+        let row = self
+            .depth_error_breakdown
+            .iter()
+            .find(|row| row.class == class)?;
+        Some(row.pixel_share * row.mean_error_m.unwrap_or(0.0))
     }
 
     /// Whether the run is valid: no [`MetricsReport::warnings`].
@@ -168,6 +185,30 @@ impl MetricsReport {
                 cell(self.coverage_fog, 2, 100.0),
             )
             + &self.surface_markdown(&cell)
+            + &self.depth_breakdown_markdown(&cell)
+    }
+
+    /// The depth error breakdown as a Markdown table under a heading (empty without one).
+    fn depth_breakdown_markdown(&self, cell: &dyn Fn(Option<f64>, usize, f64) -> String) -> String {
+        if self.depth_error_breakdown.is_empty() {
+            return String::new();
+        }
+        let mut text = String::from(
+            "\nWhere the depth error comes from (the test views' valid pixels pooled, classed by \
+             the map's rendered opacity and its opacity-normalised depth against the truth):\n\n\
+             | pixels | share of pixels (%) | share of the error (%) | mean error (cm) |\n\
+             |---|---|---|---|\n",
+        );
+        for row in &self.depth_error_breakdown {
+            text += &format!(
+                "| {} | {} | {} | {} |\n",
+                row.class.label(),
+                cell(Some(row.pixel_share), 1, 100.0),
+                cell(Some(row.error_share), 1, 100.0),
+                cell(row.mean_error_m, 1, 100.0)
+            );
+        }
+        text
     }
 
     /// The completeness breakdown as a Markdown table under a heading (empty without one).
@@ -290,12 +331,35 @@ mod tests {
                     observable: None,
                 },
             ],
+            depth_error_breakdown: vec![crate::DepthErrorShare {
+                class: crate::DepthErrorClass::InFront,
+                pixel_share: 0.144,
+                error_share: 0.494,
+                mean_error_m: Some(0.27),
+            }],
             ..paper
         };
         let md = broken_down.to_markdown();
         assert!(
             md.contains("| walls ≥ 2 m | 25.0 | 50.0 | 12.5 |\n| ceiling | 0.0 | — | — |\n"),
             "{md}"
+        );
+        assert!(
+            md.contains("| in front of the truth (> 5 %) | 14.4 | 49.4 | 27.0 |\n"),
+            "{md}"
+        );
+        assert!(
+            !MetricsReport::default()
+                .to_markdown()
+                .contains("depth error comes from")
+        );
+        let in_front = broken_down
+            .depth_error_contribution_m(crate::DepthErrorClass::InFront)
+            .unwrap();
+        assert!((in_front - 0.144 * 0.27).abs() < 1e-12, "{in_front}");
+        assert_eq!(
+            broken_down.depth_error_contribution_m(crate::DepthErrorClass::Behind),
+            None
         );
         assert_eq!(
             MetricsReport::from_json(&broken_down.to_json()).unwrap(),

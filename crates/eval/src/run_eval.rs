@@ -44,6 +44,7 @@
 //! of the first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`,
 //! `eval/view_NN_truth.png`).
 
+use crate::depth_breakdown::DepthErrorTally;
 use crate::fog::{FogConfig, coverage_fog};
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
 use crate::observable::{self, ObservabilityConfig, camera_sites};
@@ -437,18 +438,26 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
                 save_png(&run.view_image(i, ViewImage::Map), &out.rgb, w, h)?;
                 save_png(&run.view_image(i, ViewImage::Truth), &truth_rgb, w, h)?;
             }
+            let mut depth_errors = DepthErrorTally::default();
+            depth_errors.add_view(
+                ImageView::depth(&out.depth, w, h)?,
+                ImageView::depth(&out.opacity, w, h)?,
+                ImageView::depth(&frame.depth, w, h)?,
+            )?;
             let empty = |depth: &[f32]| {
                 validity::valid_depth_fraction(depth) < validity::VIEW_MIN_VALID_DEPTH
             };
-            let flags = (view, empty(&frame.depth), empty(&out.depth));
+            let flags = (view, depth_errors, empty(&frame.depth), empty(&out.depth));
             Ok((None, Some(flags)))
         },
     )?;
-    let views: Vec<(ViewMetrics, bool, bool)> = views.into_iter().flatten().collect();
+    let views: Vec<(ViewMetrics, DepthErrorTally, bool, bool)> =
+        views.into_iter().flatten().collect();
     let views_seconds = started.elapsed().as_secs_f64();
     let mut means = ViewMeans::default();
+    let mut depth_errors = DepthErrorTally::default();
     let mut infinite_psnr = 0;
-    for (v, truth_empty, render_empty) in &views {
+    for (v, view_depth_errors, truth_empty, render_empty) in &views {
         report.empty_render_views += usize::from(*render_empty);
         if *truth_empty {
             report.empty_truth_views += 1;
@@ -456,7 +465,9 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         }
         infinite_psnr += usize::from(v.psnr_db == f64::INFINITY);
         means.push(v);
+        depth_errors.merge(view_depth_errors);
     }
+    report.depth_error_breakdown = depth_errors.shares();
     let lpips_reason = report.missing.get("lpips").cloned();
     means.fill(&mut report);
     report.test_views = views.len();
@@ -482,7 +493,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let rows: Vec<ViewRow> = views
         .iter()
         .enumerate()
-        .map(|(view, (v, _, _))| ViewRow {
+        .map(|(view, (v, _, _, _))| ViewRow {
             view,
             psnr_db: v.psnr_db,
             ssim: v.ssim,
@@ -840,6 +851,7 @@ fn save_png(path: &Path, rgb: &[f32], width: usize, height: usize) -> Result<(),
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::depth_breakdown::DepthErrorClass;
     use crate::testing::{MapKind, simulator, small_house, write_run};
 
     fn options() -> EvalOptions {
@@ -922,6 +934,14 @@ mod tests {
             (report.depth_mae_m.unwrap() - depth_sum / 6.0).abs() < 1e-4,
             "{report:?}"
         );
+        // An empty map: every valid pixel is unmapped and carries all the error.
+        let unmapped = report.depth_error_breakdown[0];
+        assert_eq!(unmapped.class, DepthErrorClass::Unmapped);
+        assert!(
+            (unmapped.pixel_share, unmapped.error_share) == (1.0, 1.0),
+            "{:?}",
+            report.depth_error_breakdown
+        );
         assert_eq!(report.completeness, Some(0.0));
         assert_eq!(report.coverage_2d, Some(0.42));
         assert!(
@@ -968,6 +988,20 @@ mod tests {
         assert!(good.completeness.unwrap() > 0.3, "{good:?}");
         // Depth is Σ z α T (un-normalised) over 3 cm Gaussians: a few cm off, not more.
         assert!(good.depth_mae_m.unwrap() < 0.15, "{good:?}");
+        // Most of the good map's pixels are on the surface; the wrong frame's are not.
+        let on_surface = |r: &MetricsReport| {
+            r.depth_error_breakdown
+                .iter()
+                .find(|row| row.class == DepthErrorClass::OnSurface)
+                .unwrap()
+                .pixel_share
+        };
+        assert!(on_surface(&good) > 0.5, "{:?}", good.depth_error_breakdown);
+        assert!(
+            on_surface(&bad) < 0.5 * on_surface(&good),
+            "{:?}",
+            bad.depth_error_breakdown
+        );
         assert!(good.psnr_db.unwrap().is_finite());
         assert!(good.is_valid(), "{:?}", good.warnings);
         assert_eq!((good.empty_truth_views, good.empty_render_views), (0, 0));
