@@ -23,6 +23,10 @@ pub struct EvalArgs {
     /// Skip LPIPS even when its weights are present.
     #[arg(long)]
     pub no_lpips: bool,
+    /// Save this many test views of largest depth MAE as PNGs (map, truth, depth error classes:
+    /// eval/worst_RR_view_NNNN_*.png).
+    #[arg(long, default_value_t = 4)]
+    pub worst_views: usize,
 }
 
 impl Default for EvalArgs {
@@ -34,6 +38,7 @@ impl Default for EvalArgs {
             height: d.height,
             hfov_deg: d.hfov_deg,
             no_lpips: false,
+            worst_views: d.worst_views,
         }
     }
 }
@@ -46,6 +51,7 @@ pub fn eval(run_dir: &Path, args: &EvalArgs) -> anyhow::Result<()> {
         width: args.width,
         height: args.height,
         hfov_deg: args.hfov_deg,
+        worst_views: args.worst_views,
         lpips: if args.no_lpips {
             LpipsSource::Off
         } else {

@@ -83,6 +83,18 @@ impl DepthErrorClass {
         }
     }
 
+    /// The colour of the class in `eval/*_depth_classes.png`: unmapped black, translucent
+    /// yellow, in front red, behind blue, on the surface grey (no ground truth: white).
+    pub fn colour(self) -> [f32; 3] {
+        match self {
+            Self::Unmapped => [0.0, 0.0, 0.0],
+            Self::Translucent => [0.95, 0.8, 0.1],
+            Self::InFront => [0.9, 0.1, 0.1],
+            Self::Behind => [0.15, 0.3, 0.95],
+            Self::OnSurface => [0.6, 0.6, 0.6],
+        }
+    }
+
     fn index(self) -> usize {
         self as usize
     }
@@ -170,6 +182,30 @@ impl DepthErrorTally {
             })
             .collect()
     }
+}
+
+/// An RGB image in [0, 1] with each pixel in its class's [`DepthErrorClass::colour`] (white where
+/// the ground truth has no reading): where a view's depth error comes from, at a glance.
+pub fn depth_class_image(
+    rendered: ImageView<'_>,
+    opacity: ImageView<'_>,
+    truth: ImageView<'_>,
+) -> Result<Vec<f32>, EvalError> {
+    // The tally checks the inputs as the breakdown does.
+    DepthErrorTally::default().add_view(rendered, opacity, truth)?;
+    Ok(rendered
+        .data
+        .iter()
+        .zip(opacity.data)
+        .zip(truth.data)
+        .flat_map(|((&r, &o), &d)| {
+            if d > 0.0 {
+                DepthErrorClass::of(r, o, d).colour()
+            } else {
+                [1.0; 3]
+            }
+        })
+        .collect())
 }
 
 /// One class's part of the depth error over the test views (`metrics.json`,
@@ -264,6 +300,26 @@ mod tests {
         }
         let sum: f64 = shares.iter().map(|r| r.error_share).sum();
         assert!((sum - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_class_image_colours_each_pixel_by_its_class() {
+        let truth = [2.0f32, 0.0, 2.0];
+        let rendered = [1.0f32, 1.0, 2.0];
+        let opacity = [1.0f32, 1.0, 1.0];
+        let image = depth_class_image(
+            ImageView::depth(&rendered, 3, 1).unwrap(),
+            ImageView::depth(&opacity, 3, 1).unwrap(),
+            ImageView::depth(&truth, 3, 1).unwrap(),
+        )
+        .unwrap();
+        let expected: Vec<f32> = [
+            DepthErrorClass::InFront.colour(),
+            [1.0; 3],
+            DepthErrorClass::OnSurface.colour(),
+        ]
+        .concat();
+        assert_eq!(image, expected);
     }
 
     #[test]

@@ -42,9 +42,10 @@
 //!
 //! Writes `metrics.json`, `metrics.md`, `eval/views.csv` (per-view metrics, every view) and PNGs
 //! of the first [`EvalOptions::saved_views`] views (`eval/view_NN_map.png`,
-//! `eval/view_NN_truth.png`).
+//! `eval/view_NN_truth.png`, `eval/view_NN_depth_classes.png`) and of the
+//! [`EvalOptions::worst_views`] with the largest depth MAE (`eval/worst_RR_view_NNNN_*.png`).
 
-use crate::depth_breakdown::DepthErrorTally;
+use crate::depth_breakdown::{DepthErrorTally, depth_class_image};
 use crate::fog::{FogConfig, coverage_fog};
 use crate::lpips::{FETCH_COMMAND, LpipsAlex};
 use crate::observable::{self, ObservabilityConfig, camera_sites};
@@ -309,6 +310,9 @@ pub struct EvalOptions {
     pub completeness_samples: usize,
     /// How many of the first test views are saved as PNGs for the report.
     pub saved_views: usize,
+    /// How many of the test views with the largest depth MAE are saved as PNGs (map, truth and
+    /// the depth error's classes, `eval/worst_RR_view_NNNN_*.png`), to see what costs.
+    pub worst_views: usize,
     /// The surface reconstruction of surface completeness ([`crate::surface`]).
     pub surface: SurfaceConfig,
     /// Where the observable ground-truth samples are cached per scene
@@ -318,7 +322,8 @@ pub struct EvalOptions {
 
 impl Default for EvalOptions {
     /// SPEC §8: 2000 views at 90° FOV; 160×160 pixels (the run's camera size; the paper renders
-    /// 800×800, set `width`/`height` for that), 200k completeness samples, 4 saved views.
+    /// 800×800, set `width`/`height` for that), 200k completeness samples, 4 saved views and the
+    /// 4 worst by depth MAE.
     fn default() -> Self {
         Self {
             test_views: TEST_VIEW_COUNT,
@@ -330,6 +335,7 @@ impl Default for EvalOptions {
             lpips: LpipsSource::Default,
             completeness_samples: COMPLETENESS_SAMPLES,
             saved_views: 4,
+            worst_views: 4,
             surface: SurfaceConfig::default(),
             cache_dir: observable::default_cache_dir(),
         }
@@ -403,6 +409,19 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     // poses of the estimated trajectory, in the world frame; the test views are only scored.
     let world_from_map = to_map.inverse();
     let track_views = fusion_track_poses(&estimate.poses);
+    let (w, h) = (k.width as usize, k.height as usize);
+    // A test view: the map's render and the simulator's ground truth at a world pose.
+    let render_test_view = |t_world_camera: &Isometry3<f64>| -> Result<TestView, RunError> {
+        let mut renderer = Renderer::new();
+        let frame = renderer.render(sim.scene(), &k, t_world_camera, sim.config().depth_range);
+        Ok(TestView {
+            map: render_map(&map, depth_model, &k, &(to_map * t_world_camera), false)?,
+            truth_rgb: frame.rgb.iter().map(|&v| v as f32 / 255.0).collect(),
+            truth_depth: frame.depth,
+            width: w,
+            height: h,
+        })
+    };
     let started = Instant::now();
     let track_render_ns = AtomicU64::new(0);
     // Each test view with whether its ground truth and its render are empty.
@@ -422,32 +441,32 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
                 return Ok((Some(view), None));
             };
             let i = job;
-            let mut renderer = Renderer::new();
-            let frame = renderer.render(sim.scene(), &k, t_world_camera, sim.config().depth_range);
-            let truth_rgb: Vec<f32> = frame.rgb.iter().map(|&v| v as f32 / 255.0).collect();
-            let out = render_map(&map, depth_model, &k, &(to_map * t_world_camera), false)?;
-            let (w, h) = (k.width as usize, k.height as usize);
+            let test = render_test_view(t_world_camera)?;
             let view = evaluate_view(
-                ImageView::rgb(&out.rgb, w, h)?,
-                ImageView::rgb(&truth_rgb, w, h)?,
-                ImageView::depth(&out.depth, w, h)?,
-                ImageView::depth(&frame.depth, w, h)?,
+                ImageView::rgb(&test.map.rgb, w, h)?,
+                ImageView::rgb(&test.truth_rgb, w, h)?,
+                ImageView::depth(&test.map.depth, w, h)?,
+                ImageView::depth(&test.truth_depth, w, h)?,
                 lpips.as_ref(),
             )?;
             if i < options.saved_views {
-                save_png(&run.view_image(i, ViewImage::Map), &out.rgb, w, h)?;
-                save_png(&run.view_image(i, ViewImage::Truth), &truth_rgb, w, h)?;
+                test.save(|image| run.view_image(i, image))?;
             }
             let mut depth_errors = DepthErrorTally::default();
             depth_errors.add_view(
-                ImageView::depth(&out.depth, w, h)?,
-                ImageView::depth(&out.opacity, w, h)?,
-                ImageView::depth(&frame.depth, w, h)?,
+                ImageView::depth(&test.map.depth, w, h)?,
+                ImageView::depth(&test.map.opacity, w, h)?,
+                ImageView::depth(&test.truth_depth, w, h)?,
             )?;
             let empty = |depth: &[f32]| {
                 validity::valid_depth_fraction(depth) < validity::VIEW_MIN_VALID_DEPTH
             };
-            let flags = (view, depth_errors, empty(&frame.depth), empty(&out.depth));
+            let flags = (
+                view,
+                depth_errors,
+                empty(&test.truth_depth),
+                empty(&test.map.depth),
+            );
             Ok((None, Some(flags)))
         },
     )?;
@@ -502,6 +521,17 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
         })
         .collect();
     run.write_views(&rows)?;
+    // The worst views by depth MAE, rendered again (cheaper than keeping every view's images).
+    let mut by_depth_error: Vec<(usize, f64)> = views
+        .iter()
+        .enumerate()
+        .filter(|(_, (_, _, truth_empty, _))| !truth_empty)
+        .filter_map(|(i, (v, _, _, _))| v.depth_mae_m.map(|e| (i, e)))
+        .collect();
+    by_depth_error.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    for (rank, &(i, _)) in by_depth_error.iter().take(options.worst_views).enumerate() {
+        render_test_view(&poses[i])?.save(|image| run.worst_view_image(rank, i, image))?;
+    }
     let pose_rows: Vec<TestPoseRow> = planar_poses
         .iter()
         .enumerate()
@@ -771,6 +801,31 @@ impl MapRender {
     }
 }
 
+/// One test view: the map's render and the ground truth, to score and to save.
+struct TestView {
+    map: MapRender,
+    truth_rgb: Vec<f32>,
+    truth_depth: Vec<f32>,
+    width: usize,
+    height: usize,
+}
+
+impl TestView {
+    /// Saves the map's render, the ground truth and the depth error's classes as PNGs at the
+    /// paths `path` gives.
+    fn save(&self, path: impl Fn(ViewImage) -> PathBuf) -> Result<(), RunError> {
+        let (w, h) = (self.width, self.height);
+        save_png(&path(ViewImage::Map), &self.map.rgb, w, h)?;
+        save_png(&path(ViewImage::Truth), &self.truth_rgb, w, h)?;
+        let classes = depth_class_image(
+            ImageView::depth(&self.map.depth, w, h)?,
+            ImageView::depth(&self.map.opacity, w, h)?,
+            ImageView::depth(&self.truth_depth, w, h)?,
+        )?;
+        save_png(&path(ViewImage::DepthClasses), &classes, w, h)
+    }
+}
+
 /// The poses of the estimated trajectory (map frame) at which the map is rendered for the surface
 /// fusion: the first, then each one that moved 0.25 m or turned 20° from the last one kept (about
 /// one per keyframe). Denser poses do not pay: 0.1 m or 10° doubled the views and moved
@@ -968,10 +1023,26 @@ mod tests {
             md.contains("**INVALID RUN**") && md.contains("`empty_map`: the final map holds 0"),
             "{md}"
         );
-        for name in ["view_00_map.png", "view_01_truth.png", "views.csv"] {
+        for name in [
+            "view_00_map.png",
+            "view_01_truth.png",
+            "view_01_depth_classes.png",
+            "views.csv",
+        ] {
             assert!(dir.path().join("eval").join(name).exists(), "{name}");
         }
         assert!(!dir.path().join("eval/view_02_map.png").exists());
+        // The 4 views of largest depth MAE, 3 images each, named by rank and view.
+        let mut worst: Vec<String> = std::fs::read_dir(dir.path().join("eval"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|name| name.starts_with("worst_"))
+            .collect();
+        worst.sort();
+        assert_eq!(worst.len(), 12, "{worst:?}");
+        assert!(
+            worst[0].starts_with("worst_00_view_0") && worst[0].ends_with("_depth_classes.png")
+        );
     }
 
     #[test]

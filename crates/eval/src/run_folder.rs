@@ -166,13 +166,19 @@ impl RunFolder {
         self.eval_dir().join(Self::VIEWS)
     }
 
-    /// `eval/view_NN_map.png` or `eval/view_NN_truth.png` of test view `index`.
+    /// `eval/view_NN_{map,truth,depth_classes}.png` of test view `index`.
     pub fn view_image(&self, index: usize, image: ViewImage) -> PathBuf {
-        let which = match image {
-            ViewImage::Map => "map",
-            ViewImage::Truth => "truth",
-        };
-        self.eval_dir().join(format!("view_{index:02}_{which}.png"))
+        self.eval_dir()
+            .join(format!("view_{index:02}_{}.png", image.suffix()))
+    }
+
+    /// `eval/worst_RR_view_NNNN_{map,truth,depth_classes}.png`: the test view `index` (its row
+    /// in `eval/views.csv` and `eval/test_poses.csv`), `rank`-th worst by depth MAE (0 = worst).
+    pub fn worst_view_image(&self, rank: usize, index: usize, image: ViewImage) -> PathBuf {
+        self.eval_dir().join(format!(
+            "worst_{rank:02}_view_{index:04}_{}.png",
+            image.suffix()
+        ))
     }
 
     /// Reads `summary.json`; a file that is not a JSON object of summary fields is
@@ -482,6 +488,20 @@ pub enum ViewImage {
     Map,
     /// The simulator's ground truth.
     Truth,
+    /// Each pixel coloured by where its depth error comes from
+    /// ([`crate::DepthErrorClass::colour`]).
+    DepthClasses,
+}
+
+impl ViewImage {
+    /// The end of the image's file name.
+    fn suffix(self) -> &'static str {
+        match self {
+            ViewImage::Map => "map",
+            ViewImage::Truth => "truth",
+            ViewImage::DepthClasses => "depth_classes",
+        }
+    }
 }
 
 /// `summary.json`: what the `evaluator` node measured, and the scene so `activemap eval` can
@@ -1972,6 +1992,10 @@ mod tests {
         assert_eq!(
             run.view_image(3, ViewImage::Truth),
             dir.path().join("eval/view_03_truth.png")
+        );
+        assert_eq!(
+            run.worst_view_image(1, 417, ViewImage::DepthClasses),
+            dir.path().join("eval/worst_01_view_0417_depth_classes.png")
         );
     }
 }
