@@ -228,28 +228,23 @@ mod tests {
 
     #[test]
     fn each_pixel_lands_in_the_class_its_opacity_and_depth_say() {
-        assert_eq!(
-            DepthErrorClass::of(0.5, 0.4, 2.0),
-            DepthErrorClass::Unmapped
-        );
-        assert_eq!(
-            DepthErrorClass::of(1.8, 0.9, 2.0),
-            DepthErrorClass::Translucent
-        );
-        // Normalised depth 1.9 / 0.95 = 2.0: on the surface although D̂ is 5 % short.
-        assert_eq!(
-            DepthErrorClass::of(1.9, 0.95, 2.0),
-            DepthErrorClass::OnSurface
-        );
-        assert_eq!(
-            DepthErrorClass::of(1.85, 1.0, 2.0),
-            DepthErrorClass::InFront
-        );
-        assert_eq!(DepthErrorClass::of(2.15, 1.0, 2.0), DepthErrorClass::Behind);
-        assert_eq!(
-            DepthErrorClass::of(2.09, 1.0, 2.0),
-            DepthErrorClass::OnSurface
-        );
+        // (rendered depth, opacity, true depth, class)
+        let cases = [
+            (0.5, 0.4, 2.0, DepthErrorClass::Unmapped),
+            (1.8, 0.9, 2.0, DepthErrorClass::Translucent),
+            // Normalised depth 1.9 / 0.95 = 2.0: on the surface although D̂ is 5 % short.
+            (1.9, 0.95, 2.0, DepthErrorClass::OnSurface),
+            (1.85, 1.0, 2.0, DepthErrorClass::InFront),
+            (2.15, 1.0, 2.0, DepthErrorClass::Behind),
+            (2.09, 1.0, 2.0, DepthErrorClass::OnSurface),
+        ];
+        for (rendered, opacity, truth, class) in cases {
+            assert_eq!(
+                DepthErrorClass::of(rendered, opacity, truth),
+                class,
+                "{rendered} {opacity} {truth}"
+            );
+        }
     }
 
     #[test]
