@@ -3,19 +3,11 @@
 //! shows nothing there) counts with its full error.
 
 use crate::error::EvalError;
-use crate::image::{ImageView, check_same_shape};
+use crate::image::{ImageView, check_depth_images};
 
 /// Mean |rendered − truth| over pixels with truth > 0, metres. Both images must be 1-channel.
 pub fn depth_mae(rendered: ImageView<'_>, truth: ImageView<'_>) -> Result<f64, EvalError> {
-    check_same_shape("depth MAE", &rendered, &truth)?;
-    if rendered.channels != 1 {
-        return Err(EvalError::InvalidParameter {
-            metric: "depth MAE",
-            detail: format!("depth images have 1 channel, got {}", rendered.channels),
-        });
-    }
-    rendered.check_finite("depth MAE", "rendered")?;
-    truth.check_finite("depth MAE", "truth")?;
+    check_depth_images("depth MAE", &[("rendered", &rendered)], &truth)?;
     let (sum, count) = rendered
         .data
         .iter()

@@ -17,7 +17,7 @@
 //! `unmapped` means unexplored space; `behind` a map that sits behind its surfaces.
 
 use crate::error::EvalError;
-use crate::image::{ImageView, check_same_shape};
+use crate::image::{ImageView, check_depth_images};
 use serde::{Deserialize, Serialize};
 
 /// Rendered opacity below which a pixel counts as unmapped.
@@ -117,22 +117,11 @@ impl DepthErrorTally {
         opacity: ImageView<'_>,
         truth: ImageView<'_>,
     ) -> Result<(), EvalError> {
-        check_same_shape("depth error breakdown", &rendered, &truth)?;
-        check_same_shape("depth error breakdown", &opacity, &truth)?;
-        if truth.channels != 1 {
-            return Err(EvalError::InvalidParameter {
-                metric: "depth error breakdown",
-                detail: format!("depth images have 1 channel, got {}", truth.channels),
-            });
-        }
-        rendered.check_finite("depth error breakdown", "rendered")?;
-        opacity.check_finite("depth error breakdown", "opacity")?;
-        truth.check_finite("depth error breakdown", "truth")?;
-        for ((&r, &o), &d) in rendered.data.iter().zip(opacity.data).zip(truth.data) {
-            if d > 0.0 {
-                let class = DepthErrorClass::of(r, o, d).index();
-                self.pixels[class] += 1;
-                self.error_sum_m[class] += (f64::from(r) - f64::from(d)).abs();
+        let classes = classified_pixels(rendered, opacity, truth)?;
+        for ((class, &r), &d) in classes.zip(rendered.data).zip(truth.data) {
+            if let Some(class) = class {
+                self.pixels[class.index()] += 1;
+                self.error_sum_m[class.index()] += (f64::from(r) - f64::from(d)).abs();
             }
         }
         Ok(())
@@ -191,21 +180,29 @@ pub fn depth_class_image(
     opacity: ImageView<'_>,
     truth: ImageView<'_>,
 ) -> Result<Vec<f32>, EvalError> {
-    // The tally checks the inputs as the breakdown does.
-    DepthErrorTally::default().add_view(rendered, opacity, truth)?;
+    Ok(classified_pixels(rendered, opacity, truth)?
+        .flat_map(|class| class.map_or([1.0; 3], DepthErrorClass::colour))
+        .collect())
+}
+
+/// Each pixel's [`DepthErrorClass`], row-major (`None` where the truth has no reading), after
+/// checking that the three images are finite 1-channel images of one size.
+fn classified_pixels<'a>(
+    rendered: ImageView<'a>,
+    opacity: ImageView<'a>,
+    truth: ImageView<'a>,
+) -> Result<impl Iterator<Item = Option<DepthErrorClass>> + 'a, EvalError> {
+    check_depth_images(
+        "depth error breakdown",
+        &[("rendered", &rendered), ("opacity", &opacity)],
+        &truth,
+    )?;
     Ok(rendered
         .data
         .iter()
         .zip(opacity.data)
         .zip(truth.data)
-        .flat_map(|((&r, &o), &d)| {
-            if d > 0.0 {
-                DepthErrorClass::of(r, o, d).colour()
-            } else {
-                [1.0; 3]
-            }
-        })
-        .collect())
+        .map(|((&r, &o), &d)| (d > 0.0).then(|| DepthErrorClass::of(r, o, d))))
 }
 
 /// One class's part of the depth error over the test views (`metrics.json`,

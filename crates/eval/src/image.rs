@@ -117,16 +117,55 @@ pub(crate) fn check_same_shape(
     a: &ImageView<'_>,
     b: &ImageView<'_>,
 ) -> Result<(), EvalError> {
-    if (a.width, a.height, a.channels) != (b.width, b.height, b.channels) {
+    check_shape_against_truth(metric, "rendered", a, b)
+}
+
+/// Fails unless `image` (called `name` in the error) has the width, height and channel count of
+/// `truth`.
+fn check_shape_against_truth(
+    metric: &'static str,
+    name: &str,
+    image: &ImageView<'_>,
+    truth: &ImageView<'_>,
+) -> Result<(), EvalError> {
+    let shape = |v: &ImageView<'_>| (v.width, v.height, v.channels);
+    if shape(image) != shape(truth) {
         return Err(EvalError::SizeMismatch {
             metric,
             detail: format!(
-                "rendered is {}×{}×{}, truth is {}×{}×{}",
-                a.width, a.height, a.channels, b.width, b.height, b.channels
+                "{name} is {}×{}×{}, truth is {}×{}×{}",
+                image.width,
+                image.height,
+                image.channels,
+                truth.width,
+                truth.height,
+                truth.channels
             ),
         });
     }
     Ok(())
+}
+
+/// Fails unless `truth` and each named image are 1-channel images of one size (depth, opacity)
+/// with finite samples; the errors name the image and, for a non-finite sample, its pixel.
+pub(crate) fn check_depth_images(
+    metric: &'static str,
+    named: &[(&'static str, &ImageView<'_>)],
+    truth: &ImageView<'_>,
+) -> Result<(), EvalError> {
+    for (name, image) in named {
+        check_shape_against_truth(metric, name, image, truth)?;
+    }
+    if truth.channels != 1 {
+        return Err(EvalError::InvalidParameter {
+            metric,
+            detail: format!("depth images have 1 channel, got {}", truth.channels),
+        });
+    }
+    for (name, image) in named {
+        image.check_finite(metric, name)?;
+    }
+    truth.check_finite(metric, "truth")
 }
 
 #[cfg(test)]

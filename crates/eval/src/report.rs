@@ -96,11 +96,15 @@ impl MetricsReport {
     /// What one class of pixel adds to the pooled mean depth error, metres: its share of the
     /// pixels times its mean error (`crate::depth_breakdown`); `None` without a breakdown.
     pub fn depth_error_contribution_m(&self, class: DepthErrorClass) -> Option<f64> {
-        let row = self
-            .depth_error_breakdown
-            .iter()
-            .find(|row| row.class == class)?;
+        let row = self.depth_error_share(class)?;
         Some(row.pixel_share * row.mean_error_m.unwrap_or(0.0))
+    }
+
+    /// The row of the depth error breakdown for `class`; `None` without a breakdown.
+    pub fn depth_error_share(&self, class: DepthErrorClass) -> Option<&DepthErrorShare> {
+        self.depth_error_breakdown
+            .iter()
+            .find(|row| row.class == class)
     }
 
     /// Whether the run is valid: no [`MetricsReport::warnings`].

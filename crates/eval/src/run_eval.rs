@@ -424,7 +424,7 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     };
     let started = Instant::now();
     let track_render_ns = AtomicU64::new(0);
-    // Each test view with whether its ground truth and its render are empty.
+    // Each test view scored (a [`ScoredView`]); the trajectory views go to the fusion.
     let (field, views) = fuse_jobs(
         options.surface,
         poses.len() + track_views.len(),
@@ -461,30 +461,29 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
             let empty = |depth: &[f32]| {
                 validity::valid_depth_fraction(depth) < validity::VIEW_MIN_VALID_DEPTH
             };
-            let flags = (
-                view,
+            let scored = ScoredView {
+                metrics: view,
                 depth_errors,
-                empty(&test.truth_depth),
-                empty(&test.map.depth),
-            );
-            Ok((None, Some(flags)))
+                truth_empty: empty(&test.truth_depth),
+                render_empty: empty(&test.map.depth),
+            };
+            Ok((None, Some(scored)))
         },
     )?;
-    let views: Vec<(ViewMetrics, DepthErrorTally, bool, bool)> =
-        views.into_iter().flatten().collect();
+    let views: Vec<ScoredView> = views.into_iter().flatten().collect();
     let views_seconds = started.elapsed().as_secs_f64();
     let mut means = ViewMeans::default();
     let mut depth_errors = DepthErrorTally::default();
     let mut infinite_psnr = 0;
-    for (v, view_depth_errors, truth_empty, render_empty) in &views {
-        report.empty_render_views += usize::from(*render_empty);
-        if *truth_empty {
+    for view in &views {
+        report.empty_render_views += usize::from(view.render_empty);
+        if view.truth_empty {
             report.empty_truth_views += 1;
             continue;
         }
-        infinite_psnr += usize::from(v.psnr_db == f64::INFINITY);
-        means.push(v);
-        depth_errors.merge(view_depth_errors);
+        infinite_psnr += usize::from(view.metrics.psnr_db == f64::INFINITY);
+        means.push(&view.metrics);
+        depth_errors.merge(&view.depth_errors);
     }
     report.depth_error_breakdown = depth_errors.shares();
     let lpips_reason = report.missing.get("lpips").cloned();
@@ -512,12 +511,12 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let rows: Vec<ViewRow> = views
         .iter()
         .enumerate()
-        .map(|(view, (v, _, _, _))| ViewRow {
+        .map(|(view, scored)| ViewRow {
             view,
-            psnr_db: v.psnr_db,
-            ssim: v.ssim,
-            lpips: v.lpips,
-            depth_mae_m: v.depth_mae_m,
+            psnr_db: scored.metrics.psnr_db,
+            ssim: scored.metrics.ssim,
+            lpips: scored.metrics.lpips,
+            depth_mae_m: scored.metrics.depth_mae_m,
         })
         .collect();
     run.write_views(&rows)?;
@@ -525,8 +524,8 @@ pub fn evaluate_run(dir: &Path, options: &EvalOptions) -> Result<MetricsReport, 
     let mut by_depth_error: Vec<(usize, f64)> = views
         .iter()
         .enumerate()
-        .filter(|(_, (_, _, truth_empty, _))| !truth_empty)
-        .filter_map(|(i, (v, _, _, _))| v.depth_mae_m.map(|e| (i, e)))
+        .filter(|(_, scored)| !scored.truth_empty)
+        .filter_map(|(i, scored)| scored.metrics.depth_mae_m.map(|e| (i, e)))
         .collect();
     by_depth_error.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     for (rank, &(i, _)) in by_depth_error.iter().take(options.worst_views).enumerate() {
@@ -801,6 +800,15 @@ impl MapRender {
     }
 }
 
+/// What scoring one test view gives: its image metrics, its pixels' depth error classes, and
+/// whether its ground truth and its render are empty.
+struct ScoredView {
+    metrics: ViewMetrics,
+    depth_errors: DepthErrorTally,
+    truth_empty: bool,
+    render_empty: bool,
+}
+
 /// One test view: the map's render and the ground truth, to score and to save.
 struct TestView {
     map: MapRender,
@@ -1061,9 +1069,7 @@ mod tests {
         assert!(good.depth_mae_m.unwrap() < 0.15, "{good:?}");
         // Most of the good map's pixels are on the surface; the wrong frame's are not.
         let on_surface = |r: &MetricsReport| {
-            r.depth_error_breakdown
-                .iter()
-                .find(|row| row.class == DepthErrorClass::OnSurface)
+            r.depth_error_share(DepthErrorClass::OnSurface)
                 .unwrap()
                 .pixel_share
         };
