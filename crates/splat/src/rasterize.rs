@@ -213,8 +213,11 @@ fn raster_tile_impl<T: Real>(
                 let valid = (bx1 + 1 - x).min(FORWARD_LANES);
                 let dx0 = s.mean[0] - T::of(x as f64);
                 let done_l = lanes_n_mut::<_, FORWARD_LANES>(&mut done, base);
-                if done_l.iter().fold(1, |all, &d| all & d) == 1 {
-                    // Every pixel of the chunk has stopped.
+                // Lanes past the box (`l >= valid`) never composite this splat, whether their
+                // pixels (the rest of the row, the next row, the padding) have stopped or not.
+                if (0..FORWARD_LANES).fold(1, |all, l| all & (done_l[l] | (l >= valid) as u32)) == 1
+                {
+                    // Every pixel of the chunk inside the box has stopped.
                     x += FORWARD_LANES;
                     continue;
                 }
@@ -224,15 +227,15 @@ fn raster_tile_impl<T: Real>(
                 let mut stopped = 0u32;
                 for l in 0..FORWARD_LANES {
                     let (_, _, alpha, composited) = alpha_at(&row, s.opacity, dx0 - offsets[l]);
-                    let on = composited && l < valid && done_l[l] == 0;
+                    let on = composited & (l < valid) & (done_l[l] == 0);
                     let t_next = t_l[l] * (T::one() - alpha);
-                    let stop = on && t_next < t_min;
-                    let add = on && !stop;
+                    let stop = on & (t_next < t_min);
+                    let add = on & !stop;
                     weight[l] = if add { alpha * t_l[l] } else { T::zero() };
                     t_l[l] = if add { t_next } else { t_l[l] };
                     contrib_l[l] = if add { k_next } else { contrib_l[l] };
                     done_l[l] |= stop as u32;
-                    stopped += stop as u32;
+                    stopped = stopped.wrapping_add(stop as u32);
                 }
                 for ch in 0..3 {
                     let c = lanes_n_mut::<_, FORWARD_LANES>(&mut colour[ch], base);

@@ -37,8 +37,10 @@ fn exp_f32(x: f32) -> f32 {
         * r
         + 0.5;
     let e_r = p * r * r + r + 1.0;
-    let n_int = shifted.to_bits() as i32 - SHIFTER.to_bits() as i32;
-    e_r * f32::from_bits(((n_int + 127) << 23) as u32)
+    // Wrapping integer ops: the clamp keeps n in [−126, 127], so they never wrap, and without
+    // the overflow checks of debug builds the pixel loops that call this vectorise.
+    let n_int = (shifted.to_bits() as i32).wrapping_sub(SHIFTER.to_bits() as i32);
+    e_r * f32::from_bits((n_int.wrapping_add(127) << 23) as u32)
 }
 
 impl Real for f32 {

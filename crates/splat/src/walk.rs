@@ -81,7 +81,7 @@ pub(crate) fn alpha_at<T: Real>(row: &SigmaRow<T>, opacity: T, dx: T) -> (T, T, 
         gauss,
         raw,
         alpha,
-        sigma >= T::zero() && alpha >= T::of(ALPHA_MIN),
+        (sigma >= T::zero()) & (alpha >= T::of(ALPHA_MIN)),
     )
 }
 
@@ -253,8 +253,12 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
                 let valid = (bx1 + 1 - x).min(L);
                 let dx0 = s.mean[0] - T::of(x as f64);
                 let last_l: &[u32; L] = lanes_n(&last, base);
-                if last_l.iter().fold(0, |most, &c| most.max(c)) <= k_u32 {
-                    // The Gaussian is behind every pixel's last composited one.
+                // Lanes past the box (`l >= valid`) never composite this splat.
+                if (0..L).fold(0, |most, l| most.max(if l < valid { last_l[l] } else { 0 }))
+                    <= k_u32
+                {
+                    // The Gaussian is behind the last composited one of every pixel of the
+                    // chunk inside its box.
                     x += L;
                     continue;
                 }
@@ -278,14 +282,14 @@ fn walk_back_impl<T: Real, S: BackSink<T, L>, const L: usize>(
                 for l in 0..L {
                     let dx = dx0 - offsets[l];
                     let (gauss, raw, alpha, composited) = alpha_at(&row, s.opacity, dx);
-                    let on = composited && l < valid && k_u32 < last_l[l];
+                    let on = composited & (l < valid) & (k_u32 < last_l[l]);
                     let alpha = if on { alpha } else { T::zero() };
                     let inv = T::one() / (T::one() - alpha);
                     let t_i = t_l[l] * inv;
                     ln.dx[l] = dx;
                     ln.alpha[l] = alpha;
                     ln.gauss[l] = if on { gauss } else { T::zero() };
-                    ln.grad[l] = if on && raw < T::of(ALPHA_MAX) {
+                    ln.grad[l] = if on & (raw < T::of(ALPHA_MAX)) {
                         T::one()
                     } else {
                         T::zero()
