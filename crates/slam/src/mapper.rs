@@ -61,15 +61,19 @@ pub struct MapperConfig {
     pub window: usize,
     /// Random older keyframes added to the window (2).
     pub random_older: usize,
-    /// Optimisation iterations per keyframe.
+    /// Optimisation iterations per keyframe (20). Measured against 10 under FBE on houses 1, 3
+    /// and 9 run to the end of exploration (benchmarks/mapper-iterations-explored.yaml) and with
+    /// the realistic sensor (benchmarks/mapper-iterations.yaml): docs/src/slam.md, "Mapping
+    /// iterations per keyframe".
     pub iterations: usize,
     /// Views rendered per iteration: the newest keyframe plus `views_per_iteration − 1` views
     /// drawn at random from the rest of the window (MonoGS samples its window the same way);
     /// 0 renders every window view in every iteration.
     pub views_per_iteration: usize,
     /// Of the `iterations`, how many run first on the keyframes at half resolution
-    /// (coarse-to-fine: a quarter of the pixels; 0 = all at full resolution). Default 5 of 10:
-    /// measured −20 % CPU per keyframe and +0.2 dB held-out at 160² (tests/mapping_quality.rs).
+    /// (coarse-to-fine: a quarter of the pixels; 0 = all at full resolution). Default 5: with 10
+    /// iterations, measured −20 % CPU per keyframe and +0.2 dB held-out at 160²
+    /// (tests/mapping_quality.rs).
     pub coarse_iterations: usize,
     /// Weight α of the colour term of the mapping loss.
     pub alpha: f32,
@@ -167,7 +171,7 @@ impl Default for MapperConfig {
             insert: InsertConfig::default(),
             window: 10,
             random_older: 2,
-            iterations: 10,
+            iterations: 20,
             views_per_iteration: 3,
             coarse_iterations: 5,
             alpha: 0.95,

