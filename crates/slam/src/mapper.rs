@@ -73,7 +73,7 @@ pub struct MapperConfig {
     /// Of the `iterations`, how many run first on the keyframes at half resolution
     /// (coarse-to-fine: a quarter of the pixels; 0 = all at full resolution). Default 5: with 10
     /// iterations, measured −20 % CPU per keyframe and +0.2 dB held-out at 160²
-    /// (tests/mapping_quality.rs).
+    /// (crates/bench/tests/mapping_quality.rs).
     pub coarse_iterations: usize,
     /// Weight α of the colour term of the mapping loss.
     pub alpha: f32,
