@@ -62,8 +62,10 @@ pub struct ScorerArgs {
     /// further `fisher` overrides (space-separated KEY=VALUE, on top of the `--fisher` ones;
     /// repeatable; the model Fisher's τ too when a key starts with `model` or `mc_`), and prints
     /// `scorer compare "<overrides>" median_ms <x> ratio <x / base> tie_fraction <f>
-    /// tau_vs_base <τ> same_choice <k>/<n>`: the timing ratio in the same conditions and the
-    /// rank agreement of the path objectives with the base settings.
+    /// tau_vs_base <τ> candidate_tau_vs_base <τ> top_overlap <f> same_choice <k>/<n>`: the
+    /// timing ratio in the same conditions, the rank agreement with the base settings of the
+    /// path objectives and of the candidate EIGs (medians over the replans), and the share of
+    /// the base's top candidates the other keeps among its top.
     #[arg(long, value_name = "OVERRIDES")]
     compare: Vec<String>,
 }
@@ -322,6 +324,9 @@ pub fn scorer(args: &ScorerArgs) -> anyhow::Result<()> {
         let base_ms = bench.incremental().median_total_ms();
         let ms = run.incremental().median_total_ms();
         let tau = activemap_bench::stats::median(&agree.taus).unwrap_or(f64::NAN);
+        let candidate_tau =
+            activemap_bench::stats::median(&agree.candidate_taus).unwrap_or(f64::NAN);
+        let overlap = activemap_bench::stats::median(&agree.top_overlap).unwrap_or(f64::NAN);
         let ties = run.summary();
         let tie = ties
             .lines()
@@ -330,7 +335,7 @@ pub fn scorer(args: &ScorerArgs) -> anyhow::Result<()> {
             .unwrap_or("nan")
             .to_string();
         compared.push(format!(
-            "scorer compare \"{c}\" median_ms {ms:.1} ratio {:.3} tie_fraction {tie} tau_vs_base {tau:.3} same_choice {}/{}",
+            "scorer compare \"{c}\" median_ms {ms:.1} ratio {:.3} tie_fraction {tie} tau_vs_base {tau:.3} candidate_tau_vs_base {candidate_tau:.3} top_overlap {overlap:.2} same_choice {}/{}",
             ms / base_ms,
             agree.same_choice,
             agree.replans

@@ -346,7 +346,7 @@ impl FisherScorer {
                 config.unknown_per_cell,
                 config.unknown_max_scale_fraction,
                 generation,
-                rng.random(),
+                rng.random::<u64>() ^ config.unknown_seed.wrapping_mul(0x9E37_79B9_7F4A_7C15),
             )?;
             self.unknown.generation = generation;
             self.unknown_cells = cells;

@@ -147,6 +147,51 @@ fn a_frontier_replan_leaves_every_stage_and_repeats_exactly() {
 }
 
 #[test]
+fn the_unknown_seed_redraws_unknown_space_on_the_same_candidates() {
+    // `unknown_seed` changes the unknown-space draw only: the candidate poses stay (the
+    // replan's other draws do not depend on it) while their EIGs move, since the unknown
+    // space past the frontier is what the candidates look at.
+    let (grid, map) = room();
+    let robot = RobotModel::default();
+    let input = ReplanInput {
+        frame_id: 50,
+        grid: &grid,
+        pose: robot.camera_pose(&PlanarPose::new(0.8, 1.5, 0.0), 0.0),
+        map: &map,
+        goal: GoalRequest::Frontier {
+            focus: Point2::new(2.3, 1.5),
+        },
+    };
+    let base = scorer(config()).replan(&input).unwrap();
+    let other = scorer(FisherConfig {
+        unknown_seed: 1,
+        ..config()
+    })
+    .replan(&input)
+    .unwrap();
+    assert_eq!(other.unknown_gaussians, base.unknown_gaussians);
+    let poses = |o: &activemap_active::ReplanOutcome| {
+        let mut p: Vec<[u64; 3]> = o
+            .candidates
+            .iter()
+            .map(|c| [c.pose.x.to_bits(), c.pose.y.to_bits(), c.pose.yaw.to_bits()])
+            .collect();
+        p.sort_unstable();
+        p
+    };
+    assert_eq!(poses(&base), poses(&other), "the same candidate poses");
+    let eig = |o: &activemap_active::ReplanOutcome, pose: &PlanarPose| {
+        o.candidates.iter().find(|c| c.pose == *pose).unwrap().eig
+    };
+    let moved = base
+        .candidates
+        .iter()
+        .filter(|c| eig(&other, &c.pose) != c.eig)
+        .count();
+    assert!(moved > base.candidates.len() / 2, "{moved} EIGs moved");
+}
+
+#[test]
 fn refine_and_the_ablation_objectives_get_paths() {
     let (grid, map) = room();
     let robot = RobotModel::default();

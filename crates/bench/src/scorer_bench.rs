@@ -64,6 +64,9 @@ pub struct Case {
     pub objectives: Vec<Vec<(PlanarPose, f64)>>,
     /// Per replan: the chosen path's goal.
     pub chosen_goals: Vec<Option<PlanarPose>>,
+    /// Per replan: every candidate that survived the free-space test with its EIG, best
+    /// first (for the rank agreement of two settings' candidate EIGs).
+    pub candidate_eigs: Vec<Vec<(PlanarPose, f64)>>,
 }
 
 /// Relative gap under which the two best paths' objectives count as tied: 1 % of the best's
@@ -101,6 +104,7 @@ impl Case {
             ties: Vec::new(),
             objectives: Vec::new(),
             chosen_goals: Vec::new(),
+            candidate_eigs: Vec::new(),
         }
     }
 
@@ -126,6 +130,8 @@ impl Case {
         );
         self.chosen_goals
             .push(outcome.chosen.map(|i| outcome.paths[i].goal));
+        self.candidate_eigs
+            .push(outcome.candidates.iter().map(|c| (c.pose, c.eig)).collect());
     }
 
     /// The median of one stage over the replans (ms).
@@ -211,11 +217,17 @@ pub fn model_tau(
 
 /// How two settings' replans on the same house agree (the same frames, so the same
 /// candidate draws): per replan, Kendall τ of the objectives of the paths both scored (matched
-/// by goal), and whether both chose the same goal.
+/// by goal), Kendall τ of the EIGs of the candidates both kept, how many of the base's top
+/// candidates the other keeps among its own top, and whether both chose the same goal.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Agreement {
     /// τ per replan with at least two common paths of finite objective in both.
     pub taus: Vec<f64>,
+    /// τ of the candidate EIGs per replan with at least two common candidates of finite EIG.
+    pub candidate_taus: Vec<f64>,
+    /// Per replan: the share of the base's top `top_candidates` (by EIG) that are also among
+    /// the other's top `top_candidates`, i.e. the share of the same paths planned.
+    pub top_overlap: Vec<f64>,
     /// Replans whose chosen goals are the same.
     pub same_choice: usize,
     /// Replans compared.
@@ -225,9 +237,12 @@ pub struct Agreement {
 /// The [`Agreement`] of `other`'s replans with `base`'s, case by case (by name), replan by
 /// replan (as many as both ran).
 pub fn agreement(base: &ScorerBench, other: &ScorerBench) -> Agreement {
+    let top = base.fisher.top_candidates;
     let key = |p: &PlanarPose| [p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()];
     let mut out = Agreement {
         taus: Vec::new(),
+        candidate_taus: Vec::new(),
+        top_overlap: Vec::new(),
         same_choice: 0,
         replans: 0,
     };
@@ -253,6 +268,28 @@ pub fn agreement(base: &ScorerBench, other: &ScorerBench) -> Agreement {
                 }
             }
             out.taus.extend(kendall_tau(&x, &y));
+        }
+        for r in 0..a.candidate_eigs.len().min(b.candidate_eigs.len()) {
+            let (ca, cb) = (&a.candidate_eigs[r], &b.candidate_eigs[r]);
+            let (mut x, mut y) = (Vec::new(), Vec::new());
+            for (pose, e) in ca {
+                if let Some((_, f)) = cb.iter().find(|(q, _)| key(q) == key(pose))
+                    && e.is_finite()
+                    && f.is_finite()
+                {
+                    x.push(*e);
+                    y.push(*f);
+                }
+            }
+            out.candidate_taus.extend(kendall_tau(&x, &y));
+            let top = top.min(ca.len());
+            if top > 0 {
+                let shared = ca[..top]
+                    .iter()
+                    .filter(|(p, _)| cb.iter().take(top).any(|(q, _)| key(q) == key(p)))
+                    .count();
+                out.top_overlap.push(shared as f64 / top as f64);
+            }
         }
     }
     out
@@ -595,6 +632,9 @@ mod tests {
         let same = agreement(&bench, &bench);
         assert_eq!(same.same_choice, same.replans);
         assert!(same.taus.iter().all(|t| *t == 1.0));
+        assert!(!same.candidate_taus.is_empty());
+        assert!(same.candidate_taus.iter().all(|t| *t == 1.0));
+        assert!(same.top_overlap.iter().all(|t| *t == 1.0));
         let tie_fields: Vec<&str> = ties.split(' ').collect();
         assert_eq!(
             (
