@@ -89,20 +89,24 @@ fn config() -> FisherConfig {
     }
 }
 
-#[test]
-fn a_frontier_replan_leaves_every_stage_and_repeats_exactly() {
-    let (grid, map) = room();
-    let robot = RobotModel::default();
-    let pose = robot.camera_pose(&PlanarPose::new(0.8, 1.5, 0.0), 0.0);
-    let input = ReplanInput {
+/// A frontier replan at frame 50 from (0.8, 1.5) facing +x, toward the unknown half at
+/// (2.3, 1.5).
+fn frontier_replan<'a>(grid: &'a OccupancyGrid, map: &'a ScoringMap) -> ReplanInput<'a> {
+    ReplanInput {
         frame_id: 50,
-        grid: &grid,
-        pose,
-        map: &map,
+        grid,
+        pose: RobotModel::default().camera_pose(&PlanarPose::new(0.8, 1.5, 0.0), 0.0),
+        map,
         goal: GoalRequest::Frontier {
             focus: Point2::new(2.3, 1.5),
         },
-    };
+    }
+}
+
+#[test]
+fn a_frontier_replan_leaves_every_stage_and_repeats_exactly() {
+    let (grid, map) = room();
+    let input = frontier_replan(&grid, &map);
     let mut a = scorer(config());
     let first = a.replan(&input).unwrap();
     assert!(!first.refine && !first.model_reused);
@@ -152,16 +156,7 @@ fn the_unknown_seed_redraws_unknown_space_on_the_same_candidates() {
     // replan's other draws do not depend on it) while their EIGs move, since the unknown
     // space past the frontier is what the candidates look at.
     let (grid, map) = room();
-    let robot = RobotModel::default();
-    let input = ReplanInput {
-        frame_id: 50,
-        grid: &grid,
-        pose: robot.camera_pose(&PlanarPose::new(0.8, 1.5, 0.0), 0.0),
-        map: &map,
-        goal: GoalRequest::Frontier {
-            focus: Point2::new(2.3, 1.5),
-        },
-    };
+    let input = frontier_replan(&grid, &map);
     let base = scorer(config()).replan(&input).unwrap();
     let other = scorer(FisherConfig {
         unknown_seed: 1,

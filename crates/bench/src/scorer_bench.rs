@@ -234,11 +234,31 @@ pub struct Agreement {
     pub replans: usize,
 }
 
+/// A pose's exact bits: two settings' replans on the same frames draw the very same poses.
+fn key(p: &PlanarPose) -> [u64; 3] {
+    [p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()]
+}
+
+/// Kendall τ of the values `a` and `b` give the poses both hold (matched by [`key`], finite
+/// in both); `None` with fewer than two such poses.
+fn matched_tau(a: &[(PlanarPose, f64)], b: &[(PlanarPose, f64)]) -> Option<f64> {
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    for (pose, u) in a {
+        if let Some((_, v)) = b.iter().find(|(q, _)| key(q) == key(pose))
+            && u.is_finite()
+            && v.is_finite()
+        {
+            x.push(*u);
+            y.push(*v);
+        }
+    }
+    kendall_tau(&x, &y)
+}
+
 /// The [`Agreement`] of `other`'s replans with `base`'s, case by case (by name), replan by
 /// replan (as many as both ran).
 pub fn agreement(base: &ScorerBench, other: &ScorerBench) -> Agreement {
     let top = base.fisher.top_candidates;
-    let key = |p: &PlanarPose| [p.x.to_bits(), p.y.to_bits(), p.yaw.to_bits()];
     let mut out = Agreement {
         taus: Vec::new(),
         candidate_taus: Vec::new(),
@@ -257,31 +277,12 @@ pub fn agreement(base: &ScorerBench, other: &ScorerBench) -> Agreement {
                 b.chosen_goals[r].as_ref().map(key),
             );
             out.same_choice += usize::from(chosen.0 == chosen.1);
-            let (mut x, mut y) = (Vec::new(), Vec::new());
-            for (goal, o) in &a.objectives[r] {
-                if let Some((_, q)) = b.objectives[r].iter().find(|(g, _)| key(g) == key(goal))
-                    && o.is_finite()
-                    && q.is_finite()
-                {
-                    x.push(*o);
-                    y.push(*q);
-                }
-            }
-            out.taus.extend(kendall_tau(&x, &y));
+            out.taus
+                .extend(matched_tau(&a.objectives[r], &b.objectives[r]));
         }
         for r in 0..a.candidate_eigs.len().min(b.candidate_eigs.len()) {
             let (ca, cb) = (&a.candidate_eigs[r], &b.candidate_eigs[r]);
-            let (mut x, mut y) = (Vec::new(), Vec::new());
-            for (pose, e) in ca {
-                if let Some((_, f)) = cb.iter().find(|(q, _)| key(q) == key(pose))
-                    && e.is_finite()
-                    && f.is_finite()
-                {
-                    x.push(*e);
-                    y.push(*f);
-                }
-            }
-            out.candidate_taus.extend(kendall_tau(&x, &y));
+            out.candidate_taus.extend(matched_tau(ca, cb));
             let top = top.min(ca.len());
             if top > 0 {
                 let shared = ca[..top]
