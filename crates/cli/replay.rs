@@ -13,10 +13,13 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use activemap_eval::run_folder::RunFolder;
-use activemap_eval::step_metrics::observed_only;
+use activemap_eval::step_metrics::{FrameReport, ate_rmse, observed_only, tracking_summary};
+use activemap_geometry::tum::Trajectory;
+use activemap_operators::convert::pose_from_wire;
+use activemap_operators::evaluator::frame_report;
 use activemap_runtime::dataflow::{Dataflow, NodeImpl, NodeSpec, Override};
 use activemap_runtime::record;
-use activemap_schemas::MessageKind;
+use activemap_schemas::{MessageKind, PoseEstimate, SmallMessage};
 use anyhow::{Context as _, bail};
 
 use crate::evaluate::EvalArgs;
@@ -125,10 +128,17 @@ pub(crate) fn replay(
     let producers = replay_producers(&recorded, recording_path);
     // One buffer, overwritten by each map: only the last one is kept.
     let mut last_map: Vec<u8> = Vec::new();
+    // A tracker's estimates, measured against the recorded run's true poses at the end.
+    let mut estimates = (op == "tracker").then(TrackerEstimates::default);
     let mut observe = |port: &str, bytes: &[u8]| {
         if args.out.is_some() && map_ports.iter().any(|p| p == port) && !bytes.is_empty() {
             last_map.clear();
             last_map.extend_from_slice(bytes);
+        }
+        if let Some(estimates) = &mut estimates
+            && port == "pose"
+        {
+            estimates.push(bytes);
         }
     };
     let started = std::time::Instant::now();
@@ -163,6 +173,11 @@ pub(crate) fn replay(
         },
         started.elapsed().as_secs_f64()
     );
+    if let Some(estimates) = &estimates {
+        for line in estimates.report(&source_dir)? {
+            println!("{line}");
+        }
+    }
     if let Some(out) = &args.out {
         if last_map.is_empty() {
             bail!("node `{node}` produced no map in the replay: nothing to write to --out");
@@ -180,6 +195,81 @@ pub(crate) fn replay(
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// The pose estimates a replayed tracker produced, for the tracking figures of the replay
+/// against the recorded run's (its folder's true and estimated trajectories): an open-loop
+/// comparison of tracker settings on the frames, actions and maps of one real episode.
+#[derive(Default)]
+struct TrackerEstimates {
+    estimated: Trajectory,
+    reports: Vec<FrameReport>,
+    /// The first estimate that did not decode (it and every later one are left out).
+    error: Option<String>,
+}
+
+impl TrackerEstimates {
+    /// Reads one `pose` output.
+    fn push(&mut self, bytes: &[u8]) {
+        if self.error.is_some() {
+            return;
+        }
+        let decoded = PoseEstimate::decode(bytes)
+            .map_err(anyhow::Error::from)
+            .and_then(|e| Ok((pose_from_wire(&e.t_world_camera)?, e)));
+        match decoded {
+            Ok((pose, e)) => {
+                self.estimated.push(e.stamp, pose);
+                self.reports.push(frame_report(&e));
+            }
+            Err(e) => {
+                self.error = Some(format!(
+                    "estimate {} does not decode: {e:#}",
+                    self.reports.len()
+                ))
+            }
+        }
+    }
+
+    /// The replay's ATE and tracking summary beside the recorded run's, as lines; a note
+    /// instead when the recording's folder has no true trajectory.
+    fn report(&self, source_dir: &Path) -> anyhow::Result<Vec<String>> {
+        if let Some(e) = &self.error {
+            bail!("replay tracker: {e}");
+        }
+        let folder = RunFolder::new(source_dir);
+        if !folder.path(RunFolder::TRAJECTORY_TRUE).is_file() {
+            return Ok(vec![format!(
+                "replay tracker: no {} beside the recording: no ATE",
+                RunFolder::TRAJECTORY_TRUE
+            )]);
+        }
+        let truth = folder.read_trajectory(RunFolder::TRAJECTORY_TRUE)?;
+        let ate = |t: &Trajectory| -> anyhow::Result<String> {
+            Ok(ate_rmse(&truth, t)?.map_or("n/a".into(), |m| format!("{:.2}", 100.0 * m)))
+        };
+        let replayed = ate(&self.estimated)?;
+        let recorded = if folder.path(RunFolder::TRAJECTORY_EST).is_file() {
+            ate(&folder.read_trajectory(RunFolder::TRAJECTORY_EST)?)?
+        } else {
+            "n/a".into()
+        };
+        let summary = tracking_summary(&truth, &self.estimated, &self.reports);
+        let mut lines = vec![format!("replay tracking: {}", summary.line())];
+        if let Some(recorded) = folder
+            .has_summary()
+            .then(|| folder.read_summary())
+            .transpose()?
+            .and_then(|s| s.tracking)
+        {
+            lines.push(format!("recorded tracking: {}", recorded.line()));
+        }
+        lines.push(format!(
+            "replay tracker ate_cm {replayed} recorded_ate_cm {recorded} frames {}",
+            self.estimated.len()
+        ));
+        Ok(lines)
+    }
 }
 
 /// Refuses an `--out` that exists already, or a recording outside a run folder (whose

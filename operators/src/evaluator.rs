@@ -220,6 +220,22 @@ fn thinking(reply: &str) -> Option<String> {
     (!blocks.is_empty()).then(|| blocks.join("\n\n"))
 }
 
+/// What the tracker said of one frame ([`PoseEstimate`]), as the tracking summary counts it
+/// (`activemap_eval::step_metrics::tracking_summary`): the evaluator's and `activemap replay
+/// --node tracker`'s reading of the same estimate.
+pub fn frame_report(e: &PoseEstimate) -> FrameReport {
+    FrameReport {
+        frame_id: e.frame_id,
+        skipped: e.status == activemap_schemas::TrackingStatus::Skipped,
+        lost: e
+            .lost_reason
+            .map(|r| r.key())
+            .or((e.status == activemap_schemas::TrackingStatus::Lost).then_some("unknown")),
+        relocalised: e.relocalised.is_some(),
+        loop_closure: !e.keyframe_corrections.is_empty(),
+    }
+}
+
 /// The `fisher.csv` row of one Fisher replan: counts, the chosen path's objective, EIG (summed
 /// over its scored poses, and of the first) and `C_local` sum, and the replan time. An error
 /// names the frame when the report does not hold together (a chosen index out of range, a NaN
@@ -461,17 +477,7 @@ impl Operator for Evaluator {
                     self.corrected
                         .push(e.stamp, pose, e.graph_anchor, &corrections);
                     self.estimated.push(e.stamp, pose);
-                    self.reports.push(FrameReport {
-                        frame_id: e.frame_id,
-                        skipped: e.status == activemap_schemas::TrackingStatus::Skipped,
-                        lost: e
-                            .lost_reason
-                            .map(|r| r.key())
-                            .or((e.status == activemap_schemas::TrackingStatus::Lost)
-                                .then_some("unknown")),
-                        relocalised: e.relocalised.is_some(),
-                        loop_closure: !e.keyframe_corrections.is_empty(),
-                    });
+                    self.reports.push(frame_report(&e));
                     let steps = self.estimated.len() as u64;
                     if self.checkpoints.binary_search(&steps).is_ok() {
                         self.score_pending()?;

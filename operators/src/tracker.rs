@@ -114,6 +114,26 @@ pub struct DenseTuning {
     /// left out (`colour_edge_range`, 0: none; an image sampled at pixel centres has edges that
     /// do not move with sub-pixel motion).
     pub colour_edge_range: Option<f64>,
+    /// Standard deviations of the motion prior between consecutive frames, per camera axis
+    /// (`DenseConfig::prior_axis_sigmas`); any field left out keeps the ground-robot default.
+    pub motion_sigmas: Option<MotionSigmas>,
+}
+
+/// The `tracker` node's `dense.motion_sigmas`: how far one frame's motion may differ from the
+/// commanded one, per axis of the camera (optical frame: x right, y down, z forward).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotionSigmas {
+    /// Sideways (x), metres (`activemap_slam::dense::GROUND_LATERAL_SIGMA`, 0.01).
+    pub lateral_m: Option<f64>,
+    /// Height (y), metres (`activemap_slam::dense::GROUND_VERTICAL_SIGMA`, 0.003).
+    pub vertical_m: Option<f64>,
+    /// Along the view (z), metres (`prior_translation_sigma`, 0.05).
+    pub forward_m: Option<f64>,
+    /// Pitch and roll, degrees (`activemap_slam::dense::GROUND_TILT_SIGMA_DEG`, 0.25).
+    pub tilt_deg: Option<f64>,
+    /// Yaw (about y), degrees (`prior_rotation_sigma`, 3).
+    pub yaw_deg: Option<f64>,
 }
 
 /// The `tracker` node's `motion_check` (defaults: [`MotionCheck::default`]).
@@ -207,6 +227,28 @@ impl Config {
         }
         if let Some(v) = self.dense.colour_edge_range {
             dense.colour_edge_range = v;
+        }
+        if let Some(m) = self.dense.motion_sigmas {
+            let sigmas = &mut dense.prior_axis_sigmas;
+            // τ = [ρx, ρy, ρz, θx, θy, θz]: sideways, height, forward, pitch, yaw, roll.
+            for (indices, key, value, to_internal) in [
+                (&[0][..], "lateral_m", m.lateral_m, 1.0),
+                (&[1], "vertical_m", m.vertical_m, 1.0),
+                (&[2], "forward_m", m.forward_m, 1.0),
+                (&[3, 5], "tilt_deg", m.tilt_deg, 1f64.to_radians()),
+                (&[4], "yaw_deg", m.yaw_deg, 1f64.to_radians()),
+            ] {
+                let Some(v) = value else { continue };
+                if !(v.is_finite() && v > 0.0) {
+                    anyhow::bail!(
+                        "tracker: dense.motion_sigmas.{key} = {v}: must be finite and > 0 \
+                         (leave it out for the default)"
+                    );
+                }
+                for &i in indices {
+                    sigmas[i] = v * to_internal;
+                }
+            }
         }
         config
             .validate()
@@ -522,6 +564,46 @@ mod tests {
         );
         let e = parse(serde_json::json!({ "rereference_overlap": "visible" })).unwrap_err();
         assert!(e.to_string().contains("covisible"), "{e}");
+    }
+
+    /// `dense.motion_sigmas` sets the motion prior's per-axis σ (degrees read as radians, tilt
+    /// on pitch and roll), leaves the axes it omits at the ground-robot default, and refuses a
+    /// σ that is not positive, naming the key.
+    #[test]
+    fn motion_sigmas_set_the_prior_per_axis() {
+        let parse = |v| {
+            serde_json::from_value::<Config>(v)
+                .unwrap()
+                .tracking_config()
+        };
+        let default = parse(serde_json::json!({})).unwrap().tracker.dense;
+        let set = parse(serde_json::json!({
+            "dense": { "motion_sigmas": { "lateral_m": 0.002, "yaw_deg": 1.0, "tilt_deg": 0.5 } }
+        }))
+        .unwrap()
+        .tracker
+        .dense;
+        let sigmas = set.prior_axis_sigmas;
+        assert_eq!(sigmas[0], 0.002);
+        assert_eq!(sigmas[1], default.prior_axis_sigmas[1]);
+        assert_eq!(sigmas[2], default.prior_axis_sigmas[2]);
+        assert!((sigmas[3] - 0.5f64.to_radians()).abs() < 1e-15);
+        assert!((sigmas[4] - 1f64.to_radians()).abs() < 1e-15);
+        assert_eq!(sigmas[3], sigmas[5]);
+        for bad in [0.0, -0.001] {
+            let e =
+                parse(serde_json::json!({ "dense": { "motion_sigmas": { "forward_m": bad } } }))
+                    .unwrap_err();
+            assert!(
+                e.to_string().contains("dense.motion_sigmas.forward_m"),
+                "{e}"
+            );
+        }
+        let e = serde_json::from_value::<Config>(serde_json::json!({
+            "dense": { "motion_sigmas": { "sideways_m": 0.002 } }
+        }))
+        .unwrap_err();
+        assert!(e.to_string().contains("lateral_m"), "{e}");
     }
 
     /// The commanded motion is the camera-frame motion of the robot: forward = +z (optical

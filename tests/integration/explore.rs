@@ -97,6 +97,30 @@ fn fbe_episode_runs_end_to_end_and_leaves_a_report() {
             done.stdout,
             done.stderr
         );
+        if node == "tracker" {
+            // The replayed estimates are the recorded ones, so their ATE and tracking summary,
+            // computed from the decoded outputs, are the run's (from its files).
+            let ate = done
+                .stdout
+                .lines()
+                .find_map(|l| l.strip_prefix("replay tracker ate_cm "))
+                .and_then(|rest| rest.split_once(" recorded_ate_cm "))
+                .map(|(replayed, rest)| (replayed.to_string(), rest.split(' ').next().unwrap()))
+                .unwrap_or_else(|| panic!("no ATE line:\n{}", done.stdout));
+            assert!(ate.0 == ate.1 && ate.0 != "n/a", "{ate:?}");
+            let line = |prefix: &str| {
+                done.stdout
+                    .lines()
+                    .find_map(|l| l.strip_prefix(prefix))
+                    .map(str::to_string)
+            };
+            let replayed = line("replay tracking: ");
+            assert!(
+                replayed.is_some() && replayed == line("recorded tracking: "),
+                "{}",
+                done.stdout
+            );
+        }
     }
     replay_with_another_mapper_setting(tmp.path(), &out);
     let steps = summary.steps;
