@@ -28,14 +28,21 @@
 //!   snapshot: its `map_lag` is checked like the tracker's, and it must read the map with
 //!   `drop: block`.
 //!
-//! One setting is implied rather than checked ([`implied_overrides`], applied by [`load_with`]
-//! and [`parse`] after the user's overrides, so the effective flow in the run folder holds it):
+//! Two settings are implied rather than checked ([`implied_overrides`], applied by [`load_with`]
+//! and [`parse`] after the user's overrides, so the effective flow in the run folder holds them):
 //!
 //! - **Sensor depth noise.** A tracker weighs each depth residual by σ_d(z) = `depth_sigma` +
 //!   `depth_sigma_z2`·z² (`activemap_slam::DenseConfig`). When the simulator feeding its `rgbd`
 //!   adds depth noise growing with z² and the tracker leaves `dense.depth_sigma_z2` unset, the
 //!   tracker takes the simulator's coefficient (issue 34: unweighted, the realistic sensor's depth
 //!   noise drifts long episodes by decimetres). A tracker that sets it (0 included) keeps its own.
+//! - **Actuation noise.** A tracker whose prior is the commanded action weighs it by the
+//!   per-axis σ of `dense.motion_sigmas`. When the simulator feeding its `rgbd` perturbs the
+//!   actions and the tracker leaves `motion_sigmas` unset, the tracker takes σ from the
+//!   simulator's actuation noise ([`crate::tracker::motion_sigmas_for`]; issue 34: the
+//!   ground-robot default, 1 cm sideways, 5 cm forward and 3° of yaw, let the realistic robot's
+//!   estimate drift 2–3 mm sideways per frame where it cannot move). A tracker that sets it
+//!   keeps its own.
 
 use std::path::Path;
 
@@ -385,11 +392,14 @@ pub fn check_flow(flow: &Dataflow) -> Result<(), Diagnostics> {
     }
 }
 
-/// The `--set` overrides one node's config implies for another's (see the module doc): today
-/// `TRACKER.dense.depth_sigma_z2=C` for each tracker that leaves it unset and reads its `rgbd`
-/// from a `sim` node whose depth noise grows as C·z², C > 0. Empty when nothing is implied.
+/// The `--set` overrides one node's config implies for another's (see the module doc), for each
+/// tracker that reads its `rgbd` from a `sim` node: `TRACKER.dense.depth_sigma_z2=C` when it
+/// leaves that unset and the simulator's depth noise grows as C·z², C > 0; and
+/// `TRACKER.dense.motion_sigmas={...}` ([`crate::tracker::motion_sigmas_for`]) when it leaves
+/// that unset, takes the commanded action as its prior and the simulator's actions are noisy.
+/// Empty when nothing is implied.
 pub fn implied_overrides(flow: &Dataflow) -> Vec<Override> {
-    let sim_depth_sigma_z2 = |id: &str| {
+    let sim_config = |id: &str| {
         let node = flow.node(id)?;
         let NodeImpl::Operator(op) = &node.implementation else {
             return None;
@@ -397,7 +407,6 @@ pub fn implied_overrides(flow: &Dataflow) -> Vec<Override> {
         (op == "sim")
             .then(|| config_from_value::<crate::sim::Config>(&node.config).ok())
             .flatten()
-            .map(|c| c.noise.depth.sigma_z2)
     };
     let mut implied = Vec::new();
     for node in &flow.nodes {
@@ -410,17 +419,36 @@ pub fn implied_overrides(flow: &Dataflow) -> Vec<Override> {
         let Ok(tracker) = config_from_value::<crate::tracker::Config>(&node.config) else {
             continue;
         };
-        if tracker.dense.depth_sigma_z2.is_some() {
-            continue;
-        }
-        let sensor = node
+        let Some(sim) = node
             .inputs
             .iter()
             .find(|i| i.name == "rgbd")
-            .and_then(|i| sim_depth_sigma_z2(&i.source_node));
-        if let Some(z2) = sensor.filter(|z2| *z2 > 0.0) {
+            .and_then(|i| sim_config(&i.source_node))
+        else {
+            continue;
+        };
+        let z2 = sim.noise.depth.sigma_z2;
+        if tracker.dense.depth_sigma_z2.is_none() && z2 > 0.0 {
             let text = format!("{}.dense.depth_sigma_z2={z2}", node.id);
             implied.push(Override::parse(&text).expect("a node id, keys and a number"));
+        }
+        if tracker.dense.motion_sigmas.is_none()
+            && tracker.motion_prior == crate::tracker::Prior::Action
+            && let Some(sigmas) =
+                crate::tracker::motion_sigmas_for(&sim.noise.actuation, &sim.robot)
+        {
+            let fields: Vec<String> = [
+                ("lateral_m", sigmas.lateral_m),
+                ("vertical_m", sigmas.vertical_m),
+                ("forward_m", sigmas.forward_m),
+                ("tilt_deg", sigmas.tilt_deg),
+                ("yaw_deg", sigmas.yaw_deg),
+            ]
+            .into_iter()
+            .filter_map(|(key, v)| v.map(|v| format!("{key}: {v}")))
+            .collect();
+            let text = format!("{}.dense.motion_sigmas={{{}}}", node.id, fields.join(", "));
+            implied.push(Override::parse(&text).expect("a node id, keys and a YAML mapping"));
         }
     }
     implied
@@ -531,6 +559,64 @@ mod tests {
         // Noise without depth growth (actuation only) implies nothing.
         let flow = load_with(&file, &[set("sim.noise={ actuation: realistic }")]).unwrap();
         assert_eq!(z2(&flow), None);
+    }
+
+    /// The tracker's motion prior follows the simulator's actuation noise when it leaves
+    /// `dense.motion_sigmas` unset and its prior is the action: the realistic preset gives 2 mm
+    /// sideways, 2 × 2.8 mm forward and 2 × 0.66° of yaw, read back the same from the effective
+    /// text; exact actions, the tracker's own σ or another prior imply nothing.
+    #[test]
+    fn the_tracker_takes_the_simulators_actuation_noise_unless_it_sets_its_own() {
+        let sigmas = |flow: &Dataflow| {
+            let c = crate::single_node_config::<crate::tracker::Config>(flow, "tracker").unwrap();
+            let s = c.tracking_config().unwrap().tracker.dense.prior_axis_sigmas;
+            (c.dense.motion_sigmas, s)
+        };
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("flow.yaml");
+        std::fs::write(&file, reference()).unwrap();
+        let set = |text: &str| Override::parse(text).unwrap();
+        let (none, default) = sigmas(&load_with(&file, &[]).unwrap());
+        assert_eq!(none, None);
+        let flow = load_with(&file, &[set("sim.noise=realistic")]).unwrap();
+        let (given, axes) = sigmas(&flow);
+        assert!(given.is_some());
+        assert!(close(axes[0], 0.002), "{axes:?}");
+        assert!(close(axes[1], default[1]));
+        assert!(close(axes[2], 2.0 * 0.056 * 0.05), "{axes:?}");
+        assert!(close(axes[3], default[3]) && close(axes[5], default[5]));
+        assert!(close(axes[4], (2.0 * 0.66f64).to_radians()), "{axes:?}");
+        let again = parse("again.yaml", &flow.source, Path::new(".")).unwrap();
+        assert_eq!(sigmas(&again), (given, axes));
+        assert!(implied_overrides(&again).is_empty());
+        // Actuation noise alone implies the prior (and not the depth model); depth noise alone
+        // does not.
+        let flow = load_with(&file, &[set("sim.noise={ actuation: realistic }")]).unwrap();
+        assert_eq!(sigmas(&flow).0, given);
+        let flow = load_with(&file, &[set("sim.noise={ depth: realistic }")]).unwrap();
+        assert_eq!(sigmas(&flow).0, None);
+        // The tracker's own σ is kept; a prior other than the action implies nothing.
+        let own = load_with(
+            &file,
+            &[
+                set("sim.noise=realistic"),
+                set("tracker.dense.motion_sigmas={ lateral_m: 0.004 }"),
+            ],
+        )
+        .unwrap();
+        let (own, axes) = sigmas(&own);
+        assert_eq!(own.and_then(|o| o.forward_m), None);
+        assert!(close(axes[0], 0.004) && close(axes[2], default[2]));
+        let velocity = load_with(
+            &file,
+            &[
+                set("sim.noise=realistic"),
+                set("tracker.motion_prior=constant_velocity"),
+            ],
+        )
+        .unwrap();
+        assert_eq!(sigmas(&velocity).0, None);
     }
 
     /// A robot override on one node only is refused, naming that node and the first one.
