@@ -437,17 +437,7 @@ pub fn implied_overrides(flow: &Dataflow) -> Vec<Override> {
             && let Some(sigmas) =
                 crate::tracker::motion_sigmas_for(&sim.noise.actuation, &sim.robot)
         {
-            let fields: Vec<String> = [
-                ("lateral_m", sigmas.lateral_m),
-                ("vertical_m", sigmas.vertical_m),
-                ("forward_m", sigmas.forward_m),
-                ("tilt_deg", sigmas.tilt_deg),
-                ("yaw_deg", sigmas.yaw_deg),
-            ]
-            .into_iter()
-            .filter_map(|(key, v)| v.map(|v| format!("{key}: {v}")))
-            .collect();
-            let text = format!("{}.dense.motion_sigmas={{{}}}", node.id, fields.join(", "));
+            let text = format!("{}.dense.motion_sigmas={}", node.id, sigmas.to_yaml());
             implied.push(Override::parse(&text).expect("a node id, keys and a YAML mapping"));
         }
     }

@@ -139,6 +139,31 @@ pub struct MotionSigmas {
     pub yaw_deg: Option<f64>,
 }
 
+impl MotionSigmas {
+    /// Each key with its value, the prior's axes it sets (τ = [ρx, ρy, ρz, θx, θy, θz]:
+    /// sideways, height, forward, pitch, yaw, roll) and the factor to the prior's units.
+    fn entries(&self) -> [(&'static str, Option<f64>, &'static [usize], f64); 5] {
+        let degree = 1f64.to_radians();
+        [
+            ("lateral_m", self.lateral_m, &[0], 1.0),
+            ("vertical_m", self.vertical_m, &[1], 1.0),
+            ("forward_m", self.forward_m, &[2], 1.0),
+            ("tilt_deg", self.tilt_deg, &[3, 5], degree),
+            ("yaw_deg", self.yaw_deg, &[4], degree),
+        ]
+    }
+
+    /// The flow-file form of the keys that are set, `{lateral_m: 0.002, yaw_deg: 1.32}`.
+    pub fn to_yaml(&self) -> String {
+        let fields: Vec<String> = self
+            .entries()
+            .into_iter()
+            .filter_map(|(key, v, _, _)| v.map(|v| format!("{key}: {v}")))
+            .collect();
+        format!("{{{}}}", fields.join(", "))
+    }
+}
+
 /// The slack of [`motion_sigmas_for`]: each axis of the prior allows this many standard
 /// deviations of the actuation noise on it.
 pub const ACTUATION_SIGMAS: f64 = 2.0;
@@ -266,14 +291,7 @@ impl Config {
         }
         if let Some(m) = self.dense.motion_sigmas {
             let sigmas = &mut dense.prior_axis_sigmas;
-            // τ = [ρx, ρy, ρz, θx, θy, θz]: sideways, height, forward, pitch, yaw, roll.
-            for (indices, key, value, to_internal) in [
-                (&[0][..], "lateral_m", m.lateral_m, 1.0),
-                (&[1], "vertical_m", m.vertical_m, 1.0),
-                (&[2], "forward_m", m.forward_m, 1.0),
-                (&[3, 5], "tilt_deg", m.tilt_deg, 1f64.to_radians()),
-                (&[4], "yaw_deg", m.yaw_deg, 1f64.to_radians()),
-            ] {
+            for (key, value, indices, to_internal) in m.entries() {
                 let Some(v) = value else { continue };
                 if !(v.is_finite() && v > 0.0) {
                     anyhow::bail!(
